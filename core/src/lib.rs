@@ -1,0 +1,25 @@
+//! Flatland core: obstacle detection from a tilted camera on a ground robot,
+//! after "Real time algorithms for obstacle avoidance by using reprojection
+//! transformation" (the seed paper).
+//!
+//! `no_std`, no heap: every capacity is a constant and every buffer is owned
+//! by the caller or by a fixed-size struct. The same code runs on the host
+//! (`host-tests`) and on the Cortex-M4F (`firmware`).
+//!
+//! Layers, one per module:
+//! - [`geometry`]: the rig (camera, mount, AOI), the seed's equations (1)-(7)
+//!   and their inverses, validation.
+//! - [`grid`]: the KG grid (top view) that covers the AOI plus search margin.
+//! - [`remap`]: the compact fixed-point remap table and the streaming,
+//!   row-by-row remap (the PIPE-like front end).
+//! - [`pgm`]: checked view of binary PGM (P5) headers.
+//! - [`report`]: the per-frame result, shared by the CLI and the serial protocol.
+#![cfg_attr(not(test), no_std)]
+#![deny(clippy::unwrap_used, clippy::expect_used)]
+
+pub mod geometry;
+pub mod grid;
+pub mod pgm;
+pub mod remap;
+pub mod protocol;
+pub mod report;
