@@ -1,1 +1,553 @@
-//! TODO(foundation): being written.
+//! Camera geometry: the rig and the seed's equations (1)-(7), with inverses.
+//!
+//! This is the one home of the geometry; the remap table, the detectors, the
+//! host CLI and the firmware all call it.
+//!
+//! Conventions (RECORDING.md):
+//! - Robot frame (the seed's RCC): origin on the ground under the optical
+//!   centre, x right, y up, z forward, mm.
+//! - Image: OpenCV convention, u right, v **down**, origin at the centre of
+//!   the top-left pixel. The seed measures v up from the principal point:
+//!   `v_seed = -(v - cy)`, `u_seed = u - cx`.
+//! - Camera at (0, H, 0), optical axis in the y-z plane, tilted down by alpha.
+//! - Equation (5) is used with f_v in the numerator (the seed prints f_u).
+//!
+//! Double precision throughout: this runs once per rig (table build) or a
+//! few times per frame, and `libm` makes host and target bit-identical.
+
+// `!(x > 0.0)` is deliberate throughout: it also refuses NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+use libm::{cos, hypot, sin, sqrt};
+
+/// Largest camera image side we accept (the streaming buffers are sized by it).
+pub const MAX_IMAGE_SIDE: u16 = 1024;
+
+/// OpenCV plumb_bob lens distortion coefficients.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Distortion {
+    pub k1: f64,
+    pub k2: f64,
+    pub p1: f64,
+    pub p2: f64,
+    pub k3: f64,
+}
+
+/// Pinhole intrinsics in pixels, with optional distortion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Intrinsics {
+    pub width: u16,
+    pub height: u16,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub distortion: Option<Distortion>,
+}
+
+/// How the camera sits on the robot.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Mount {
+    /// H: optical centre above the ground, mm.
+    pub height_mm: f64,
+    /// alpha: optical axis below the horizontal, degrees, in (0, 90).
+    pub tilt_deg: f64,
+}
+
+/// Area of interest on the ground, robot frame, mm: |x| <= half_width, near <= z <= far.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aoi {
+    pub half_width_mm: f64,
+    pub near_mm: f64,
+    pub far_mm: f64,
+}
+
+impl Aoi {
+    pub fn contains(&self, x_mm: f64, z_mm: f64) -> bool {
+        x_mm.abs() <= self.half_width_mm && z_mm >= self.near_mm && z_mm <= self.far_mm
+    }
+}
+
+/// Why a rig was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RigError {
+    /// A value is NaN or infinite.
+    NotFinite,
+    /// Image width or height is 0 or above [`MAX_IMAGE_SIDE`].
+    ImageSize,
+    /// fx or fy is not positive.
+    FocalLength,
+    /// The principal point lies outside the image.
+    PrincipalPoint,
+    /// Mount height is not positive.
+    MountHeight,
+    /// Tilt is outside (0, 90) degrees.
+    Tilt,
+    /// The distortion is not monotonic (cannot be inverted) over the image.
+    Distortion,
+    /// The AOI is empty (half width or depth not positive).
+    AoiEmpty,
+    /// Part of the AOI is behind the camera (near edge not ahead of the robot).
+    AoiBehindCamera,
+    /// Part of the AOI lies at or beyond the horizon.
+    AoiBeyondHorizon,
+    /// Part of the AOI projects outside the image.
+    AoiOutsideImage,
+}
+
+impl core::fmt::Display for RigError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            RigError::NotFinite => "a rig value is NaN or infinite",
+            RigError::ImageSize => "image width/height must be 1..=1024",
+            RigError::FocalLength => "focal length fx/fy must be positive",
+            RigError::PrincipalPoint => "principal point (cx, cy) lies outside the image",
+            RigError::MountHeight => "mount height must be positive",
+            RigError::Tilt => "tilt must be inside (0, 90) degrees",
+            RigError::Distortion => "lens distortion cannot be inverted over the image",
+            RigError::AoiEmpty => "AOI must have positive half width and far > near",
+            RigError::AoiBehindCamera => "AOI near edge must be ahead of the robot (near > 0)",
+            RigError::AoiBeyondHorizon => "AOI reaches the horizon",
+            RigError::AoiOutsideImage => "AOI is not entirely inside the image",
+        })
+    }
+}
+
+/// A point in the seed's KG plane: K = x / (H - y), G = z / (H - y).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Kg {
+    pub k: f64,
+    pub g: f64,
+}
+
+/// An image position in OpenCV pixel coordinates (v down).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pixel {
+    pub u: f64,
+    pub v: f64,
+}
+
+/// A point in the robot frame, mm.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Point3 {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+}
+
+/// A validated rig: camera, mount and AOI. Construct with [`Rig::new_checked`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Rig {
+    camera: Intrinsics,
+    mount: Mount,
+    aoi: Aoi,
+    sin_tilt: f64,
+    cos_tilt: f64,
+    /// Undistorted normalised radius² up to which the distortion is monotonic
+    /// and which covers the whole image (infinite without distortion).
+    max_radius_sq: f64,
+}
+
+/// Newton iterations for undistortion; converges in 3-5 on sane lenses.
+const UNDISTORT_ITERATIONS: usize = 20;
+/// Round-trip tolerance (pixels) for accepting an undistortion.
+const UNDISTORT_TOLERANCE_PX: f64 = 1e-4;
+
+impl Distortion {
+    /// Applies plumb_bob to normalised coordinates (x right, y down).
+    pub fn apply(&self, x: f64, y: f64) -> (f64, f64) {
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+        let xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x);
+        let yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y;
+        (xd, yd)
+    }
+
+    /// Jacobian of [`Distortion::apply`]: (dxd/dx, dxd/dy, dyd/dx, dyd/dy).
+    fn jacobian(&self, x: f64, y: f64) -> (f64, f64, f64, f64) {
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+        // d(radial)/d(r2)
+        let dradial = self.k1 + r2 * (2.0 * self.k2 + 3.0 * r2 * self.k3);
+        let dxx = radial + x * dradial * 2.0 * x + 2.0 * self.p1 * y + self.p2 * 6.0 * x;
+        let dxy = x * dradial * 2.0 * y + 2.0 * self.p1 * x + self.p2 * 2.0 * y;
+        let dyx = y * dradial * 2.0 * x + self.p1 * 2.0 * x + 2.0 * self.p2 * y;
+        let dyy = radial + y * dradial * 2.0 * y + self.p1 * 6.0 * y + 2.0 * self.p2 * x;
+        (dxx, dxy, dyx, dyy)
+    }
+
+    /// Inverts [`Distortion::apply`] by Newton's method.
+    pub fn invert(&self, xd: f64, yd: f64) -> Option<(f64, f64)> {
+        let (mut x, mut y) = (xd, yd);
+        for _ in 0..UNDISTORT_ITERATIONS {
+            let (fx, fy) = self.apply(x, y);
+            let (ex, ey) = (fx - xd, fy - yd);
+            let (a, b, c, d) = self.jacobian(x, y);
+            let det = a * d - b * c;
+            if !(det > 1e-9) {
+                return None;
+            }
+            x -= (d * ex - b * ey) / det;
+            y -= (a * ey - c * ex) / det;
+            if !(x.is_finite() && y.is_finite()) {
+                return None;
+            }
+        }
+        let (fx, fy) = self.apply(x, y);
+        let err = (fx - xd).abs() + (fy - yd).abs();
+        (err < 1e-9).then_some((x, y))
+    }
+
+    fn all_finite(&self) -> bool {
+        [self.k1, self.k2, self.p1, self.p2, self.k3].iter().all(|c| c.is_finite())
+    }
+}
+
+fn is_finite_all(values: &[f64]) -> bool {
+    values.iter().all(|v| v.is_finite())
+}
+
+impl Rig {
+    /// Validates and builds a rig.
+    pub fn new_checked(camera: Intrinsics, mount: Mount, aoi: Aoi) -> Result<Rig, RigError> {
+        let numbers = [
+            camera.fx,
+            camera.fy,
+            camera.cx,
+            camera.cy,
+            mount.height_mm,
+            mount.tilt_deg,
+            aoi.half_width_mm,
+            aoi.near_mm,
+            aoi.far_mm,
+        ];
+        if !is_finite_all(&numbers) || !camera.distortion.is_none_or(|d| d.all_finite()) {
+            return Err(RigError::NotFinite);
+        }
+        if camera.width == 0
+            || camera.height == 0
+            || camera.width > MAX_IMAGE_SIDE
+            || camera.height > MAX_IMAGE_SIDE
+        {
+            return Err(RigError::ImageSize);
+        }
+        if !(camera.fx > 0.0 && camera.fy > 0.0) {
+            return Err(RigError::FocalLength);
+        }
+        let (w, h) = (f64::from(camera.width), f64::from(camera.height));
+        if !(camera.cx >= -0.5 && camera.cx <= w - 0.5 && camera.cy >= -0.5 && camera.cy <= h - 0.5) {
+            return Err(RigError::PrincipalPoint);
+        }
+        if !(mount.height_mm > 0.0) {
+            return Err(RigError::MountHeight);
+        }
+        if !(mount.tilt_deg > 0.0 && mount.tilt_deg < 90.0) {
+            return Err(RigError::Tilt);
+        }
+        if !(aoi.half_width_mm > 0.0 && aoi.far_mm > aoi.near_mm) {
+            return Err(RigError::AoiEmpty);
+        }
+        if !(aoi.near_mm > 0.0) {
+            return Err(RigError::AoiBehindCamera);
+        }
+        let tilt = mount.tilt_deg.to_radians();
+        let mut rig = Rig {
+            camera,
+            mount,
+            aoi,
+            sin_tilt: sin(tilt),
+            cos_tilt: cos(tilt),
+            max_radius_sq: f64::INFINITY,
+        };
+        if let Some(distortion) = camera.distortion {
+            rig.max_radius_sq = monotonic_radius_sq(&camera, &distortion)?;
+        }
+        rig.check_aoi_in_view()?;
+        Ok(rig)
+    }
+
+    pub fn camera(&self) -> &Intrinsics {
+        &self.camera
+    }
+    pub fn mount(&self) -> &Mount {
+        &self.mount
+    }
+    pub fn aoi(&self) -> &Aoi {
+        &self.aoi
+    }
+    pub fn height_mm(&self) -> f64 {
+        self.mount.height_mm
+    }
+
+    /// The AOI's four corners (and edge midpoints, which matter with distortion)
+    /// must project inside the image, ahead of the camera and below the horizon.
+    fn check_aoi_in_view(&self) -> Result<(), RigError> {
+        let a = &self.aoi;
+        // Every finite ground point ahead lies below the horizon, so "beyond
+        // the horizon" means within one pixel of it, where the ground is
+        // compressed to nothing and the KG image would be empty.
+        let horizon_margin = 1.0 / self.camera.fy;
+        const SAMPLES: usize = 8;
+        for i in 0..=SAMPLES {
+            let t = i as f64 / SAMPLES as f64;
+            let x = -a.half_width_mm + 2.0 * a.half_width_mm * t;
+            let z = a.near_mm + (a.far_mm - a.near_mm) * t;
+            let edge_points = [
+                (x, a.near_mm),
+                (x, a.far_mm),
+                (-a.half_width_mm, z),
+                (a.half_width_mm, z),
+            ];
+            for (px, pz) in edge_points {
+                let (_, y_cam, z_cam) = self.camera_ray(Point3 { x: px, y: 0.0, z: pz });
+                if z_cam <= 0.0 || y_cam / z_cam >= self.sin_tilt / self.cos_tilt - horizon_margin {
+                    return Err(RigError::AoiBeyondHorizon);
+                }
+                let pixel = self.point_to_pixel(Point3 { x: px, y: 0.0, z: pz }).ok_or(RigError::AoiOutsideImage)?;
+                if !self.pixel_in_image(pixel) {
+                    return Err(RigError::AoiOutsideImage);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// True if the pixel lies inside the image (pixel centres span 0..=w-1).
+    pub fn pixel_in_image(&self, p: Pixel) -> bool {
+        p.u >= 0.0
+            && p.v >= 0.0
+            && p.u <= f64::from(self.camera.width) - 1.0
+            && p.v <= f64::from(self.camera.height) - 1.0
+    }
+
+    /// Equation (1): robot frame -> camera frame (X right, Y up in the image, Z along the axis).
+    fn camera_ray(&self, p: Point3) -> (f64, f64, f64) {
+        let y_rel = p.y - self.mount.height_mm;
+        let x_cam = p.x;
+        let y_cam = p.z * self.sin_tilt + y_rel * self.cos_tilt;
+        let z_cam = p.z * self.cos_tilt - y_rel * self.sin_tilt;
+        (x_cam, y_cam, z_cam)
+    }
+
+    /// Normalised (x right, y down) undistorted coordinates -> pixel, with distortion.
+    fn normalised_to_pixel(&self, xn: f64, yn: f64) -> Option<Pixel> {
+        let (xd, yd) = match &self.camera.distortion {
+            None => (xn, yn),
+            Some(d) => {
+                if xn * xn + yn * yn > self.max_radius_sq {
+                    return None; // folds back: not seen through this lens
+                }
+                d.apply(xn, yn)
+            }
+        };
+        Some(Pixel { u: self.camera.fx * xd + self.camera.cx, v: self.camera.fy * yd + self.camera.cy })
+    }
+
+    /// Pixel -> normalised undistorted coordinates (x right, y down).
+    fn pixel_to_normalised(&self, p: Pixel) -> Option<(f64, f64)> {
+        let xd = (p.u - self.camera.cx) / self.camera.fx;
+        let yd = (p.v - self.camera.cy) / self.camera.fy;
+        match &self.camera.distortion {
+            None => Some((xd, yd)),
+            Some(d) => d.invert(xd, yd),
+        }
+    }
+
+    /// A ground point -> pixel of an ideal pinhole camera with the same
+    /// intrinsics (no distortion). None if behind the camera.
+    pub fn ground_to_undistorted_pixel(&self, x_mm: f64, z_mm: f64) -> Option<Pixel> {
+        let (x_cam, y_cam, z_cam) = self.camera_ray(Point3 { x: x_mm, y: 0.0, z: z_mm });
+        if !(z_cam > 1e-9) {
+            return None;
+        }
+        Some(Pixel { u: self.camera.fx * x_cam / z_cam + self.camera.cx, v: -self.camera.fy * y_cam / z_cam + self.camera.cy })
+    }
+
+    /// Undistorted (pinhole) pixel -> distorted pixel, continued past the
+    /// radius where the lens folds back by scaling radially from that radius.
+    /// The continuation lies outside the image; it only keeps the remap
+    /// table's interpolation mesh smooth at nodes the camera cannot see.
+    pub fn distort_pixel_extended(&self, p: Pixel) -> Pixel {
+        let Some(d) = &self.camera.distortion else { return p };
+        let xn = (p.u - self.camera.cx) / self.camera.fx;
+        let yn = (p.v - self.camera.cy) / self.camera.fy;
+        let r2 = xn * xn + yn * yn;
+        let (xd, yd) = if r2 <= self.max_radius_sq {
+            d.apply(xn, yn)
+        } else {
+            let scale = sqrt(self.max_radius_sq / r2);
+            let (xb, yb) = d.apply(xn * scale, yn * scale);
+            (xb / scale, yb / scale)
+        };
+        Pixel { u: self.camera.fx * xd + self.camera.cx, v: self.camera.fy * yd + self.camera.cy }
+    }
+
+    /// Equations (1)+(2): a point in the robot frame -> pixel (None if behind the camera).
+    pub fn point_to_pixel(&self, p: Point3) -> Option<Pixel> {
+        let (x_cam, y_cam, z_cam) = self.camera_ray(p);
+        if !(z_cam > 1e-9) {
+            return None;
+        }
+        // v_seed = f_v Y/Z points up; the image's v points down.
+        self.normalised_to_pixel(x_cam / z_cam, -y_cam / z_cam)
+    }
+
+    /// A ground point (y = 0) -> pixel.
+    pub fn ground_to_pixel(&self, x_mm: f64, z_mm: f64) -> Option<Pixel> {
+        self.point_to_pixel(Point3 { x: x_mm, y: 0.0, z: z_mm })
+    }
+
+    /// A point at height h above ground position (x, z) -> pixel.
+    pub fn point_at_height_to_pixel(&self, x_mm: f64, z_mm: f64, h_mm: f64) -> Option<Pixel> {
+        self.point_to_pixel(Point3 { x: x_mm, y: h_mm, z: z_mm })
+    }
+
+    /// Equations (5)+(6): pixel -> (K, G). None above the horizon.
+    pub fn pixel_to_kg(&self, p: Pixel) -> Option<Kg> {
+        let (xn, yn) = self.pixel_to_normalised(p)?;
+        // In the seed's terms u/f_u = xn and v/f_v = -yn (v up).
+        let v_over_fv = -yn;
+        let denominator = self.sin_tilt - v_over_fv * self.cos_tilt;
+        if !(denominator > 1e-12) {
+            return None;
+        }
+        let g = (self.cos_tilt + v_over_fv * self.sin_tilt) / denominator; // (5), f_v version
+        let k = xn * (g * self.cos_tilt + self.sin_tilt); // (6)
+        Some(Kg { k, g })
+    }
+
+    /// Inverse of (5)+(6): (K, G) -> pixel. (K, G) is a ray through the optical centre.
+    pub fn kg_to_pixel(&self, kg: Kg) -> Option<Pixel> {
+        // Any point on the ray: y' = H - y = 1 mm.
+        self.point_to_pixel(Point3 { x: kg.k, y: self.mount.height_mm - 1.0, z: kg.g })
+    }
+
+    /// Equations (3)+(4): (K, G) and a height h -> point in the robot frame.
+    pub fn kg_to_point(&self, kg: Kg, h_mm: f64) -> Point3 {
+        let y_prime = self.mount.height_mm - h_mm;
+        Point3 { x: kg.k * y_prime, y: h_mm, z: kg.g * y_prime }
+    }
+
+    /// Pixel -> ground point (x, z) in mm, None above the horizon.
+    pub fn pixel_to_ground(&self, p: Pixel) -> Option<(f64, f64)> {
+        let kg = self.pixel_to_kg(p)?;
+        let point = self.kg_to_point(kg, 0.0);
+        Some((point.x, point.z))
+    }
+
+    /// Ground footprint of one camera pixel at ground point (x, z): (lateral, longitudinal) mm.
+    pub fn ground_footprint_mm(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+        let centre = self.ground_to_pixel(x_mm, z_mm)?;
+        let right = self.pixel_to_ground(Pixel { u: centre.u + 0.5, v: centre.v })?;
+        let left = self.pixel_to_ground(Pixel { u: centre.u - 0.5, v: centre.v })?;
+        let down = self.pixel_to_ground(Pixel { u: centre.u, v: centre.v + 0.5 })?;
+        let up = self.pixel_to_ground(Pixel { u: centre.u, v: centre.v - 0.5 })?;
+        let lateral = hypot(right.0 - left.0, right.1 - left.1);
+        let longitudinal = hypot(up.0 - down.0, up.1 - down.1);
+        Some((lateral, longitudinal))
+    }
+
+}
+
+/// Finds the normalised radius² up to which radial distortion stays monotonic,
+/// and checks that it reaches past the image corners (so every image pixel
+/// has exactly one undistorted ray).
+fn monotonic_radius_sq(camera: &Intrinsics, d: &Distortion) -> Result<f64, RigError> {
+    // Farthest image corner in normalised distorted coordinates.
+    let (w, h) = (f64::from(camera.width), f64::from(camera.height));
+    let corners = [(-0.5, -0.5), (w - 0.5, -0.5), (-0.5, h - 0.5), (w - 0.5, h - 0.5)];
+    let mut corner_rd: f64 = 0.0;
+    for (u, v) in corners {
+        let x = (u - camera.cx) / camera.fx;
+        let y = (v - camera.cy) / camera.fy;
+        corner_rd = corner_rd.max(sqrt(x * x + y * y));
+    }
+    // Walk out along the radius until the distorted radius passes the corner
+    // with a margin, requiring a positive derivative on the way.
+    let target = corner_rd * 1.1 + 0.05;
+    let radial_distorted = |r: f64| r * (1.0 + r * r * (d.k1 + r * r * (d.k2 + r * r * d.k3)));
+    const STEPS: usize = 4000;
+    let step = target / 400.0;
+    let mut r = 0.0;
+    let mut previous = 0.0;
+    for _ in 0..STEPS {
+        r += step;
+        let rd = radial_distorted(r);
+        if !(rd > previous) {
+            return Err(RigError::Distortion);
+        }
+        previous = rd;
+        if rd >= target {
+            // Tangential terms: make sure the corners invert and round-trip.
+            for (u, v) in corners {
+                let xd = (u - camera.cx) / camera.fx;
+                let yd = (v - camera.cy) / camera.fy;
+                let (xu, yu) = d.invert(xd, yd).ok_or(RigError::Distortion)?;
+                if xu * xu + yu * yu > r * r {
+                    return Err(RigError::Distortion);
+                }
+                let (xr, yr) = d.apply(xu, yu);
+                let err_px = (xr - xd).abs() * camera.fx + (yr - yd).abs() * camera.fy;
+                if !(err_px < UNDISTORT_TOLERANCE_PX) {
+                    return Err(RigError::Distortion);
+                }
+            }
+            return Ok(r * r);
+        }
+    }
+    Err(RigError::Distortion)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use libm::tan;
+
+    pub(crate) fn sample_rig() -> Rig {
+        Rig::new_checked(
+            Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
+            Mount { height_mm: 400.0, tilt_deg: 32.0 },
+            Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn ground_pixel_round_trip() {
+        let rig = sample_rig();
+        for (x, z) in [(0.0, 450.0), (-250.0, 1400.0), (120.0, 800.0)] {
+            let p = rig.ground_to_pixel(x, z).unwrap();
+            let (xb, zb) = rig.pixel_to_ground(p).unwrap();
+            assert!((xb - x).abs() < 1e-6 && (zb - z).abs() < 1e-6, "{x},{z} -> {xb},{zb}");
+        }
+    }
+
+    #[test]
+    fn optical_axis_hits_principal_point() {
+        let rig = sample_rig();
+        let z = 400.0 / tan(32f64.to_radians());
+        let p = rig.ground_to_pixel(0.0, z).unwrap();
+        assert!((p.u - 127.5).abs() < 1e-9 && (p.v - 127.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn kg_is_ground_over_height() {
+        let rig = sample_rig();
+        let p = rig.point_at_height_to_pixel(100.0, 900.0, 150.0).unwrap();
+        let kg = rig.pixel_to_kg(p).unwrap();
+        assert!((kg.k - 100.0 / 250.0).abs() < 1e-9 && (kg.g - 900.0 / 250.0).abs() < 1e-9);
+        let back = rig.kg_to_point(kg, 150.0);
+        assert!((back.x - 100.0).abs() < 1e-9 && (back.z - 900.0).abs() < 1e-9);
+        let again = rig.kg_to_pixel(kg).unwrap();
+        assert!((again.u - p.u).abs() < 1e-9 && (again.v - p.v).abs() < 1e-9);
+    }
+
+    #[test]
+    fn distortion_inverts() {
+        let d = Distortion { k1: -0.28, k2: 0.07, p1: 0.001, p2: -0.0005, k3: 0.0 };
+        let (x, y) = (0.4, -0.3);
+        let (xd, yd) = d.apply(x, y);
+        let (xu, yu) = d.invert(xd, yd).unwrap();
+        assert!((xu - x).abs() < 1e-12 && (yu - y).abs() < 1e-12);
+    }
+}

@@ -1,1 +1,217 @@
-//! TODO(foundation): being written.
+//! The KG grid: the top view (bird's-eye) raster that the remap fills.
+//!
+//! On flat ground a KG image is a metric map scaled by 1/H, so the grid is
+//! described in ground millimetres. Pixel (column i, row j) has its centre at
+//! `x = x_left_mm + i * mm_per_px`, `z = z_far_mm - j * mm_per_px`: far at the
+//! top, the robot at the bottom, as in the seed's Fig. 2.
+
+use crate::geometry::Rig;
+use libm::ceil;
+
+/// Largest grid side, in pixels (buffers downstream are sized by it).
+pub const MAX_GRID_SIDE: usize = 256;
+
+/// How much ground around the AOI the grid covers, and at what resolution.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridConfig {
+    /// Ground beyond each side of the AOI (robot translation sideways, turns).
+    pub margin_lateral_mm: f64,
+    /// Ground beyond the far AOI edge: travel since the keyframe, the shift
+    /// search, and room for the tops of obstacles standing near the far edge
+    /// (a point at height h reprojects H/(H-h) times farther out).
+    pub margin_far_mm: f64,
+    /// Ground before the near AOI edge (the shift search).
+    pub margin_near_mm: f64,
+    /// Fixed resolution; `None` chooses it from the rig.
+    pub mm_per_px: Option<f64>,
+}
+
+impl Default for GridConfig {
+    fn default() -> Self {
+        GridConfig { margin_lateral_mm: 150.0, margin_far_mm: 250.0, margin_near_mm: 60.0, mm_per_px: None }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GridError {
+    /// A margin is negative or not finite, or `mm_per_px` is not positive.
+    Config,
+    /// The requested resolution gives a grid side above [`MAX_GRID_SIDE`].
+    TooLarge,
+    /// The near AOI row is not in view, so no resolution can be derived.
+    NotInView,
+}
+
+impl core::fmt::Display for GridError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            GridError::Config => "grid margins must be finite and >= 0, mm_per_px > 0",
+            GridError::TooLarge => "grid would exceed 256x256 at this resolution",
+            GridError::NotInView => "the near AOI edge is not in view",
+        })
+    }
+}
+
+/// Resolution is rounded up to a multiple of this (mm), so figures stay readable.
+const RESOLUTION_QUANTUM_MM: f64 = 1.0 / 16.0;
+
+/// A KG grid; see the module docs for the pixel-centre convention.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KgGrid {
+    pub mm_per_px: f64,
+    pub x_left_mm: f64,
+    pub z_far_mm: f64,
+    pub width: u16,
+    pub height: u16,
+}
+
+impl KgGrid {
+    /// Chooses the grid for a rig: the AOI plus margins, at the resolution of
+    /// the camera's longitudinal ground footprint at the nearest AOI row (the
+    /// finest the camera resolves there), coarsened only as far as the
+    /// 256x256 cap demands.
+    pub fn for_rig(rig: &Rig, config: &GridConfig) -> Result<KgGrid, GridError> {
+        let margins = [config.margin_lateral_mm, config.margin_far_mm, config.margin_near_mm];
+        if !margins.iter().all(|m| m.is_finite() && *m >= 0.0) {
+            return Err(GridError::Config);
+        }
+        let aoi = rig.aoi();
+        let extent_x = 2.0 * (aoi.half_width_mm + config.margin_lateral_mm);
+        let z_near = aoi.near_mm - config.margin_near_mm;
+        let z_far = aoi.far_mm + config.margin_far_mm;
+        let extent_z = z_far - z_near;
+        let cap = (MAX_GRID_SIDE - 1) as f64;
+        let mm_per_px = match config.mm_per_px {
+            Some(fixed) => {
+                if !(fixed.is_finite() && fixed > 0.0) {
+                    return Err(GridError::Config);
+                }
+                if extent_x / fixed > cap || extent_z / fixed > cap {
+                    return Err(GridError::TooLarge);
+                }
+                fixed
+            }
+            None => {
+                let (lateral, longitudinal) =
+                    rig.ground_footprint_mm(0.0, aoi.near_mm).ok_or(GridError::NotInView)?;
+                let finest = longitudinal.max(lateral);
+                let chosen = finest.max(extent_x / cap).max(extent_z / cap);
+                ceil(chosen / RESOLUTION_QUANTUM_MM) * RESOLUTION_QUANTUM_MM
+            }
+        };
+        let width = ceil(extent_x / mm_per_px) as usize + 1;
+        let height = ceil(extent_z / mm_per_px) as usize + 1;
+        if width > MAX_GRID_SIDE || height > MAX_GRID_SIDE {
+            return Err(GridError::TooLarge);
+        }
+        Ok(KgGrid {
+            mm_per_px,
+            // Symmetric about the robot's axis: column centres span +-x.
+            x_left_mm: -((width - 1) as f64) * mm_per_px / 2.0,
+            z_far_mm: z_far,
+            width: width as u16,
+            height: height as u16,
+        })
+    }
+
+    pub fn width(&self) -> usize {
+        usize::from(self.width)
+    }
+    pub fn height(&self) -> usize {
+        usize::from(self.height)
+    }
+    pub fn len(&self) -> usize {
+        self.width() * self.height()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Ground point (mm) of a pixel position (fractional positions allowed).
+    pub fn pixel_to_ground(&self, column: f64, row: f64) -> (f64, f64) {
+        (self.x_left_mm + column * self.mm_per_px, self.z_far_mm - row * self.mm_per_px)
+    }
+
+    /// Pixel position (fractional) of a ground point.
+    pub fn ground_to_pixel(&self, x_mm: f64, z_mm: f64) -> (f64, f64) {
+        ((x_mm - self.x_left_mm) / self.mm_per_px, (self.z_far_mm - z_mm) / self.mm_per_px)
+    }
+
+    /// The AOI as a pixel rectangle: columns `[left, right)`, rows `[top, bottom)`,
+    /// the pixels whose centres lie inside the AOI.
+    pub fn aoi_pixels(&self, rig: &Rig) -> PixelRect {
+        let aoi = rig.aoi();
+        let (left, top) = self.ground_to_pixel(-aoi.half_width_mm, aoi.far_mm);
+        let (right, bottom) = self.ground_to_pixel(aoi.half_width_mm, aoi.near_mm);
+        let clamp_w = |v: f64| (v.max(0.0) as usize).min(self.width());
+        let clamp_h = |v: f64| (v.max(0.0) as usize).min(self.height());
+        PixelRect {
+            left: clamp_w(ceil(left - 1e-9)),
+            right: clamp_w(libm::floor(right + 1e-9) + 1.0),
+            top: clamp_h(ceil(top - 1e-9)),
+            bottom: clamp_h(libm::floor(bottom + 1e-9) + 1.0),
+        }
+    }
+}
+
+/// A half-open pixel rectangle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct PixelRect {
+    pub left: usize,
+    pub right: usize,
+    pub top: usize,
+    pub bottom: usize,
+}
+
+impl PixelRect {
+    pub fn width(&self) -> usize {
+        self.right.saturating_sub(self.left)
+    }
+    pub fn height(&self) -> usize {
+        self.bottom.saturating_sub(self.top)
+    }
+    pub fn area(&self) -> usize {
+        self.width() * self.height()
+    }
+    pub fn contains(&self, column: usize, row: usize) -> bool {
+        column >= self.left && column < self.right && row >= self.top && row < self.bottom
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Aoi, Intrinsics, Mount};
+
+    fn rig() -> Rig {
+        Rig::new_checked(
+            Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
+            Mount { height_mm: 400.0, tilt_deg: 32.0 },
+            Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn grid_covers_aoi_within_cap() {
+        let rig = rig();
+        let grid = KgGrid::for_rig(&rig, &GridConfig::default()).unwrap();
+        assert!(grid.width() <= MAX_GRID_SIDE && grid.height() <= MAX_GRID_SIDE);
+        let aoi = grid.aoi_pixels(&rig);
+        let (x, z) = grid.pixel_to_ground(aoi.left as f64, aoi.top as f64);
+        assert!(x >= -250.0 && x < -250.0 + grid.mm_per_px && z <= 1400.0 && z > 1400.0 - grid.mm_per_px);
+        let (x, z) = grid.pixel_to_ground((aoi.right - 1) as f64, (aoi.bottom - 1) as f64);
+        assert!(x <= 250.0 && x > 250.0 - grid.mm_per_px && z >= 450.0 && z < 450.0 + grid.mm_per_px);
+    }
+
+    #[test]
+    fn fixed_resolution_is_honoured_or_refused() {
+        let rig = rig();
+        let config = GridConfig { mm_per_px: Some(5.0), ..GridConfig::default() };
+        assert_eq!(KgGrid::for_rig(&rig, &config).unwrap().mm_per_px, 5.0);
+        let config = GridConfig { mm_per_px: Some(1.0), ..GridConfig::default() };
+        assert_eq!(KgGrid::for_rig(&rig, &config), Err(GridError::TooLarge));
+        let config = GridConfig { mm_per_px: Some(f64::NAN), ..GridConfig::default() };
+        assert_eq!(KgGrid::for_rig(&rig, &config), Err(GridError::Config));
+    }
+}
