@@ -12,6 +12,7 @@
 //! - [`grid`]: the KG grid (top view) that covers the AOI plus search margin.
 //! - [`remap`]: the compact fixed-point remap table and the streaming,
 //!   row-by-row remap (the PIPE-like front end).
+//! - [`motion`]: poses and odometry (Tx, Tz, yaw) between frames.
 //! - [`pgm`]: checked view of binary PGM (P5) headers.
 //! - [`report`]: the per-frame result, shared by the CLI and the serial protocol.
 #![cfg_attr(not(test), no_std)]
@@ -19,6 +20,7 @@
 
 pub mod geometry;
 pub mod grid;
+pub mod motion;
 pub mod pgm;
 pub mod remap;
 pub mod protocol;
