@@ -9,6 +9,7 @@
 //! Layers, one per module:
 //! - [`geometry`]: the rig (camera, mount, AOI), the seed's equations (1)-(7)
 //!   and their inverses, validation.
+//! - [`gpa`]: the streaming ground-plane detector (shift search, residue, alarm).
 //! - [`grid`]: the KG grid (top view) that covers the AOI plus search margin.
 //! - [`remap`]: the compact fixed-point remap table and the streaming,
 //!   row-by-row remap (the PIPE-like front end).
@@ -19,6 +20,7 @@
 #![deny(clippy::unwrap_used, clippy::expect_used)]
 
 pub mod geometry;
+pub mod gpa;
 pub mod grid;
 pub mod motion;
 pub mod pgm;

@@ -35,6 +35,12 @@ impl Motion {
         }
     }
 
+    /// This motion followed by `next` (given in the robot frame after this one).
+    pub fn then(&self, next: &Motion) -> Motion {
+        let (tx_mm, tz_mm) = self.to_earlier_frame(next.tx_mm, next.tz_mm);
+        Motion { tx_mm, tz_mm, dyaw_deg: self.dyaw_deg + next.dyaw_deg }
+    }
+
     /// Distance travelled (chord length), mm.
     pub fn distance_mm(&self) -> f64 {
         libm::hypot(self.tx_mm, self.tz_mm)
@@ -93,6 +99,12 @@ mod tests {
         let (lx, lz) = motion.to_later_frame(ax, az);
         assert!((lx - bx).abs() < 1e-9 && (lz - bz).abs() < 1e-9);
         let (rx, rz) = to.robot_to_world(bx, bz);
+        // Composition: from -> to -> later equals from -> later.
+        let later = Pose { x_mm: -20.0, z_mm: 150.0, yaw_deg: 7.5 };
+        let chained = motion.then(&Motion::between(&to, &later));
+        let direct = Motion::between(&from, &later);
+        assert!((chained.tx_mm - direct.tx_mm).abs() < 1e-9 && (chained.tz_mm - direct.tz_mm).abs() < 1e-9);
+        assert!((chained.dyaw_deg - direct.dyaw_deg).abs() < 1e-12);
         assert!((rx - wx).abs() < 1e-9 && (rz - wz).abs() < 1e-9);
     }
 }

@@ -62,3 +62,72 @@ fn write_png(path: &Path, width: usize, height: usize, color: png::ColorType, da
     writer.write_image_data(data).map_err(std::io::Error::other)?;
     writer.finish().map_err(std::io::Error::other)
 }
+
+use flatland_core::geometry::Rig;
+use flatland_core::gpa::Gpa;
+use flatland_core::grid::KgGrid;
+use flatland_core::motion::Motion;
+use flatland_core::report::{FrameReport, MOTION_SCALE};
+
+const GREEN: [u8; 3] = [40, 220, 60];
+const RED: [u8; 3] = [255, 40, 40];
+const ORANGE: [u8; 3] = [255, 160, 0];
+
+/// The detection picture: keyframe aligned by the refined motion, the current
+/// KG image, and |diff| (x3) at that alignment; AOI in green, blobs in orange,
+/// the obstacle that raised the alarm in red with its nearest row.
+pub fn detect_picture(rig: &Rig, grid: &KgGrid, reference: &[u8], current: &[u8], report: &FrameReport, gpa: &Gpa) -> RgbImage {
+    let (w, h) = (grid.width(), grid.height());
+    let motion = Motion {
+        tx_mm: f64::from(report.tx) / f64::from(MOTION_SCALE),
+        tz_mm: f64::from(report.tz) / f64::from(MOTION_SCALE),
+        dyaw_deg: gpa.predicted().dyaw_deg,
+    };
+    let mut aligned = vec![0u8; w * h];
+    let mut diff = vec![0u8; w * h];
+    for j in 0..h {
+        for i in 0..w {
+            let (x, z) = grid.pixel_to_ground(i as f64, j as f64);
+            let (xk, zk) = motion.to_earlier_frame(x, z);
+            let (fi, fj) = grid.ground_to_pixel(xk, zk);
+            if fi < 0.0 || fj < 0.0 || fi >= (w - 1) as f64 || fj >= (h - 1) as f64 {
+                continue;
+            }
+            let (i0, j0) = (fi as usize, fj as usize);
+            let (wx, wy) = (fi - i0 as f64, fj - j0 as f64);
+            let px = |i: usize, j: usize| f64::from(reference[j * w + i]);
+            let value = (px(i0, j0) * (1.0 - wx) + px(i0 + 1, j0) * wx) * (1.0 - wy)
+                + (px(i0, j0 + 1) * (1.0 - wx) + px(i0 + 1, j0 + 1) * wx) * wy;
+            aligned[j * w + i] = value.round() as u8;
+            if current[j * w + i] != 0 && reference[j0 * w + i0] != 0 {
+                diff[j * w + i] = ((f64::from(current[j * w + i]) - value).abs() * 3.0).min(255.0) as u8;
+            }
+        }
+    }
+    let gap = 4;
+    let mut picture = RgbImage::new(3 * w + 2 * gap, h);
+    picture.blit_gray(&aligned, w, 0, 0);
+    picture.blit_gray(current, w, w + gap, 0);
+    picture.blit_gray(&diff, w, 2 * (w + gap), 0);
+    let aoi = grid.aoi_pixels(rig);
+    let cell = gpa.cell_px();
+    for panel in 0..3 {
+        let left = panel * (w + gap);
+        picture.rect(left + aoi.left, aoi.top, left + aoi.right - 1, aoi.bottom - 1, GREEN);
+        for blob in gpa.blobs() {
+            let (l, r) = (usize::from(blob.cell_left) * cell, (usize::from(blob.cell_right) + 1) * cell - 1);
+            let (t, b) = (usize::from(blob.cell_top) * cell, (usize::from(blob.cell_bottom) + 1) * cell - 1);
+            picture.rect(left + l, t, left + r.min(w - 1), b.min(h - 1), ORANGE);
+        }
+        if let (Some(near), Some(l), Some(r)) = (report.nearest_mm, report.left_mm, report.right_mm) {
+            let (li, row) = grid.ground_to_pixel(f64::from(l), f64::from(near));
+            let (ri, _) = grid.ground_to_pixel(f64::from(r), f64::from(near));
+            let row = row.round().clamp(0.0, (h - 1) as f64) as usize;
+            for i in li.round().max(0.0) as usize..=(ri.round() as usize).min(w - 1) {
+                picture.set(left + i, row, RED);
+                picture.set(left + i, row.saturating_sub(1), RED);
+            }
+        }
+    }
+    picture
+}

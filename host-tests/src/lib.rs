@@ -2,6 +2,8 @@
 //! glue the `flatland` CLI and the tests share. All detection work is done
 //! by `flatland_core`, the same code the firmware runs.
 
+pub mod detect;
+pub mod evaluate;
 pub mod images;
 pub mod kg;
 pub mod recording;

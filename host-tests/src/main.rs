@@ -2,7 +2,12 @@
 
 use clap::{Parser, Subcommand};
 use flatland_core::grid::GridConfig;
-use flatland_host::images::save_gray;
+use flatland_core::report::{FrameReport, CSV_HEADER, MOTION_SCALE, SHIFT_SCALE};
+use flatland_host::detect::{DetectConfig, FrameOutcome, Pipeline};
+use flatland_host::evaluate::{is_grace, score};
+use flatland_host::images::{detect_picture, save_gray};
+use flatland_host::recording::Truth;
+use std::io::Write;
 use flatland_host::kg::KgFrontEnd;
 use flatland_host::recording::Recording;
 use std::ops::Range;
@@ -32,6 +37,24 @@ enum Command {
         #[arg(long)]
         mm_per_px: Option<f64>,
     },
+    /// Detect obstacles (GPA): one csv/json row per frame from frame 1 on.
+    Detect {
+        recording: PathBuf,
+        #[arg(long, value_enum, default_value_t = Format::Csv)]
+        format: Format,
+        /// Write one picture per frame into this directory.
+        #[arg(long)]
+        png: Option<PathBuf>,
+        /// Compare with truth.toml and print a confusion table (stderr).
+        #[arg(long)]
+        truth: bool,
+    },
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Format {
+    Csv,
+    Json,
 }
 
 fn parse_frame_range(text: &str) -> Result<Range<u32>, String> {
@@ -100,9 +123,111 @@ fn run_kg(recording: &Path, frames: Option<Range<u32>>, out: &Path, mm_per_px: O
     ExitCode::SUCCESS
 }
 
+fn json_row(report: &FrameReport) -> String {
+    let optional = |v: Option<i32>| v.map_or("null".to_string(), |v| v.to_string());
+    format!(
+        "{{\"frame\":{},\"ref_frame\":{},\"alarm\":{},\"nearest_mm\":{},\"left_mm\":{},\"right_mm\":{},\"sad\":{},\"count50\":{},\"shift_k\":{},\"shift_g\":{},\"tx_mm\":{},\"tz_mm\":{},\"obstacle_h_mm\":{}}}",
+        report.frame,
+        report.ref_frame,
+        report.alarm,
+        optional(report.nearest_mm),
+        optional(report.left_mm),
+        optional(report.right_mm),
+        report.sad,
+        report.count50,
+        f64::from(report.shift_k) / f64::from(SHIFT_SCALE),
+        f64::from(report.shift_g) / f64::from(SHIFT_SCALE),
+        f64::from(report.tx) / f64::from(MOTION_SCALE),
+        f64::from(report.tz) / f64::from(MOTION_SCALE),
+        optional(report.obstacle_h_mm),
+    )
+}
+
+fn run_detect(path: &Path, format: Format, png: Option<&Path>, truth: bool) -> ExitCode {
+    let recording = match Recording::open(path) {
+        Ok(r) => r,
+        Err(e) => return fatal(e),
+    };
+    let config = DetectConfig::default();
+    let mut pipeline = match Pipeline::new(&recording, &config) {
+        Ok(p) => p,
+        Err(e) => return fatal(format!("{}: {e}", path.display())),
+    };
+    if let Some(dir) = png {
+        if let Err(e) = std::fs::create_dir_all(dir) {
+            return fatal(format!("{}: {e}", dir.display()));
+        }
+    }
+    let grid = pipeline.grid;
+    let mut reports = Vec::new();
+    let mut previous_kg: Option<Vec<u8>> = None;
+    let stdout = std::io::stdout();
+    let mut out = stdout.lock();
+    if format == Format::Csv {
+        let _ = writeln!(out, "{CSV_HEADER}");
+    }
+    let mut picture_error = None;
+    let result = pipeline.run(&recording, &config, |outcome, gpa| match outcome {
+        FrameOutcome::Report { report, kg } => {
+            let line = match format {
+                Format::Csv => {
+                    let mut line = String::new();
+                    let _ = report.write_csv(&mut line);
+                    line
+                }
+                Format::Json => json_row(&report),
+            };
+            let _ = writeln!(out, "{line}");
+            if let (Some(dir), Some(reference)) = (png, previous_kg.as_ref()) {
+                let path = dir.join(format!("{:06}.png", report.frame));
+                if let Err(e) = detect_picture(&recording.rig, &grid, reference, &kg, &report, gpa).save(&path) {
+                    picture_error.get_or_insert(format!("{}: {e}", path.display()));
+                }
+            }
+            if gpa.keyframe_frame() == Some(report.frame) {
+                previous_kg = Some(kg);
+            }
+            reports.push(report);
+        }
+        FrameOutcome::Keyframe { kg, .. } => previous_kg = Some(kg),
+        FrameOutcome::Skipped { frame, error } => {
+            eprintln!("flatland: skipping frame {frame}: {error}");
+        }
+    });
+    drop(out);
+    if let Err(e) = result {
+        return fatal(format!("{}: {e}", path.display()));
+    }
+    if let Some(e) = picture_error {
+        return fatal(e);
+    }
+    if truth {
+        match &recording.truth {
+            None => return fatal(format!("{}: no truth.toml", path.display())),
+            Some(truth) => print_confusion(truth, &reports),
+        }
+    }
+    ExitCode::SUCCESS
+}
+
+fn print_confusion(truth: &Truth, reports: &[FrameReport]) {
+    let (c, rows) = score(truth, reports);
+    let wrong: Vec<String> = rows
+        .iter()
+        .filter(|(frame, want, got)| want != got && !is_grace(truth, *frame))
+        .map(|(frame, want, _)| format!("{frame}{}", if *want { "(missed)" } else { "(false)" }))
+        .collect();
+    eprintln!("                 detected alarm   detected clear");
+    eprintln!("truth alarm      {:>14}   {:>14}", c.true_alarm, c.missed);
+    eprintln!("truth clear      {:>14}   {:>14}", c.false_alarm, c.true_clear);
+    eprintln!("grace frames: {} right, {} wrong; unreported: {}", c.grace_right, c.grace_wrong, c.unreported);
+    eprintln!("errors outside grace frames: {}{}", c.errors(), if wrong.is_empty() { String::new() } else { format!(" [{}]", wrong.join(", ")) });
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Kg { recording, frames, out, mm_per_px } => run_kg(&recording, frames, &out, mm_per_px),
+        Command::Detect { recording, format, png, truth } => run_detect(&recording, format, png.as_deref(), truth),
     }
 }

@@ -1,0 +1,106 @@
+//! `flatland detect`: the streaming pipeline (remap -> GPA) over a recording,
+//! fed row by row exactly as the firmware feeds it.
+
+use crate::recording::{Recording, RecordingError};
+use flatland_core::gpa::{Gpa, GpaConfig};
+use flatland_core::grid::{GridConfig, KgGrid};
+use flatland_core::motion::Motion;
+use flatland_core::remap::{RemapTable, StreamingRemap};
+use flatland_core::report::FrameReport;
+
+/// What happened to one frame.
+#[derive(Debug)]
+pub enum FrameOutcome {
+    /// Compared with the keyframe.
+    Report { report: FrameReport, kg: Vec<u8> },
+    /// Became the (first) keyframe: nothing to compare with.
+    Keyframe { frame: u32, kg: Vec<u8> },
+    /// Could not be used; the keyframe was reset if the gap demands it.
+    Skipped { frame: u32, error: RecordingError },
+}
+
+/// Detector settings.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct DetectConfig {
+    pub grid: GridConfig,
+    pub gpa: GpaConfig,
+}
+
+/// Everything built once per rig.
+pub struct Pipeline {
+    pub grid: KgGrid,
+    pub table: Box<RemapTable>,
+    ring: Vec<u8>,
+    keyframe: Vec<u8>,
+}
+
+impl Pipeline {
+    pub fn new(recording: &Recording, config: &DetectConfig) -> Result<Pipeline, String> {
+        let grid = KgGrid::for_rig(&recording.rig, &config.grid).map_err(|e| format!("KG grid: {e}"))?;
+        let mut table = Box::new(RemapTable::EMPTY);
+        table.build(&recording.rig, &grid).map_err(|e| format!("remap table: {e:?}"))?;
+        let ring = vec![0; table.ring_bytes()];
+        let keyframe = vec![0; Gpa::keyframe_bytes(&grid)];
+        Ok(Pipeline { grid, table, ring, keyframe })
+    }
+
+    /// Runs every frame of the recording through remap + GPA, in order.
+    pub fn run(
+        &mut self,
+        recording: &Recording,
+        config: &DetectConfig,
+        mut on_frame: impl FnMut(FrameOutcome, &Gpa),
+    ) -> Result<(), String> {
+        let mut gpa = Gpa::new(&recording.rig, &self.grid, &self.table, config.gpa, &mut self.keyframe)
+            .map_err(|e| format!("detector: {e:?}"))?;
+        let mut stream = StreamingRemap::new(&self.table, &mut self.ring).map_err(|e| e.to_string())?;
+        let grid_width = self.grid.width();
+        let last = recording.frames.last().copied().unwrap_or(0);
+        let mut previous: Option<(u32, f64, flatland_core::motion::Pose)> = None;
+        for index in 0..=last {
+            let frame = match recording.load_frame(index) {
+                Ok(frame) => frame,
+                Err(error) => {
+                    // A missing or broken frame is a gap: the next good frame
+                    // restarts the keyframe rather than raise a false alarm.
+                    gpa.reset_keyframe();
+                    previous = None;
+                    on_frame(FrameOutcome::Skipped { frame: index, error }, &gpa);
+                    continue;
+                }
+            };
+            let pose = recording.pose(index).copied();
+            let odometry = match (previous, pose) {
+                (Some((before, t_before, from)), Some(row)) if before + 1 == index && row.t_s > t_before => {
+                    Some(Motion::between(&from, &row.pose))
+                }
+                _ => None,
+            };
+            if pose.is_none() {
+                gpa.reset_keyframe();
+            }
+            if let (Some((_, t_before, _)), Some(row)) = (previous, pose) {
+                if row.t_s <= t_before {
+                    eprintln!("flatland: frame {index}: time goes backwards; restarting the keyframe");
+                }
+            }
+            gpa.begin_frame(index, odometry);
+            let mut kg = vec![0u8; self.grid.len()];
+            for camera_row in frame.pixels.chunks_exact(frame.width) {
+                stream
+                    .push_row(camera_row, |j, kg_row| {
+                        gpa.on_kg_row(j, kg_row);
+                        kg[j * grid_width..][..grid_width].copy_from_slice(kg_row);
+                    })
+                    .map_err(|e| format!("frame {index}: {e}"))?;
+            }
+            let outcome = match gpa.end_frame() {
+                Some(report) => FrameOutcome::Report { report, kg },
+                None => FrameOutcome::Keyframe { frame: index, kg },
+            };
+            on_frame(outcome, &gpa);
+            previous = pose.map(|row| (index, row.t_s, row.pose));
+        }
+        Ok(())
+    }
+}
