@@ -137,6 +137,9 @@ pub struct Fault {
 /// Every message, in both directions.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Message {
+    /// Firmware → host, at boot once the serial port listens: the protocol
+    /// version; the host sends the rig after it (bytes sent earlier may be lost). `$FLRDY`.
+    Ready,
     /// Firmware → host, once the rig is accepted: version and the rig in use. `$FLHEL`.
     Hello(RigRecord),
     /// Host → firmware: the rig to build the remap table for. `$FLRIG`.
@@ -157,6 +160,7 @@ impl Message {
     /// The type tag after `$`.
     pub const fn tag(&self) -> &'static str {
         match self {
+            Message::Ready => "FLRDY",
             Message::Hello(_) => "FLHEL",
             Message::Rig(_) => "FLRIG",
             Message::Odometry(_) => "FLODO",
@@ -284,6 +288,7 @@ fn write_rig<W: Write>(out: &mut W, rig: &RigRecord) -> Result<(), EncodeError> 
 fn write_body<W: Write>(out: &mut W, message: &Message) -> Result<(), EncodeError> {
     out.write_str(message.tag())?;
     match message {
+        Message::Ready => write!(out, ",{PROTOCOL_VERSION}")?,
         Message::Hello(rig) | Message::Rig(rig) => write_rig(out, rig)?,
         Message::Odometry(odometry) => {
             write!(out, ",{}", odometry.frame)?;
@@ -390,11 +395,16 @@ impl<'a> Fields<'a> {
     }
 }
 
-fn decode_rig(fields: &mut Fields) -> Result<RigRecord, DecodeError> {
+fn check_version(fields: &mut Fields) -> Result<(), DecodeError> {
     let version: u32 = fields.integer()?;
     if version != PROTOCOL_VERSION {
         return Err(DecodeError::UnsupportedVersion);
     }
+    Ok(())
+}
+
+fn decode_rig(fields: &mut Fields) -> Result<RigRecord, DecodeError> {
+    check_version(fields)?;
     let width = fields.integer()?;
     let height = fields.integer()?;
     let fx = fields.float()?;
@@ -440,6 +450,10 @@ fn decode_body(body: &str) -> Result<Message, DecodeError> {
     let tag = split.next().unwrap_or("");
     let mut fields = Fields { rest: split, index: 0 };
     let message = match tag {
+        "FLRDY" => {
+            check_version(&mut fields)?;
+            Message::Ready
+        }
         "FLHEL" => Message::Hello(decode_rig(&mut fields)?),
         "FLRIG" => Message::Rig(decode_rig(&mut fields)?),
         "FLODO" => Message::Odometry(Odometry {
@@ -672,7 +686,7 @@ pub mod checks {
     }
 
     /// Every decoded message of `bytes`, in order; errors are dropped (and counted).
-    fn decode_all(decoder: &mut Decoder, bytes: &[u8]) -> heapless::Vec<Message, 8> {
+    fn decode_all(decoder: &mut Decoder, bytes: &[u8]) -> heapless::Vec<Message, 16> {
         let mut messages = heapless::Vec::new();
         for &byte in bytes {
             if let Some(Ok(message)) = decoder.push(byte) {
@@ -703,6 +717,7 @@ pub mod checks {
             frame_gaps: 9,
         };
         let messages = [
+            Message::Ready,
             Message::Hello(sample_rig(None)),
             Message::Rig(sample_rig(Some([-0.28, 0.07, 1e-4, -2.5e-4, 0.0]))),
             Message::Odometry(Odometry { frame: 3, t_s: 0.3, x_mm: -0.1, z_mm: 19.43, yaw_deg: -0.0477 }),

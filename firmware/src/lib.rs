@@ -5,4 +5,5 @@
 #![deny(clippy::unwrap_used, clippy::expect_used)]
 
 pub mod board;
+pub mod frame_loop;
 pub mod rt;

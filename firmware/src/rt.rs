@@ -78,3 +78,39 @@ pub fn command_line(buf: &mut [u8]) -> &[u8] {
     }
     &buf[..0]
 }
+
+/// Fill pattern for the stack high-water mark.
+const STACK_PAINT: u32 = 0xCCCC_CCCC;
+
+extern "C" {
+    /// End of .bss/.uninit: the lowest address the stack can grow down to (cortex-m-rt).
+    static mut __sheap: u32;
+    /// Initial stack pointer: the top of RAM (cortex-m-rt).
+    static _stack_start: u32;
+}
+
+/// Paints the unused stack so [`stack_high_water`] can measure it. Call
+/// first thing in `main`; it leaves 256 bytes below the live stack pointer.
+pub fn paint_stack() {
+    let bottom = core::ptr::addr_of_mut!(__sheap) as usize;
+    let limit = cortex_m::register::msp::read() as usize - 256;
+    let mut address = bottom;
+    while address < limit {
+        // SAFETY: [bottom, limit) is RAM between the statics and the live
+        // stack, used by nothing else yet.
+        unsafe { core::ptr::write_volatile(address as *mut u32, STACK_PAINT) };
+        address += 4;
+    }
+}
+
+/// Deepest stack use since [`paint_stack`], in bytes, and the stack's size.
+pub fn stack_high_water() -> (usize, usize) {
+    let bottom = core::ptr::addr_of_mut!(__sheap) as usize;
+    let top = core::ptr::addr_of!(_stack_start) as usize;
+    let mut address = bottom;
+    // SAFETY: reads RAM between the statics and the top of the stack.
+    while address < top && unsafe { core::ptr::read_volatile(address as *const u32) } == STACK_PAINT {
+        address += 4;
+    }
+    (top - address, top - bottom)
+}
