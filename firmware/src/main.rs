@@ -17,7 +17,7 @@ use flatland_firmware::rt::{command_line, exit, paint_stack, stack_high_water, E
 fn main() -> ! {
     paint_stack();
     defmt::info!("flatland firmware {=str}", env!("CARGO_PKG_VERSION"));
-    let mut buf = [0u8; 128];
+    let mut buf = [0u8; 512];
     let bench = command_line(&mut buf).split(|&b| b == b' ').any(|word| word == b"bench");
 
     let parts = EmulatedBoard::take();

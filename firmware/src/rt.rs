@@ -59,7 +59,8 @@ unsafe fn DefaultHandler(irqn: i16) {
 defmt::timestamp!("{=u32}", crate::board::emulated::instructions_now());
 
 /// The semihosting command line (QEMU's `-append`), copied into `buf`.
-/// Empty when the host gives none.
+/// Empty when the host gives none or it does not fit (QEMU prefixes the
+/// kernel's path, so leave room).
 pub fn command_line(buf: &mut [u8]) -> &[u8] {
     #[cfg(not(feature = "rtt"))]
     {

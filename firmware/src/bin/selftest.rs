@@ -13,7 +13,7 @@ use flatland_firmware::rt::{command_line, exit, Exit};
 
 #[entry]
 fn main() -> ! {
-    let mut buf = [0u8; 64];
+    let mut buf = [0u8; 512];
     let arguments = command_line(&mut buf);
     // QEMU prefixes the kernel's file name; the request is the last word.
     let request = arguments.rsplit(|&b| b == b' ').next().unwrap_or(b"");
