@@ -326,7 +326,7 @@ where
         timing.cycle = counter.now().wrapping_sub(cycle_start);
 
         let pixels = u64::from(kg_rows) * table.grid_width() as u64;
-        let mean = if pixels == 0 { 0 } else { kg_sum / pixels };
+        let mean = kg_sum.checked_div(pixels).unwrap_or(0);
         defmt::info!("frame {=u32}: {=u32} KG rows, mean level {=u64}", pose.frame, kg_rows, mean);
         if options.bench {
             defmt::println!("bench: frame: {=u32}", pose.frame);
