@@ -27,3 +27,6 @@ pub mod pgm;
 pub mod remap;
 pub mod protocol;
 pub mod report;
+/// core's checks as a list for the on-target runner (`cargo fw-test`).
+#[cfg(any(test, feature = "selftest"))]
+pub mod selftest;

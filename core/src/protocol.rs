@@ -1,1 +1,900 @@
-//! Serial protocol (firmware issue).
+//! The serial protocol between the firmware and its host (robot or runner).
+//!
+//! Versioned, line-oriented and checksummed, NMEA style:
+//!
+//! ```text
+//! $FL<TYPE>,<field>,<field>,...*HH\r\n
+//! ```
+//!
+//! `HH` is the XOR of every byte between `$` and `*`, in upper-case hex.
+//! Readable on a serial terminal, resynchronised at the next `$` after
+//! garbage, and implementable in a few lines on any robot controller.
+//! `firmware/PROTOCOL.md` documents every message and argues the choice.
+//!
+//! Both directions use one [`Message`] type, one [`encode`] and one
+//! [`Decoder`]; the firmware and the host share them. No heap, no panics:
+//! the decoder is a byte-at-a-time state machine over a fixed line buffer
+//! and every malformed input is a typed [`DecodeError`], also counted in
+//! [`LinkStats`].
+
+use core::fmt::{self, Write};
+
+use crate::report::FrameReport;
+
+/// Bumped whenever a message's fields change meaning or count.
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// Longest line, `$` to `\n` inclusive. Fits the rig message with every
+/// float at its longest shortest-round-trip form (see [`write_f64`]).
+pub const MAX_LINE: usize = 512;
+
+/// One encoded line.
+pub type Line = heapless::String<MAX_LINE>;
+
+/// The rig as it travels on the wire: rig.toml's values, unvalidated.
+/// The firmware turns it into a `geometry::Rig` with `Rig::new_checked`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RigRecord {
+    pub width: u16,
+    pub height: u16,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// OpenCV plumb_bob `[k1, k2, p1, p2, k3]`; `None` when the lens has none.
+    pub distortion: Option<[f64; 5]>,
+    pub height_mm: f64,
+    pub tilt_deg: f64,
+    pub aoi_half_width_mm: f64,
+    pub aoi_near_mm: f64,
+    pub aoi_far_mm: f64,
+}
+
+/// The robot's world-frame pose when frame `frame` was captured (a poses.csv row).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Odometry {
+    pub frame: u32,
+    pub t_s: f64,
+    pub x_mm: f64,
+    pub z_mm: f64,
+    pub yaw_deg: f64,
+}
+
+/// What the firmware counted on its serial input and frame stream.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LinkStats {
+    /// Frames processed and reported.
+    pub frames: u32,
+    /// Bytes outside any `$...\n` line.
+    pub garbage_bytes: u32,
+    /// Lines cut short by a new `$`.
+    pub truncated: u32,
+    /// Lines longer than [`MAX_LINE`].
+    pub too_long: u32,
+    /// Lines with a missing or wrong checksum.
+    pub bad_checksum: u32,
+    /// Lines whose type is not one of ours.
+    pub unknown_type: u32,
+    /// Lines with a wrong version, field count or field value.
+    pub bad_field: u32,
+    /// Well-formed messages that make no sense where they came (e.g. odometry before the rig).
+    pub out_of_order: u32,
+    /// Jumps in the frame sequence (a missed frame or pose).
+    pub frame_gaps: u32,
+}
+
+/// A fatal condition the firmware reports before it gives up on a frame or the run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FaultCode {
+    /// `Rig::new_checked` refused the rig.
+    RigRejected,
+    /// The KG grid or the remap table could not be built for the rig.
+    TableRejected,
+    /// The frame file could not be opened.
+    FrameMissing,
+    /// The frame file is not a PGM of the rig's size.
+    FrameFormat,
+    /// The frame file ended early or could not be read.
+    FrameRead,
+    /// The streaming remap refused a row.
+    RemapFailed,
+}
+
+impl FaultCode {
+    const ALL: [FaultCode; 6] = [
+        FaultCode::RigRejected,
+        FaultCode::TableRejected,
+        FaultCode::FrameMissing,
+        FaultCode::FrameFormat,
+        FaultCode::FrameRead,
+        FaultCode::RemapFailed,
+    ];
+
+    /// The wire name (also used in logs).
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            FaultCode::RigRejected => "rig_rejected",
+            FaultCode::TableRejected => "table_rejected",
+            FaultCode::FrameMissing => "frame_missing",
+            FaultCode::FrameFormat => "frame_format",
+            FaultCode::FrameRead => "frame_read",
+            FaultCode::RemapFailed => "remap_failed",
+        }
+    }
+
+    fn from_wire(name: &str) -> Option<FaultCode> {
+        FaultCode::ALL.into_iter().find(|code| code.as_str() == name)
+    }
+}
+
+/// A fault and the frame it concerns (0 when it concerns the run).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Fault {
+    pub code: FaultCode,
+    pub frame: u32,
+}
+
+/// Every message, in both directions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Message {
+    /// Firmware → host, at boot once the serial port listens: the protocol
+    /// version; the host sends the rig after it (bytes sent earlier may be lost). `$FLRDY`.
+    Ready,
+    /// Firmware → host, once the rig is accepted: version and the rig in use. `$FLHEL`.
+    Hello(RigRecord),
+    /// Host → firmware: the rig to build the remap table for. `$FLRIG`.
+    Rig(RigRecord),
+    /// Host → firmware: the pose of the next frame. `$FLODO`.
+    Odometry(Odometry),
+    /// Firmware → host: one frame's result, the fields of `flatland detect`. `$FLFRM`.
+    Frame(FrameReport),
+    /// Firmware → host: counters, sent at the end of the run. `$FLSTA`.
+    Stats(LinkStats),
+    /// Firmware → host: a fault. `$FLERR`.
+    Fault(Fault),
+    /// Host → firmware: no more frames. `$FLEND`.
+    End,
+}
+
+impl Message {
+    /// The type tag after `$`.
+    pub const fn tag(&self) -> &'static str {
+        match self {
+            Message::Ready => "FLRDY",
+            Message::Hello(_) => "FLHEL",
+            Message::Rig(_) => "FLRIG",
+            Message::Odometry(_) => "FLODO",
+            Message::Frame(_) => "FLFRM",
+            Message::Stats(_) => "FLSTA",
+            Message::Fault(_) => "FLERR",
+            Message::End => "FLEND",
+        }
+    }
+}
+
+/// Why a message could not be encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EncodeError {
+    /// NaN or infinity: the decoder would refuse it, so the encoder does.
+    NonFinite,
+    /// The writer refused (e.g. a full buffer).
+    Write,
+}
+
+impl From<fmt::Error> for EncodeError {
+    fn from(_: fmt::Error) -> Self {
+        EncodeError::Write
+    }
+}
+
+/// Why a line was refused. Each is counted in [`LinkStats`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DecodeError {
+    /// A `$` arrived before the previous line ended.
+    Truncated,
+    /// The line exceeded [`MAX_LINE`]; the rest of it is skipped.
+    TooLong,
+    /// No `*HH` before the line end.
+    MissingChecksum,
+    /// The checksum does not match.
+    BadChecksum,
+    /// The type tag is not one of [`Message`]'s.
+    UnknownType,
+    /// The version field is not [`PROTOCOL_VERSION`].
+    UnsupportedVersion,
+    /// Too few or too many fields for the type.
+    FieldCount,
+    /// Field `index` (1 = first after the tag) does not parse or is out of range.
+    BadField { index: u8 },
+}
+
+impl DecodeError {
+    /// A short name for logs.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            DecodeError::Truncated => "truncated",
+            DecodeError::TooLong => "too_long",
+            DecodeError::MissingChecksum => "missing_checksum",
+            DecodeError::BadChecksum => "bad_checksum",
+            DecodeError::UnknownType => "unknown_type",
+            DecodeError::UnsupportedVersion => "unsupported_version",
+            DecodeError::FieldCount => "field_count",
+            DecodeError::BadField { .. } => "bad_field",
+        }
+    }
+}
+
+// ---------------------------------------------------------------- encoding
+
+/// Forwards to `inner` and folds every byte into the XOR checksum.
+struct ChecksumWriter<'a, W: Write> {
+    inner: &'a mut W,
+    checksum: u8,
+}
+
+impl<W: Write> Write for ChecksumWriter<'_, W> {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        self.checksum = s.bytes().fold(self.checksum, |acc, b| acc ^ b);
+        self.inner.write_str(s)
+    }
+}
+
+/// XOR of `body`'s bytes: the NMEA checksum.
+pub fn checksum(body: &[u8]) -> u8 {
+    body.iter().fold(0, |acc, b| acc ^ b)
+}
+
+/// Writes a float so that parsing it gives back the same bits: plain decimal
+/// in the usual range (readable), exponent form outside it (bounded length).
+fn write_f64<W: Write>(out: &mut W, value: f64) -> Result<(), EncodeError> {
+    if !value.is_finite() {
+        return Err(EncodeError::NonFinite);
+    }
+    let magnitude = value.abs();
+    if magnitude == 0.0 || (1e-6..1e9).contains(&magnitude) {
+        write!(out, ",{value}")?;
+    } else {
+        write!(out, ",{value:e}")?;
+    }
+    Ok(())
+}
+
+fn write_optional_i32<W: Write>(out: &mut W, value: Option<i32>) -> fmt::Result {
+    match value {
+        Some(v) => write!(out, ",{v}"),
+        None => out.write_char(','),
+    }
+}
+
+fn write_rig<W: Write>(out: &mut W, rig: &RigRecord) -> Result<(), EncodeError> {
+    write!(out, ",{},{},{}", PROTOCOL_VERSION, rig.width, rig.height)?;
+    for value in [rig.fx, rig.fy, rig.cx, rig.cy] {
+        write_f64(out, value)?;
+    }
+    match rig.distortion {
+        Some(coefficients) => {
+            for value in coefficients {
+                write_f64(out, value)?;
+            }
+        }
+        None => out.write_str(",,,,,")?,
+    }
+    for value in [rig.height_mm, rig.tilt_deg, rig.aoi_half_width_mm, rig.aoi_near_mm, rig.aoi_far_mm] {
+        write_f64(out, value)?;
+    }
+    Ok(())
+}
+
+fn write_body<W: Write>(out: &mut W, message: &Message) -> Result<(), EncodeError> {
+    out.write_str(message.tag())?;
+    match message {
+        Message::Ready => write!(out, ",{PROTOCOL_VERSION}")?,
+        Message::Hello(rig) | Message::Rig(rig) => write_rig(out, rig)?,
+        Message::Odometry(odometry) => {
+            write!(out, ",{}", odometry.frame)?;
+            for value in [odometry.t_s, odometry.x_mm, odometry.z_mm, odometry.yaw_deg] {
+                write_f64(out, value)?;
+            }
+        }
+        Message::Frame(r) => {
+            write!(out, ",{},{},{}", r.frame, r.ref_frame, u8::from(r.alarm))?;
+            write_optional_i32(out, r.nearest_mm)?;
+            write_optional_i32(out, r.left_mm)?;
+            write_optional_i32(out, r.right_mm)?;
+            write!(out, ",{},{},{},{},{},{}", r.sad, r.count50, r.shift_k, r.shift_g, r.tx, r.tz)?;
+            write_optional_i32(out, r.obstacle_h_mm)?;
+        }
+        Message::Stats(s) => write!(
+            out,
+            ",{},{},{},{},{},{},{},{},{}",
+            s.frames,
+            s.garbage_bytes,
+            s.truncated,
+            s.too_long,
+            s.bad_checksum,
+            s.unknown_type,
+            s.bad_field,
+            s.out_of_order,
+            s.frame_gaps
+        )?,
+        Message::Fault(fault) => write!(out, ",{},{}", fault.code.as_str(), fault.frame)?,
+        Message::End => {}
+    }
+    Ok(())
+}
+
+/// Writes `message` as one line, `$` to `\r\n`.
+pub fn encode<W: Write>(message: &Message, out: &mut W) -> Result<(), EncodeError> {
+    out.write_char('$')?;
+    let mut body = ChecksumWriter { inner: out, checksum: 0 };
+    write_body(&mut body, message)?;
+    let sum = body.checksum;
+    write!(out, "*{sum:02X}\r\n")?;
+    Ok(())
+}
+
+/// [`encode`] into a fixed-capacity [`Line`].
+pub fn encode_line(message: &Message) -> Result<Line, EncodeError> {
+    let mut line = Line::new();
+    encode(message, &mut line)?;
+    Ok(line)
+}
+
+// ---------------------------------------------------------------- decoding
+
+/// The comma-separated fields after the tag, with their 1-based index for errors.
+struct Fields<'a> {
+    rest: core::str::Split<'a, char>,
+    index: u8,
+}
+
+impl<'a> Fields<'a> {
+    fn next_raw(&mut self) -> Result<&'a str, DecodeError> {
+        self.index = self.index.saturating_add(1);
+        self.rest.next().ok_or(DecodeError::FieldCount)
+    }
+
+    fn bad(&self) -> DecodeError {
+        DecodeError::BadField { index: self.index }
+    }
+
+    fn integer<T: core::str::FromStr>(&mut self) -> Result<T, DecodeError> {
+        let raw = self.next_raw()?;
+        raw.parse().map_err(|_| self.bad())
+    }
+
+    fn optional_i32(&mut self) -> Result<Option<i32>, DecodeError> {
+        let raw = self.next_raw()?;
+        if raw.is_empty() {
+            return Ok(None);
+        }
+        raw.parse().map(Some).map_err(|_| self.bad())
+    }
+
+    fn float(&mut self) -> Result<f64, DecodeError> {
+        let raw = self.next_raw()?;
+        match raw.parse::<f64>() {
+            Ok(value) if value.is_finite() => Ok(value),
+            _ => Err(self.bad()),
+        }
+    }
+
+    fn boolean(&mut self) -> Result<bool, DecodeError> {
+        match self.next_raw()? {
+            "0" => Ok(false),
+            "1" => Ok(true),
+            _ => Err(self.bad()),
+        }
+    }
+
+    fn finish(mut self) -> Result<(), DecodeError> {
+        match self.rest.next() {
+            None => Ok(()),
+            Some(_) => Err(DecodeError::FieldCount),
+        }
+    }
+}
+
+fn check_version(fields: &mut Fields) -> Result<(), DecodeError> {
+    let version: u32 = fields.integer()?;
+    if version != PROTOCOL_VERSION {
+        return Err(DecodeError::UnsupportedVersion);
+    }
+    Ok(())
+}
+
+fn decode_rig(fields: &mut Fields) -> Result<RigRecord, DecodeError> {
+    check_version(fields)?;
+    let width = fields.integer()?;
+    let height = fields.integer()?;
+    let fx = fields.float()?;
+    let fy = fields.float()?;
+    let cx = fields.float()?;
+    let cy = fields.float()?;
+    // Distortion: five numbers, or five empty fields.
+    let mut raw = [""; 5];
+    let first = fields.index + 1;
+    for slot in raw.iter_mut() {
+        *slot = fields.next_raw()?;
+    }
+    let distortion = if raw.iter().all(|s| s.is_empty()) {
+        None
+    } else {
+        let mut coefficients = [0.0; 5];
+        for (i, (slot, text)) in coefficients.iter_mut().zip(raw).enumerate() {
+            *slot = match text.parse::<f64>() {
+                Ok(value) if value.is_finite() => value,
+                _ => return Err(DecodeError::BadField { index: first + i as u8 }),
+            };
+        }
+        Some(coefficients)
+    };
+    Ok(RigRecord {
+        width,
+        height,
+        fx,
+        fy,
+        cx,
+        cy,
+        distortion,
+        height_mm: fields.float()?,
+        tilt_deg: fields.float()?,
+        aoi_half_width_mm: fields.float()?,
+        aoi_near_mm: fields.float()?,
+        aoi_far_mm: fields.float()?,
+    })
+}
+
+fn decode_body(body: &str) -> Result<Message, DecodeError> {
+    let mut split = body.split(',');
+    let tag = split.next().unwrap_or("");
+    let mut fields = Fields { rest: split, index: 0 };
+    let message = match tag {
+        "FLRDY" => {
+            check_version(&mut fields)?;
+            Message::Ready
+        }
+        "FLHEL" => Message::Hello(decode_rig(&mut fields)?),
+        "FLRIG" => Message::Rig(decode_rig(&mut fields)?),
+        "FLODO" => Message::Odometry(Odometry {
+            frame: fields.integer()?,
+            t_s: fields.float()?,
+            x_mm: fields.float()?,
+            z_mm: fields.float()?,
+            yaw_deg: fields.float()?,
+        }),
+        "FLFRM" => Message::Frame(FrameReport {
+            frame: fields.integer()?,
+            ref_frame: fields.integer()?,
+            alarm: fields.boolean()?,
+            nearest_mm: fields.optional_i32()?,
+            left_mm: fields.optional_i32()?,
+            right_mm: fields.optional_i32()?,
+            sad: fields.integer()?,
+            count50: fields.integer()?,
+            shift_k: fields.integer()?,
+            shift_g: fields.integer()?,
+            tx: fields.integer()?,
+            tz: fields.integer()?,
+            obstacle_h_mm: fields.optional_i32()?,
+        }),
+        "FLSTA" => Message::Stats(LinkStats {
+            frames: fields.integer()?,
+            garbage_bytes: fields.integer()?,
+            truncated: fields.integer()?,
+            too_long: fields.integer()?,
+            bad_checksum: fields.integer()?,
+            unknown_type: fields.integer()?,
+            bad_field: fields.integer()?,
+            out_of_order: fields.integer()?,
+            frame_gaps: fields.integer()?,
+        }),
+        "FLERR" => {
+            let code = FaultCode::from_wire(fields.next_raw()?).ok_or(fields.bad())?;
+            Message::Fault(Fault { code, frame: fields.integer()? })
+        }
+        "FLEND" => Message::End,
+        _ => return Err(DecodeError::UnknownType),
+    };
+    fields.finish()?;
+    Ok(message)
+}
+
+fn hex_digit(byte: u8) -> Option<u8> {
+    match byte {
+        b'0'..=b'9' => Some(byte - b'0'),
+        b'A'..=b'F' => Some(byte - b'A' + 10),
+        b'a'..=b'f' => Some(byte - b'a' + 10),
+        _ => None,
+    }
+}
+
+/// Decodes one line without its `$` and line ending: `TAG,fields*HH`.
+pub fn decode_line(line: &[u8]) -> Result<Message, DecodeError> {
+    let star = line.iter().rposition(|&b| b == b'*').ok_or(DecodeError::MissingChecksum)?;
+    let (body, sum) = (&line[..star], &line[star + 1..]);
+    let expected = match sum {
+        [high, low] => match (hex_digit(*high), hex_digit(*low)) {
+            (Some(high), Some(low)) => (high << 4) | low,
+            _ => return Err(DecodeError::MissingChecksum),
+        },
+        _ => return Err(DecodeError::MissingChecksum),
+    };
+    if checksum(body) != expected {
+        return Err(DecodeError::BadChecksum);
+    }
+    let body = core::str::from_utf8(body).map_err(|_| DecodeError::UnknownType)?;
+    decode_body(body)
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum State {
+    /// Between lines: waiting for `$`.
+    Idle,
+    /// Inside a line.
+    Line,
+    /// Skipping the rest of an overlong line.
+    Discard,
+}
+
+/// Byte-at-a-time decoder with a fixed [`MAX_LINE`] buffer.
+///
+/// Feed it every received byte; it returns a result when a line ends (or is
+/// cut short), and counts what it refused in [`Decoder::stats`].
+#[derive(Debug)]
+pub struct Decoder {
+    line: heapless::Vec<u8, MAX_LINE>,
+    state: State,
+    stats: LinkStats,
+}
+
+impl Default for Decoder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Decoder {
+    pub const fn new() -> Self {
+        Decoder { line: heapless::Vec::new(), state: State::Idle, stats: LinkStats {
+            frames: 0,
+            garbage_bytes: 0,
+            truncated: 0,
+            too_long: 0,
+            bad_checksum: 0,
+            unknown_type: 0,
+            bad_field: 0,
+            out_of_order: 0,
+            frame_gaps: 0,
+        } }
+    }
+
+    /// What was refused so far (only the decoder's counters are filled in).
+    pub fn stats(&self) -> LinkStats {
+        self.stats
+    }
+
+    fn count(&mut self, error: DecodeError) -> DecodeError {
+        let counter = match error {
+            DecodeError::Truncated => &mut self.stats.truncated,
+            DecodeError::TooLong => &mut self.stats.too_long,
+            DecodeError::MissingChecksum | DecodeError::BadChecksum => &mut self.stats.bad_checksum,
+            DecodeError::UnknownType => &mut self.stats.unknown_type,
+            DecodeError::UnsupportedVersion | DecodeError::FieldCount | DecodeError::BadField { .. } => {
+                &mut self.stats.bad_field
+            }
+        };
+        *counter = counter.saturating_add(1);
+        error
+    }
+
+    /// Feeds one byte. `Some` when a line ended: the message or why it was refused.
+    pub fn push(&mut self, byte: u8) -> Option<Result<Message, DecodeError>> {
+        match (self.state, byte) {
+            (State::Idle, b'$') | (State::Discard, b'$') => {
+                self.line.clear();
+                self.state = State::Line;
+                None
+            }
+            (State::Idle, b'\r' | b'\n') => None,
+            (State::Idle, _) => {
+                self.stats.garbage_bytes = self.stats.garbage_bytes.saturating_add(1);
+                None
+            }
+            (State::Discard, b'\n') => {
+                self.state = State::Idle;
+                None
+            }
+            (State::Discard, _) => None,
+            (State::Line, b'$') => {
+                self.line.clear();
+                Some(Err(self.count(DecodeError::Truncated)))
+            }
+            (State::Line, b'\n') => {
+                self.state = State::Idle;
+                let line = match self.line.as_slice() {
+                    [rest @ .., b'\r'] => rest,
+                    all => all,
+                };
+                let result = decode_line(line);
+                self.line.clear();
+                Some(result.map_err(|error| self.count(error)))
+            }
+            (State::Line, _) => {
+                if self.line.push(byte).is_err() {
+                    self.line.clear();
+                    self.state = State::Discard;
+                    return Some(Err(self.count(DecodeError::TooLong)));
+                }
+                None
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------- checks
+
+/// The protocol's checks, run as host `#[test]`s and on the target by the
+/// firmware's `selftest` binary (see [`crate::selftest`]).
+#[cfg(any(test, feature = "selftest"))]
+pub mod checks {
+    use super::*;
+
+    type Check = Result<(), &'static str>;
+
+    fn ensure(condition: bool, failure: &'static str) -> Check {
+        if condition {
+            Ok(())
+        } else {
+            Err(failure)
+        }
+    }
+
+    fn sample_rig(distortion: Option<[f64; 5]>) -> RigRecord {
+        RigRecord {
+            width: 320,
+            height: 240,
+            fx: 277.0,
+            fy: 281.25,
+            cx: 159.5,
+            cy: 119.5,
+            distortion,
+            height_mm: 300.0,
+            tilt_deg: 40.0,
+            aoi_half_width_mm: 250.0,
+            aoi_near_mm: 450.0,
+            aoi_far_mm: 1400.0,
+        }
+    }
+
+    fn sample_report() -> FrameReport {
+        FrameReport {
+            frame: 7,
+            ref_frame: 6,
+            alarm: true,
+            nearest_mm: Some(820),
+            left_mm: Some(-120),
+            right_mm: None,
+            sad: 12345,
+            count50: 67,
+            shift_k: -5,
+            shift_g: 125,
+            tx: -3,
+            tz: 1003,
+            obstacle_h_mm: None,
+        }
+    }
+
+    /// Every decoded message of `bytes`, in order; errors are dropped (and counted).
+    fn decode_all(decoder: &mut Decoder, bytes: &[u8]) -> heapless::Vec<Message, 16> {
+        let mut messages = heapless::Vec::new();
+        for &byte in bytes {
+            if let Some(Ok(message)) = decoder.push(byte) {
+                let _ = messages.push(message);
+            }
+        }
+        messages
+    }
+
+    fn round_trip(message: Message) -> Check {
+        let line = encode_line(&message).map_err(|_| "encode failed")?;
+        let mut decoder = Decoder::new();
+        let decoded = decode_all(&mut decoder, line.as_bytes());
+        ensure(decoded.as_slice() == [message], "decoded message differs from the encoded one")?;
+        ensure(decoder.stats() == LinkStats::default(), "clean line counted as an error")
+    }
+
+    pub fn every_message_round_trips() -> Check {
+        let stats = LinkStats {
+            frames: 1,
+            garbage_bytes: 2,
+            truncated: 3,
+            too_long: 4,
+            bad_checksum: 5,
+            unknown_type: 6,
+            bad_field: 7,
+            out_of_order: 8,
+            frame_gaps: 9,
+        };
+        let messages = [
+            Message::Ready,
+            Message::Hello(sample_rig(None)),
+            Message::Rig(sample_rig(Some([-0.28, 0.07, 1e-4, -2.5e-4, 0.0]))),
+            Message::Odometry(Odometry { frame: 3, t_s: 0.3, x_mm: -0.1, z_mm: 19.43, yaw_deg: -0.0477 }),
+            Message::Frame(sample_report()),
+            Message::Frame(FrameReport::default()),
+            Message::Stats(stats),
+            Message::Fault(Fault { code: FaultCode::FrameRead, frame: 12 }),
+            Message::End,
+        ];
+        for message in messages {
+            round_trip(message)?;
+        }
+        for code in FaultCode::ALL {
+            round_trip(Message::Fault(Fault { code, frame: u32::MAX }))?;
+        }
+        Ok(())
+    }
+
+    pub fn floats_round_trip_bit_for_bit() -> Check {
+        let awkward = [0.1, 1.0 / 3.0, 301.70001220703125, 1e-300, -1.7976931348623157e308, 5e-324, 123456789.125];
+        for value in awkward {
+            let message = Message::Odometry(Odometry { frame: 0, t_s: value, x_mm: -value, z_mm: value, yaw_deg: 0.0 });
+            let line = encode_line(&message).map_err(|_| "encode failed")?;
+            ensure(line.len() < 120, "float encoding is unbounded")?;
+            round_trip(message)?;
+        }
+        Ok(())
+    }
+
+    pub fn longest_rig_fits_a_line() -> Check {
+        let long = -1.2345678901234567e-300;
+        let rig = RigRecord {
+            width: u16::MAX,
+            height: u16::MAX,
+            fx: long,
+            fy: long,
+            cx: long,
+            cy: long,
+            distortion: Some([long; 5]),
+            height_mm: long,
+            tilt_deg: long,
+            aoi_half_width_mm: long,
+            aoi_near_mm: long,
+            aoi_far_mm: long,
+        };
+        round_trip(Message::Rig(rig))
+    }
+
+    pub fn known_line_matches_documentation() -> Check {
+        // The example in firmware/PROTOCOL.md.
+        let line = encode_line(&Message::Odometry(Odometry { frame: 1, t_s: 0.1, x_mm: 0.0, z_mm: 100.0, yaw_deg: 0.0 }))
+            .map_err(|_| "encode failed")?;
+        ensure(line.as_str() == "$FLODO,1,0.1,0,100,0*4D\r\n", "odometry line differs from PROTOCOL.md")
+    }
+
+    pub fn non_finite_is_refused_by_encoder() -> Check {
+        let message = Message::Odometry(Odometry { frame: 0, t_s: f64::NAN, x_mm: 0.0, z_mm: 0.0, yaw_deg: 0.0 });
+        ensure(encode_line(&message) == Err(EncodeError::NonFinite), "NaN was encoded")
+    }
+
+    fn first_error(bytes: &[u8]) -> Option<DecodeError> {
+        let mut decoder = Decoder::new();
+        bytes.iter().find_map(|&b| match decoder.push(b) {
+            Some(Err(error)) => Some(error),
+            _ => None,
+        })
+    }
+
+    pub fn malformed_lines_give_typed_errors() -> Check {
+        let cases: [(&[u8], DecodeError); 10] = [
+            (b"$FLEND*00\r\n", DecodeError::BadChecksum),
+            (b"$FLEND\r\n", DecodeError::MissingChecksum),
+            (b"$FLEND*G1\r\n", DecodeError::MissingChecksum),
+            (b"$FLXYZ*51\r\n", DecodeError::UnknownType),
+            (b"$FLEND,1*58\r\n", DecodeError::FieldCount),
+            (b"$FLODO,1,2*4D\r\n", DecodeError::FieldCount),
+            (b"$FLODO,x,0,0,0,0*1A\r\n", DecodeError::BadField { index: 1 }),
+            (b"$FLODO,1,0,inf,0,0*02\r\n", DecodeError::BadField { index: 3 }),
+            (b"$FLRIG,2,1,1,1,1,1,1,,,,,,1,1,1,1,1*79\r\n", DecodeError::UnsupportedVersion),
+            (b"$FLEN$FLEND*45\r\n", DecodeError::Truncated),
+        ];
+        for (bytes, expected) in cases {
+            if first_error(bytes) != Some(expected) {
+                return Err(expected.as_str());
+            }
+        }
+        Ok(())
+    }
+
+    pub fn decoder_resynchronises_after_garbage() -> Check {
+        let mut stream: heapless::Vec<u8, 2048> = heapless::Vec::new();
+        let end = encode_line(&Message::End).map_err(|_| "encode failed")?;
+        let frame = encode_line(&Message::Frame(sample_report())).map_err(|_| "encode failed")?;
+        let mut append = |bytes: &[u8]| stream.extend_from_slice(bytes).map_err(|_| "test buffer full");
+        append(b"\x00\xffnoise")?; // 7 garbage bytes
+        append(&frame.as_bytes()[..20])?; // truncated by the next `$`
+        append(end.as_bytes())?;
+        append(&[b'$'; 1])?;
+        append(&[b'A'; MAX_LINE + 10])?; // too long, skipped to the line end
+        append(b"\r\n")?;
+        append(frame.as_bytes())?;
+        let mut decoder = Decoder::new();
+        let messages = decode_all(&mut decoder, &stream);
+        ensure(messages.as_slice() == [Message::End, Message::Frame(sample_report())], "lost a good line")?;
+        let stats = decoder.stats();
+        ensure(stats.garbage_bytes == 7, "garbage bytes miscounted")?;
+        ensure(stats.truncated == 1, "truncated line miscounted")?;
+        ensure(stats.too_long == 1, "overlong line miscounted")
+    }
+
+    /// A cheap deterministic generator, so the fuzz case is the same everywhere.
+    struct XorShift(u32);
+    impl XorShift {
+        fn next(&mut self) -> u32 {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 17;
+            self.0 ^= self.0 << 5;
+            self.0
+        }
+    }
+
+    pub fn random_bytes_never_panic_and_valid_lines_survive() -> Check {
+        let mut random = XorShift(0x2545_F491);
+        let mut decoder = Decoder::new();
+        // Random bytes biased towards the protocol's own characters.
+        for _ in 0..20_000 {
+            let byte = match random.next() % 8 {
+                0 => b'$',
+                1 => b'\n',
+                2 => b',',
+                3 => b'*',
+                _ => (random.next() & 0xFF) as u8,
+            };
+            let _ = decoder.push(byte);
+        }
+        // After a line end, a good line decodes whatever came before.
+        let _ = decoder.push(b'\n');
+        let line = encode_line(&Message::Frame(sample_report())).map_err(|_| "encode failed")?;
+        let messages = decode_all(&mut decoder, line.as_bytes());
+        ensure(messages.as_slice() == [Message::Frame(sample_report())], "decoder did not recover")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::checks;
+
+    #[test]
+    fn every_message_round_trips() {
+        assert_eq!(checks::every_message_round_trips(), Ok(()));
+    }
+    #[test]
+    fn floats_round_trip_bit_for_bit() {
+        assert_eq!(checks::floats_round_trip_bit_for_bit(), Ok(()));
+    }
+    #[test]
+    fn longest_rig_fits_a_line() {
+        assert_eq!(checks::longest_rig_fits_a_line(), Ok(()));
+    }
+    #[test]
+    fn known_line_matches_documentation() {
+        assert_eq!(checks::known_line_matches_documentation(), Ok(()));
+    }
+    #[test]
+    fn non_finite_is_refused_by_encoder() {
+        assert_eq!(checks::non_finite_is_refused_by_encoder(), Ok(()));
+    }
+    #[test]
+    fn malformed_lines_give_typed_errors() {
+        assert_eq!(checks::malformed_lines_give_typed_errors(), Ok(()));
+    }
+    #[test]
+    fn decoder_resynchronises_after_garbage() {
+        assert_eq!(checks::decoder_resynchronises_after_garbage(), Ok(()));
+    }
+    #[test]
+    fn random_bytes_never_panic_and_valid_lines_survive() {
+        assert_eq!(checks::random_bytes_never_panic_and_valid_lines_survive(), Ok(()));
+    }
+}

@@ -1,2 +1,45 @@
+//! Flatland on the emulated board: receives the rig and the poses on USART1,
+//! reads the frames through semihosting, streams them through the KG remap
+//! and reports each frame on USART1 (see PROTOCOL.md).
+//!
+//! Semihosting command line (QEMU `-append`): `bench` adds instruction
+//! counts to the log.
 #![no_std]
 #![no_main]
+#![deny(clippy::unwrap_used, clippy::expect_used)]
+
+use cortex_m_rt::entry;
+use flatland_firmware::board::emulated::EmulatedBoard;
+use flatland_firmware::frame_loop::{self, Board, Options};
+use flatland_firmware::rt::{command_line, exit, paint_stack, stack_high_water, Exit};
+
+#[entry]
+fn main() -> ! {
+    paint_stack();
+    defmt::info!("flatland firmware {=str}", env!("CARGO_PKG_VERSION"));
+    let mut buf = [0u8; 512];
+    let bench = command_line(&mut buf).split(|&b| b == b' ').any(|word| word == b"bench");
+
+    let parts = EmulatedBoard::take();
+    let board = Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames };
+    let stats = frame_loop::run(board, &Options { bench });
+
+    defmt::info!(
+        "done: {=u32} frames; serial garbage {=u32} B, truncated {=u32}, too long {=u32}, bad checksum {=u32}, unknown {=u32}, bad field {=u32}, out of order {=u32}, frame gaps {=u32}",
+        stats.frames,
+        stats.garbage_bytes,
+        stats.truncated,
+        stats.too_long,
+        stats.bad_checksum,
+        stats.unknown_type,
+        stats.bad_field,
+        stats.out_of_order,
+        stats.frame_gaps
+    );
+    let (used, size) = stack_high_water();
+    defmt::info!("stack high-water mark: {=usize} of {=usize} bytes", used, size);
+    if bench {
+        defmt::println!("bench: stack_high_water_bytes: {=usize}", used);
+    }
+    exit(Exit::Success)
+}

@@ -5,5 +5,6 @@
 pub mod detect;
 pub mod evaluate;
 pub mod images;
+pub mod serial_decode;
 pub mod kg;
 pub mod recording;

@@ -1,0 +1,49 @@
+//! core's checks on the emulated Cortex-M4: runs `flatland_core::selftest::TESTS`
+//! and prints `N passed, N failed`; the exit status is nonzero on any failure.
+//!
+//! The semihosting command line can also ask for a deliberate fault, so the
+//! fault paths are tested too: `panic` or `hardfault`.
+#![no_std]
+#![no_main]
+#![deny(clippy::unwrap_used, clippy::expect_used)]
+
+use cortex_m_rt::entry;
+use flatland_core::selftest::TESTS;
+use flatland_firmware::rt::{command_line, exit, Exit};
+
+#[entry]
+fn main() -> ! {
+    let mut buf = [0u8; 512];
+    let arguments = command_line(&mut buf);
+    // QEMU prefixes the kernel's file name; the request is the last word.
+    let request = arguments.rsplit(|&b| b == b' ').next().unwrap_or(b"");
+    match request {
+        b"panic" => deliberate_panic(),
+        b"hardfault" => cortex_m::asm::udf(),
+        _ => {}
+    }
+
+    let (mut passed, mut failed) = (0u32, 0u32);
+    for (name, check) in TESTS {
+        match check() {
+            Ok(()) => {
+                passed += 1;
+                defmt::println!("test {=str} ... ok", name);
+            }
+            Err(reason) => {
+                failed += 1;
+                defmt::println!("test {=str} ... FAILED: {=str}", name, reason);
+            }
+        }
+    }
+    defmt::println!("{=u32} passed, {=u32} failed", passed, failed);
+    exit(if failed == 0 { Exit::Success } else { Exit::Failure })
+}
+
+#[inline(never)]
+fn deliberate_panic() -> ! {
+    // A value the optimiser cannot see through, so this is a real panic path.
+    let divisor = core::hint::black_box(0u32);
+    defmt::println!("{=u32}", 1 / divisor);
+    exit(Exit::Success)
+}

@@ -1,0 +1,128 @@
+//! `flatland serial decode`: the firmware's serial byte stream to the csv of
+//! `flatland detect`, through the same decoder the firmware uses.
+
+use std::fmt;
+use std::io::{self, Read, Write};
+
+use flatland_core::protocol::{Decoder, Fault, Message};
+use flatland_core::report::CSV_HEADER;
+
+/// Why the stream did not decode cleanly. The csv of every frame message is
+/// written before this is returned.
+#[derive(Debug)]
+pub enum SerialDecodeError {
+    Io(io::Error),
+    /// Lines that were refused (bad checksum, truncated, unknown type, ...).
+    MalformedLines { count: u32 },
+    /// The firmware reported a fault (the first one).
+    FirmwareFault(Fault),
+}
+
+impl fmt::Display for SerialDecodeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            SerialDecodeError::Io(error) => write!(f, "serial decode: {error}"),
+            SerialDecodeError::MalformedLines { count } => write!(f, "serial decode: {count} malformed line(s) skipped"),
+            SerialDecodeError::FirmwareFault(fault) => {
+                write!(f, "firmware fault {} at frame {}", fault.code.as_str(), fault.frame)
+            }
+        }
+    }
+}
+
+impl std::error::Error for SerialDecodeError {}
+
+impl From<io::Error> for SerialDecodeError {
+    fn from(error: io::Error) -> Self {
+        SerialDecodeError::Io(error)
+    }
+}
+
+/// Reads the whole byte stream and writes [`CSV_HEADER`] plus one row per frame message.
+/// Garbage between lines is ignored, as the firmware ignores it.
+pub fn run_serial_decode(input: &mut dyn Read, out: &mut dyn Write) -> Result<(), SerialDecodeError> {
+    writeln!(out, "{CSV_HEADER}")?;
+    let mut decoder = Decoder::new();
+    let mut malformed = 0u32;
+    let mut first_fault = None;
+    let mut chunk = [0u8; 4096];
+    let mut row = String::new();
+    loop {
+        let length = match input.read(&mut chunk) {
+            Ok(0) => break,
+            Ok(length) => length,
+            Err(error) if error.kind() == io::ErrorKind::Interrupted => continue,
+            Err(error) => return Err(error.into()),
+        };
+        for &byte in &chunk[..length] {
+            match decoder.push(byte) {
+                Some(Ok(Message::Frame(report))) => {
+                    row.clear();
+                    // Writing into a String cannot fail.
+                    let _ = report.write_csv(&mut row);
+                    writeln!(out, "{row}")?;
+                }
+                Some(Ok(Message::Fault(fault))) => {
+                    first_fault.get_or_insert(fault);
+                }
+                Some(Ok(_)) => {}
+                Some(Err(_)) => malformed += 1,
+                None => {}
+            }
+        }
+    }
+    out.flush()?;
+    if let Some(fault) = first_fault {
+        return Err(SerialDecodeError::FirmwareFault(fault));
+    }
+    if malformed > 0 {
+        return Err(SerialDecodeError::MalformedLines { count: malformed });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flatland_core::protocol::{encode_line, FaultCode};
+    use flatland_core::report::FrameReport;
+
+    fn report(frame: u32) -> FrameReport {
+        FrameReport { frame, ref_frame: frame.saturating_sub(1), alarm: frame == 2, nearest_mm: Some(900), tz: 1000, ..FrameReport::default() }
+    }
+
+    #[test]
+    fn frames_become_csv_rows_and_garbage_is_skipped() {
+        let mut stream = b"boot noise\r\n".to_vec();
+        stream.extend_from_slice(encode_line(&Message::Ready).unwrap().as_bytes());
+        for frame in 1..=2 {
+            stream.extend_from_slice(encode_line(&Message::Frame(report(frame))).unwrap().as_bytes());
+        }
+        let mut out = Vec::new();
+        run_serial_decode(&mut stream.as_slice(), &mut out).unwrap();
+        let text = String::from_utf8(out).unwrap();
+        let mut expected = format!("{CSV_HEADER}\n");
+        for frame in 1..=2 {
+            let mut row = String::new();
+            report(frame).write_csv(&mut row).unwrap();
+            expected += &format!("{row}\n");
+        }
+        assert_eq!(text, expected);
+        assert!(text.contains("\n2,1,1,900,"));
+    }
+
+    #[test]
+    fn faults_and_malformed_lines_are_errors_after_the_csv() {
+        let mut stream = encode_line(&Message::Frame(report(1))).unwrap().as_bytes().to_vec();
+        stream.extend_from_slice(b"$FLFRM,1*00\r\n");
+        let mut out = Vec::new();
+        let result = run_serial_decode(&mut stream.as_slice(), &mut out);
+        assert!(matches!(result, Err(SerialDecodeError::MalformedLines { count: 1 })), "{result:?}");
+        assert_eq!(String::from_utf8(out).unwrap().lines().count(), 2);
+
+        let fault = Fault { code: FaultCode::FrameMissing, frame: 4 };
+        let stream = encode_line(&Message::Fault(fault)).unwrap();
+        let result = run_serial_decode(&mut stream.as_bytes(), &mut Vec::new());
+        assert!(matches!(result, Err(SerialDecodeError::FirmwareFault(f)) if f == fault), "{result:?}");
+    }
+}
