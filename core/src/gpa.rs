@@ -82,6 +82,10 @@ pub struct GpaConfig {
     pub parallax_min_gain: f64,
     /// Obstacles are at least this tall (mm); lower bumps are ground.
     pub min_obstacle_height_mm: f64,
+    /// Odometry error to tolerate, as a fraction of the step since the last
+    /// frame (the part of the motion the shift search has not refined yet):
+    /// height hypotheses whose displacement stays within it count as ground.
+    pub odometry_error_fraction: f64,
 }
 
 impl Default for GpaConfig {
@@ -99,6 +103,7 @@ impl Default for GpaConfig {
             parallax_gain_percent: 30,
             parallax_min_gain: 3.0,
             min_obstacle_height_mm: 20.0,
+            odometry_error_fraction: 0.05,
         }
     }
 }
@@ -209,6 +214,11 @@ pub struct Gpa<'b> {
     hypothesis_offset: [(i32, i32); HYPOTHESES],
     /// Hypotheses whose samples stay clear of the in-place keyframe update.
     usable_hypotheses: usize,
+    /// Per axis (K, G): may the odometry error exceed half a pixel this frame?
+    full_tolerance: (bool, bool),
+    /// Hypotheses 0..ground_like whose displacement the odometry error could
+    /// explain: they all stand for the ground.
+    ground_like: usize,
     /// Per-hypothesis SAD of the cells of the current cell row.
     cell_row_sad: [[u32; MAX_CELLS_SIDE]; HYPOTHESES],
     cell_row_pixels: [[u16; MAX_CELLS_SIDE]; HYPOTHESES],
@@ -255,6 +265,7 @@ impl<'b> Gpa<'b> {
             config.min_residue_mm2,
             config.parallax_min_gain,
             config.min_obstacle_height_mm,
+            config.odometry_error_fraction,
         ];
         if config.search_radius == 0
             || config.search_radius > MAX_SEARCH_RADIUS
@@ -328,6 +339,8 @@ impl<'b> Gpa<'b> {
             hypothesis_rows: [[None; MAX_GRID_SIDE]; HYPOTHESES],
             hypothesis_offset: [(0, 0); HYPOTHESES],
             usable_hypotheses: 0,
+            ground_like: 1,
+            full_tolerance: (false, false),
             cell_row_sad: [[0; MAX_CELLS_SIDE]; HYPOTHESES],
             cell_row_pixels: [[0; MAX_CELLS_SIDE]; HYPOTHESES],
             cell_height: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
@@ -384,6 +397,15 @@ impl<'b> Gpa<'b> {
             let g = f / (1.0 - f);
             *slot = (to_q16(di * g), to_q16(dj * g));
         }
+        let error = self.config.odometry_error_fraction;
+        let half_px = 0.5 * self.grid.mm_per_px;
+        self.full_tolerance = (
+            error * libm::fabs(self.step.tx_mm) > half_px,
+            error * libm::fabs(self.step.tz_mm) > half_px,
+        );
+        let tolerance_mm = error * self.step.distance_mm() + half_px;
+        let baseline = self.predicted.distance_mm();
+        self.ground_like = HEIGHT_FRACTIONS.iter().take_while(|f| baseline * **f / (1.0 - **f) <= tolerance_mm).count().max(1);
         // This frame replaces the keyframe once the baseline is long enough.
         // The in-place update runs KEYFRAME_SPARE_ROWS ahead of the write
         // position, so reads must stay within that lead: hypotheses that would
@@ -546,13 +568,22 @@ impl<'b> Gpa<'b> {
             // Tolerant residue (Birchfield-Tomasi style): the current value
             // against the range the warped keyframe spans within half a pixel
             // of the prediction, along K and along G.
+            // Along an axis where the odometry may be a pixel off, the range
+            // reaches the full neighbour instead of the half-way value.
             let here = self.band[s][centre];
-            let half = |other: u8| ((u16::from(here) + u16::from(other) + 1) >> 1) as u8;
+            let reach = |other: u8, full: bool| {
+                if full {
+                    other
+                } else {
+                    ((u16::from(here) + u16::from(other) + 1) >> 1) as u8
+                }
+            };
+            let (full_k, full_g) = self.full_tolerance;
             let neighbours = [
-                half(self.band[s][centre - 1]),
-                half(self.band[s][centre + 1]),
-                half(self.band[s - 1][centre]),
-                half(self.band[s + 1][centre]),
+                reach(self.band[s][centre - 1], full_k),
+                reach(self.band[s][centre + 1], full_k),
+                reach(self.band[s - 1][centre], full_g),
+                reach(self.band[s + 1][centre], full_g),
             ];
             let (mut low, mut high) = (here, here);
             for v in neighbours {
@@ -638,14 +669,17 @@ impl<'b> Gpa<'b> {
     /// The height (as a fraction of H) that a cell's hypothesis SADs point
     /// at, or None if the ground explains the cell as well.
     fn parallax_fraction(&self, sads: &[u32], pixels: u16, min_gain: f64) -> Option<f64> {
-        let ground = sads[0];
+        // The ground: the tolerant residue, or any height so small that the
+        // odometry error alone could produce its displacement.
+        let ground_like = self.ground_like.min(sads.len());
+        let ground = sads[..ground_like].iter().copied().min().unwrap_or(u32::MAX);
         let mut best = 0;
-        for k in 1..sads.len() {
-            if sads[k] < sads[best] {
+        for k in ground_like..sads.len() {
+            if best == 0 || sads[k] < sads[best] {
                 best = k;
             }
         }
-        if best == 0 {
+        if best == 0 || sads[best] >= ground {
             return None;
         }
         let best_sad = sads[best];
@@ -764,6 +798,8 @@ impl<'b> Gpa<'b> {
         // residue blob catches what has no consistent parallax (moving things).
         let parallax = self.find_parallax_obstacle();
         let residue = self.find_blobs().map(|blob| self.locate(&blob));
+        #[cfg(feature = "debug-print")]
+        std::eprintln!("decide frame {}: parallax {:?} residue {:?} ground_like {}", self.frame, parallax, residue, self.ground_like);
         let evidence = parallax.map(|(near, left, right, _)| (near, left, right)).or(residue);
         self.obstacle_height_mm = parallax.map(|(_, _, _, height)| height);
         // Too short a baseline shows too little parallax to clear an alarm:
@@ -877,7 +913,9 @@ impl<'b> Gpa<'b> {
                 left = left.min(x_left * scale);
                 right = right.max(x_right * scale);
                 tallest = tallest.max(height);
-                for (dr, dc) in [(-1i32, -1i32), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)] {
+                // Parallax is measured only where there is texture, so a face
+                // can leave a cell out here and there: bridge one-cell gaps.
+                for (dr, dc) in (-2i32..=2).flat_map(|dr| (-2i32..=2).map(move |dc| (dr, dc))) {
                     let (nr, nc) = (r as i32 + dr, c as i32 + dc);
                     if nr < 0 || nc < 0 || nr as usize >= h || nc as usize >= w {
                         continue;

@@ -16,19 +16,27 @@ pub const MAX_GRID_SIDE: usize = 256;
 pub struct GridConfig {
     /// Ground beyond each side of the AOI (robot translation sideways, turns).
     pub margin_lateral_mm: f64,
-    /// Ground beyond the far AOI edge: travel since the keyframe, the shift
-    /// search, and room for the tops of obstacles standing near the far edge
-    /// (a point at height h reprojects H/(H-h) times farther out).
-    pub margin_far_mm: f64,
+    /// Ground beyond the far AOI edge; `None` derives it from the AOI:
+    /// [`TRAVEL_MARGIN_MM`] for the travel since the keyframe, plus room to
+    /// see an obstacle standing on the far edge up to a fifth of the camera
+    /// height (a point at height h reprojects H/(H-h) times farther out, so
+    /// that is a quarter of the far distance again).
+    pub margin_far_mm: Option<f64>,
     /// Ground before the near AOI edge (the shift search).
     pub margin_near_mm: f64,
-    /// Fixed resolution; `None` chooses it from the rig.
+    /// Fixed resolution; `None` chooses it from the rig. With a fixed
+    /// resolution the far margin shrinks as needed to fit the 256 cap.
     pub mm_per_px: Option<f64>,
 }
 
+/// Far margin for the travel between a keyframe and a later frame.
+pub const TRAVEL_MARGIN_MM: f64 = 100.0;
+/// Far margin per mm of far AOI distance, for obstacles standing on the far edge.
+pub const LOOK_BEYOND_FRACTION: f64 = 0.25;
+
 impl Default for GridConfig {
     fn default() -> Self {
-        GridConfig { margin_lateral_mm: 150.0, margin_far_mm: 250.0, margin_near_mm: 60.0, mm_per_px: None }
+        GridConfig { margin_lateral_mm: 150.0, margin_far_mm: None, margin_near_mm: 60.0, mm_per_px: None }
     }
 }
 
@@ -71,22 +79,24 @@ impl KgGrid {
     /// finest the camera resolves there), coarsened only as far as the
     /// 256x256 cap demands.
     pub fn for_rig(rig: &Rig, config: &GridConfig) -> Result<KgGrid, GridError> {
-        let margins = [config.margin_lateral_mm, config.margin_far_mm, config.margin_near_mm];
+        let aoi = rig.aoi();
+        let margin_far = config.margin_far_mm.unwrap_or(TRAVEL_MARGIN_MM + LOOK_BEYOND_FRACTION * aoi.far_mm);
+        let margins = [config.margin_lateral_mm, margin_far, config.margin_near_mm];
         if !margins.iter().all(|m| m.is_finite() && *m >= 0.0) {
             return Err(GridError::Config);
         }
-        let aoi = rig.aoi();
         let extent_x = 2.0 * (aoi.half_width_mm + config.margin_lateral_mm);
         let z_near = aoi.near_mm - config.margin_near_mm;
-        let z_far = aoi.far_mm + config.margin_far_mm;
-        let extent_z = z_far - z_near;
+        let mut z_far = aoi.far_mm + margin_far;
         let cap = (MAX_GRID_SIDE - 1) as f64;
         let mm_per_px = match config.mm_per_px {
             Some(fixed) => {
                 if !(fixed.is_finite() && fixed > 0.0) {
                     return Err(GridError::Config);
                 }
-                if extent_x / fixed > cap || extent_z / fixed > cap {
+                // Give up far margin before refusing the resolution.
+                z_far = z_far.min(z_near + cap * fixed);
+                if extent_x / fixed > cap || z_far < aoi.far_mm {
                     return Err(GridError::TooLarge);
                 }
                 fixed
@@ -95,10 +105,11 @@ impl KgGrid {
                 let (lateral, longitudinal) =
                     rig.ground_footprint_mm(0.0, aoi.near_mm).ok_or(GridError::NotInView)?;
                 let finest = longitudinal.max(lateral);
-                let chosen = finest.max(extent_x / cap).max(extent_z / cap);
+                let chosen = finest.max(extent_x / cap).max((z_far - z_near) / cap);
                 ceil(chosen / RESOLUTION_QUANTUM_MM) * RESOLUTION_QUANTUM_MM
             }
         };
+        let extent_z = z_far - z_near;
         let width = ceil(extent_x / mm_per_px) as usize + 1;
         let height = ceil(extent_z / mm_per_px) as usize + 1;
         if width > MAX_GRID_SIDE || height > MAX_GRID_SIDE {
@@ -211,6 +222,10 @@ mod tests {
         assert_eq!(KgGrid::for_rig(&rig, &config).unwrap().mm_per_px, 5.0);
         let config = GridConfig { mm_per_px: Some(1.0), ..GridConfig::default() };
         assert_eq!(KgGrid::for_rig(&rig, &config), Err(GridError::TooLarge));
+        // A fine fixed resolution keeps the AOI and gives up far margin.
+        let config = GridConfig { mm_per_px: Some(4.0), ..GridConfig::default() };
+        let grid = KgGrid::for_rig(&rig, &config).unwrap();
+        assert!(grid.height() <= MAX_GRID_SIDE && grid.z_far_mm >= 1400.0);
         let config = GridConfig { mm_per_px: Some(f64::NAN), ..GridConfig::default() };
         assert_eq!(KgGrid::for_rig(&rig, &config), Err(GridError::Config));
     }

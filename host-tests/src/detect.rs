@@ -49,6 +49,18 @@ impl Pipeline {
         &mut self,
         recording: &Recording,
         config: &DetectConfig,
+        on_frame: impl FnMut(FrameOutcome, &Gpa),
+    ) -> Result<(), String> {
+        self.run_with(recording, config, |_, _| {}, on_frame)
+    }
+
+    /// As [`Pipeline::run`], with `alter` applied to each frame after loading
+    /// (the tests' perturbations: noise, gain changes).
+    pub fn run_with(
+        &mut self,
+        recording: &Recording,
+        config: &DetectConfig,
+        mut alter: impl FnMut(u32, &mut crate::recording::Frame),
         mut on_frame: impl FnMut(FrameOutcome, &Gpa),
     ) -> Result<(), String> {
         let mut gpa = Gpa::new(&recording.rig, &self.grid, &self.table, config.gpa, &mut self.keyframe)
@@ -59,7 +71,10 @@ impl Pipeline {
         let mut previous: Option<(u32, f64, flatland_core::motion::Pose)> = None;
         for index in 0..=last {
             let frame = match recording.load_frame(index) {
-                Ok(frame) => frame,
+                Ok(mut frame) => {
+                    alter(index, &mut frame);
+                    frame
+                }
                 Err(error) => {
                     // A missing or broken frame is a gap: the next good frame
                     // restarts the keyframe rather than raise a false alarm.

@@ -144,10 +144,17 @@ fn json_row(report: &FrameReport) -> String {
 }
 
 fn run_detect(path: &Path, format: Format, png: Option<&Path>, truth: bool) -> ExitCode {
-    let recording = match Recording::open(path) {
+    let mut recording = match Recording::open(path) {
         Ok(r) => r,
         Err(e) => return fatal(e),
     };
+    let perturbation = std::env::var("FLATLAND_PERTURB").ok().map(|text| {
+        let v: Vec<f64> = text.split(',').map(|x| x.parse().unwrap()).collect();
+        flatland_host::perturb::Perturbation { noise_sigma: v[0], gain_flicker: v[1], odometry_scale_sigma: v[2], odometry_scale_bias: v[3], yaw_sigma_deg: v[4], seed: v[5] as u64 }
+    });
+    if let Some(p) = perturbation {
+        p.poses(&mut recording);
+    }
     let mut config = DetectConfig::default();
     if let Ok(tune) = std::env::var("FLATLAND_TUNE") {
         let v: Vec<f64> = tune.split(',').map(|x| x.parse().unwrap()).collect();
@@ -156,7 +163,7 @@ fn run_detect(path: &Path, format: Format, png: Option<&Path>, truth: bool) -> E
         config.gpa.peak_cell_percent = v[2] as u32;
         config.gpa.min_residue_mm2 = v[3];
         config.gpa.noise_factor = v[4];
-        if v.len() > 5 { config.grid.margin_far_mm = v[5]; }
+        if v.len() > 5 { config.grid.margin_far_mm = Some(v[5]); }
     }
     let mut pipeline = match Pipeline::new(&recording, &config) {
         Ok(p) => p,
@@ -176,7 +183,7 @@ fn run_detect(path: &Path, format: Format, png: Option<&Path>, truth: bool) -> E
         let _ = writeln!(out, "{CSV_HEADER}");
     }
     let mut picture_error = None;
-    let result = pipeline.run(&recording, &config, |outcome, gpa| match outcome {
+    let result = pipeline.run_with(&recording, &config, |index, frame| if let Some(p) = perturbation { p.frame(index, frame) }, |outcome, gpa| match outcome {
         FrameOutcome::Report { report, kg } => {
             let line = match format {
                 Format::Csv => {
