@@ -25,7 +25,7 @@ use flatland_core::protocol::{
 };
 use flatland_core::remap::{RemapError, RemapTable, StreamingRemap};
 use flatland_core::report::FrameReport;
-use static_cell::ConstStaticCell;
+use static_cell::{ConstStaticCell, StaticCell};
 
 use crate::board::{CycleCounter, RowSource, RowSourceError};
 
@@ -41,6 +41,7 @@ pub const KEYFRAME_CAPACITY: usize = 72 * 1024;
 
 static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
 static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
+static DETECTOR: StaticCell<Result<Gpa<'static>, flatland_core::gpa::GpaError>> = StaticCell::new();
 static KEYFRAME: ConstStaticCell<[u8; KEYFRAME_CAPACITY]> = ConstStaticCell::new([0; KEYFRAME_CAPACITY]);
 
 /// Why a rig was refused at start-up. Each is logged and sent as `$FLERR`.
@@ -365,6 +366,16 @@ fn log_report(report: &FrameReport) {
     }
 }
 
+#[inline(never)]
+fn build_detector(
+    rig: &Rig,
+    grid: &KgGrid,
+    table: &'static RemapTable,
+    keyframe: &'static mut [u8],
+) -> &'static mut Result<Gpa<'static>, flatland_core::gpa::GpaError> {
+    DETECTOR.init_with(|| Gpa::new(rig, grid, table, GpaConfig::default(), keyframe))
+}
+
 /// Runs until the host sends `$FLEND`; returns the final counters.
 pub fn run<S, A, C, R>(board: Board<S, A, C, R>, options: &Options) -> LinkStats
 where
@@ -397,9 +408,12 @@ where
             return link.finish();
         }
     };
-    let mut gpa = match Gpa::new(&rig, &grid, table, GpaConfig::default(), &mut keyframe[..]) {
+    // The detector (~15 KB) lives in a static, built in place: on the stack
+    // LLVM keeps a temporary and the moved copy, ~30 KB.
+    let gpa = match build_detector(&rig, &grid, table, &mut keyframe[..]) {
         Ok(gpa) => gpa,
         Err(error) => {
+            let error = *error;
             defmt::error!("detector refused: {}", defmt::Debug2Format(&error));
             link.fault(SetupError::Detector(error).fault_code(), 0);
             return link.finish();
@@ -438,7 +452,7 @@ where
 
         let mut timing = FrameTiming::default();
         let mut compared = false;
-        match process_frame(&mut frames, &counter, &mut remap, camera, grid.height(), &mut gpa, frame, motion, &mut timing) {
+        match process_frame(&mut frames, &counter, &mut remap, camera, grid.height(), gpa, frame, motion, &mut timing) {
             Ok(outcome) => {
                 match outcome {
                     Some(report) => {
