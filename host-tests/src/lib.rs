@@ -7,4 +7,5 @@ pub mod evaluate;
 pub mod images;
 pub mod serial_decode;
 pub mod kg;
+pub mod qemu;
 pub mod recording;
