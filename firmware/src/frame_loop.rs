@@ -278,19 +278,27 @@ struct FrameFailure {
     mid_frame: bool,
 }
 
+/// The per-frame pipeline and the sizes it expects.
+struct Stages<'a, 't, 'r, 'b> {
+    remap: StreamingRemap<'t, 'r>,
+    gpa: &'a mut Gpa<'b>,
+    /// Camera (width, height) of the rig.
+    camera: (usize, usize),
+    grid_height: usize,
+}
+
 /// Streams frame `index` through the remap into the detector and finishes it.
 /// On failure the caller abandons the frame in the detector.
 fn process_frame<R: RowSource, C: CycleCounter>(
     frames: &mut R,
     counter: &C,
-    remap: &mut StreamingRemap,
-    camera: (usize, usize),
-    grid_height: usize,
-    gpa: &mut Gpa,
+    stages: &mut Stages,
     index: u32,
     odometry: Option<Motion>,
     timing: &mut FrameTiming,
 ) -> Result<Option<FrameReport>, FrameFailure> {
+    let Stages { remap, gpa, camera, grid_height } = stages;
+    let (camera, grid_height) = (*camera, *grid_height);
     let early = |code| FrameFailure { code, mid_frame: false };
     let size = frames.begin_frame(index).map_err(|error| {
         early(match error {
@@ -401,7 +409,7 @@ where
     let camera = (table.camera_width(), table.camera_height());
     // `set_up` checked the ring and keyframe sizes, so these only fail on a
     // core change; still a typed fault, not a panic.
-    let mut remap = match StreamingRemap::new(table, &mut ring[..]) {
+    let remap = match StreamingRemap::new(table, &mut ring[..]) {
         Ok(remap) => remap,
         Err(_) => {
             link.fault(FaultCode::CameraTooLarge, 0);
@@ -420,6 +428,7 @@ where
         }
     };
 
+    let mut stages = Stages { remap, gpa, camera, grid_height: grid.height() };
     let mut previous: Option<Previous> = None;
     let mut started = false;
     loop {
@@ -446,13 +455,13 @@ where
         }
         if follows.is_none() {
             // A pose (or frame) is missing before this one: detect.rs resets here.
-            gpa.reset_keyframe();
+            stages.gpa.reset_keyframe();
         }
         started = true;
 
         let mut timing = FrameTiming::default();
         let mut compared = false;
-        match process_frame(&mut frames, &counter, &mut remap, camera, grid.height(), gpa, frame, motion, &mut timing) {
+        match process_frame(&mut frames, &counter, &mut stages, frame, motion, &mut timing) {
             Ok(outcome) => {
                 match outcome {
                     Some(report) => {
@@ -473,11 +482,11 @@ where
             Err(failure) => {
                 frames.end_frame();
                 if failure.mid_frame {
-                    gpa.abort_frame();
+                    stages.gpa.abort_frame();
                     bump(&mut link.counters.aborted);
                 }
                 // As detect.rs for a skipped frame: the next one restarts the keyframe.
-                gpa.reset_keyframe();
+                stages.gpa.reset_keyframe();
                 let _ = alarm.set_low();
                 link.fault(failure.code, frame);
                 previous = None;
