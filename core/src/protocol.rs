@@ -63,7 +63,7 @@ pub struct Odometry {
 /// What the firmware counted on its serial input and frame stream.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LinkStats {
-    /// Frames processed and reported.
+    /// Frames processed to the end (with a report, or (re)starting the keyframe).
     pub frames: u32,
     /// Bytes outside any `$...\n` line.
     pub garbage_bytes: u32,
@@ -79,8 +79,11 @@ pub struct LinkStats {
     pub bad_field: u32,
     /// Well-formed messages that make no sense where they came (e.g. odometry before the rig).
     pub out_of_order: u32,
-    /// Jumps in the frame sequence (a missed frame or pose).
+    /// Frames that restarted the keyframe because the frame before them is
+    /// missing (no pose, no or broken frame, time not increasing).
     pub frame_gaps: u32,
+    /// Frames whose source stopped mid-frame (abandoned; see `FaultCode::FrameRead`).
+    pub aborted: u32,
 }
 
 /// A fatal condition the firmware reports before it gives up on a frame or the run.
@@ -98,16 +101,22 @@ pub enum FaultCode {
     FrameRead,
     /// The streaming remap refused a row.
     RemapFailed,
+    /// The KG grid needs more keyframe memory than the target has.
+    GridTooLarge,
+    /// The camera rows need more row memory than the target has.
+    CameraTooLarge,
 }
 
 impl FaultCode {
-    const ALL: [FaultCode; 6] = [
+    const ALL: [FaultCode; 8] = [
         FaultCode::RigRejected,
         FaultCode::TableRejected,
         FaultCode::FrameMissing,
         FaultCode::FrameFormat,
         FaultCode::FrameRead,
         FaultCode::RemapFailed,
+        FaultCode::GridTooLarge,
+        FaultCode::CameraTooLarge,
     ];
 
     /// The wire name (also used in logs).
@@ -119,6 +128,8 @@ impl FaultCode {
             FaultCode::FrameFormat => "frame_format",
             FaultCode::FrameRead => "frame_read",
             FaultCode::RemapFailed => "remap_failed",
+            FaultCode::GridTooLarge => "grid_too_large",
+            FaultCode::CameraTooLarge => "camera_too_large",
         }
     }
 
@@ -306,7 +317,7 @@ fn write_body<W: Write>(out: &mut W, message: &Message) -> Result<(), EncodeErro
         }
         Message::Stats(s) => write!(
             out,
-            ",{},{},{},{},{},{},{},{},{}",
+            ",{},{},{},{},{},{},{},{},{},{}",
             s.frames,
             s.garbage_bytes,
             s.truncated,
@@ -315,7 +326,8 @@ fn write_body<W: Write>(out: &mut W, message: &Message) -> Result<(), EncodeErro
             s.unknown_type,
             s.bad_field,
             s.out_of_order,
-            s.frame_gaps
+            s.frame_gaps,
+            s.aborted
         )?,
         Message::Fault(fault) => write!(out, ",{},{}", fault.code.as_str(), fault.frame)?,
         Message::End => {}
@@ -488,6 +500,7 @@ fn decode_body(body: &str) -> Result<Message, DecodeError> {
             bad_field: fields.integer()?,
             out_of_order: fields.integer()?,
             frame_gaps: fields.integer()?,
+            aborted: fields.integer()?,
         }),
         "FLERR" => {
             let code = FaultCode::from_wire(fields.next_raw()?).ok_or(fields.bad())?;
@@ -566,6 +579,7 @@ impl Decoder {
             bad_field: 0,
             out_of_order: 0,
             frame_gaps: 0,
+            aborted: 0,
         } }
     }
 
@@ -715,6 +729,7 @@ pub mod checks {
             bad_field: 7,
             out_of_order: 8,
             frame_gaps: 9,
+            aborted: 10,
         };
         let messages = [
             Message::Ready,

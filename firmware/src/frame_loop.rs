@@ -1,45 +1,86 @@
-//! The frame loop: rig in, table built, then per frame: pose in, rows
-//! streamed through the KG remap, one report out.
+//! The frame loop: rig in, remap table and detector built, then per frame:
+//! pose in, rows streamed through the KG remap into the GPA detector, one
+//! report out.
 //!
 //! It sees the board only through the board layer's traits, so the same loop
-//! runs on the emulated and on a real board.
-//!
-//! Stand-in until the detector lands: the per-frame report carries the frame
-//! indices and the odometry's motion prediction since the reference frame;
-//! the detection fields (alarm, nearest, SAD, shifts, height) stay at their
-//! "nothing found" defaults and the log says so. The KG rows are counted and
-//! their mean logged, which proves the remap runs on every frame.
+//! runs on the emulated and on a real board. Per frame it does exactly what
+//! the host's `flatland detect` does (`host-tests/src/detect.rs`), so the
+//! reports are equal field for field:
+//! - odometry is `Motion::between` the previous and this frame's pose, only
+//!   when the previous frame was processed, is the frame just before, and
+//!   its time is earlier; otherwise the keyframe restarts (no false alarm);
+//! - a frame that cannot be opened or read is skipped with a `$FLERR`, and
+//!   one that stops mid-frame is abandoned (`Gpa::abort_frame`); the reports
+//!   already sent stand and the loop goes on with the next pose.
 
 use embedded_hal::digital::OutputPin;
 use embedded_io::{Read, Write};
-use libm::{cos, round, sin};
 
 use flatland_core::geometry::{Aoi, Distortion, Intrinsics, Mount, Rig};
+use flatland_core::gpa::{Gpa, GpaConfig};
 use flatland_core::grid::{GridConfig, KgGrid};
+use flatland_core::motion::{Motion, Pose};
 use flatland_core::protocol::{
     encode_line, Decoder, Fault, FaultCode, LinkStats, Message, Odometry, RigRecord,
 };
-use flatland_core::remap::{RemapTable, StreamingRemap};
-use flatland_core::report::{FrameReport, MOTION_SCALE};
-use static_cell::ConstStaticCell;
+use flatland_core::remap::{RemapError, RemapTable, StreamingRemap};
+use flatland_core::report::FrameReport;
+use static_cell::{ConstStaticCell, StaticCell};
 
 use crate::board::{CycleCounter, RowSource, RowSourceError};
 
-/// Largest camera row we accept (the geometry caps the image side at 1024).
-pub const MAX_CAMERA_WIDTH: usize = flatland_core::geometry::MAX_IMAGE_SIDE as usize;
-/// Camera rows the streaming remap may keep, in bytes.
-pub const RING_CAPACITY: usize = 16 * 1024;
+/// Widest camera row supported (VGA); wider rigs are refused at start-up.
+pub const MAX_CAMERA_WIDTH: usize = 640;
+/// Camera rows the streaming remap may keep: 8 rows of the widest camera.
+/// The bundled rigs need 2; steep tilts and strong distortion need more.
+pub const RING_CAPACITY: usize = 8 * MAX_CAMERA_WIDTH;
+/// Keyframe memory (`Gpa::keyframe_bytes`). 72 KiB holds the QVGA rig's
+/// 221x256 grid (70,720 B) and the 256x256 rigs' 161x253 grid (51,037 B);
+/// a full 256x256 grid (81,920 B) does not fit next to the rest in 128 KB.
+pub const KEYFRAME_CAPACITY: usize = 72 * 1024;
 
 static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
 static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
+static DETECTOR: StaticCell<Result<Gpa<'static>, flatland_core::gpa::GpaError>> = StaticCell::new();
+static KEYFRAME: ConstStaticCell<[u8; KEYFRAME_CAPACITY]> = ConstStaticCell::new([0; KEYFRAME_CAPACITY]);
 
-/// Instruction counts of the last frame, for the benchmark log.
+/// Why a rig was refused at start-up. Each is logged and sent as `$FLERR`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SetupError {
+    Rig(flatland_core::geometry::RigError),
+    Grid(flatland_core::grid::GridError),
+    Table(flatland_core::remap::TableError),
+    /// Camera rows wider than [`MAX_CAMERA_WIDTH`].
+    CameraTooWide { width: usize },
+    /// The remap needs more than [`RING_CAPACITY`] bytes of camera rows.
+    RingTooSmall { needed: usize },
+    /// The grid needs more than [`KEYFRAME_CAPACITY`] bytes of keyframe.
+    KeyframeTooLarge { needed: usize },
+    Detector(flatland_core::gpa::GpaError),
+}
+
+impl SetupError {
+    fn fault_code(self) -> FaultCode {
+        match self {
+            SetupError::Rig(_) => FaultCode::RigRejected,
+            SetupError::Grid(_) | SetupError::Table(_) | SetupError::Detector(_) => FaultCode::TableRejected,
+            SetupError::CameraTooWide { .. } | SetupError::RingTooSmall { .. } => FaultCode::CameraTooLarge,
+            SetupError::KeyframeTooLarge { .. } => FaultCode::GridTooLarge,
+        }
+    }
+}
+
+/// Instruction counts of one frame, for the benchmark log.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct FrameTiming {
     /// Reading the rows from the row source.
     pub read: u32,
-    /// The streaming remap (all `push_row` calls).
+    /// The streaming remap (`push_row`, without the detector's share).
     pub remap: u32,
+    /// The detector's per-row work (`Gpa::on_kg_row`: shift search, residue, keyframe update).
+    pub shift_search: u32,
+    /// `Gpa::end_frame`: best shift, noise, blobs, decision.
+    pub decision: u32,
     /// The whole cycle, odometry received to report sent.
     pub cycle: u32,
 }
@@ -51,6 +92,11 @@ struct LoopCounters {
     serial_overruns: u32,
     out_of_order: u32,
     frame_gaps: u32,
+    aborted: u32,
+}
+
+fn bump(counter: &mut u32) {
+    *counter = counter.saturating_add(1);
 }
 
 /// The board parts the loop needs.
@@ -81,7 +127,7 @@ impl<S: Read + Write> Link<S> {
                 Ok(1) => {}
                 Ok(_) => continue,
                 Err(_) => {
-                    self.counters.serial_overruns = self.counters.serial_overruns.saturating_add(1);
+                    bump(&mut self.counters.serial_overruns);
                     continue;
                 }
             }
@@ -115,12 +161,20 @@ impl<S: Read + Write> Link<S> {
         stats.garbage_bytes = stats.garbage_bytes.saturating_add(self.counters.serial_overruns);
         stats.out_of_order = self.counters.out_of_order;
         stats.frame_gaps = self.counters.frame_gaps;
+        stats.aborted = self.counters.aborted;
         stats
     }
 
     fn out_of_order(&mut self, message: &Message) {
         defmt::warn!("serial: unexpected {=str}", message.tag());
-        self.counters.out_of_order = self.counters.out_of_order.saturating_add(1);
+        bump(&mut self.counters.out_of_order);
+    }
+
+    /// Sends the counters and returns them: the end of a run.
+    fn finish(&mut self) -> LinkStats {
+        let stats = self.stats();
+        self.send(&Message::Stats(stats));
+        stats
     }
 }
 
@@ -144,26 +198,32 @@ fn rig_from_record(record: &RigRecord) -> Result<Rig, flatland_core::geometry::R
     Rig::new_checked(camera, mount, aoi)
 }
 
-/// Motion from pose `from` to pose `to`, in the robot frame of `from`, in
-/// 1/[`MOTION_SCALE`] mm. Yaw turns left (counter-clockwise from above);
-/// yaw 0 faces world +z, so the robot's right is (cos, sin) and its forward
-/// is (-sin, cos) in world (x, z).
-fn odometry_motion(from: &Odometry, to: &Odometry) -> (i32, i32) {
-    let yaw = from.yaw_deg.to_radians();
-    let (dx, dz) = (to.x_mm - from.x_mm, to.z_mm - from.z_mm);
-    let tx = dx * cos(yaw) + dz * sin(yaw);
-    let tz = -dx * sin(yaw) + dz * cos(yaw);
-    let scale = f64::from(MOTION_SCALE);
-    (round(tx * scale) as i32, round(tz * scale) as i32)
+/// Validates the rig, checks it fits the target's memory, builds the table.
+fn set_up(record: &RigRecord, table: &mut RemapTable) -> Result<(Rig, KgGrid), SetupError> {
+    let rig = rig_from_record(record).map_err(SetupError::Rig)?;
+    if usize::from(record.width) > MAX_CAMERA_WIDTH {
+        return Err(SetupError::CameraTooWide { width: usize::from(record.width) });
+    }
+    let grid = KgGrid::for_rig(&rig, &GridConfig::default()).map_err(SetupError::Grid)?;
+    let needed = Gpa::keyframe_bytes(&grid);
+    if needed > KEYFRAME_CAPACITY {
+        return Err(SetupError::KeyframeTooLarge { needed });
+    }
+    table.build(&rig, &grid).map_err(SetupError::Table)?;
+    if table.ring_bytes() > RING_CAPACITY {
+        return Err(SetupError::RingTooSmall { needed: table.ring_bytes() });
+    }
+    Ok((rig, grid))
 }
 
-/// Waits for a rig that validates, builds the remap table, and announces it.
+/// Waits for a rig that fits, builds the remap table, and announces it.
+/// None when the input ends first.
 fn configure<S: Read + Write, C: CycleCounter>(
     link: &mut Link<S>,
     counter: &C,
     table: &mut RemapTable,
     options: &Options,
-) -> Option<RigRecord> {
+) -> Option<(Rig, KgGrid)> {
     loop {
         let record = match link.receive() {
             Message::Rig(record) => record,
@@ -173,84 +233,155 @@ fn configure<S: Read + Write, C: CycleCounter>(
                 continue;
             }
         };
-        let rig = match rig_from_record(&record) {
-            Ok(rig) => rig,
+        let started = counter.now();
+        let (rig, grid) = match set_up(&record, table) {
+            Ok(built) => built,
             Err(error) => {
                 defmt::error!("rig refused: {}", defmt::Debug2Format(&error));
-                link.fault(FaultCode::RigRejected, 0);
+                link.fault(error.fault_code(), 0);
                 continue;
             }
         };
-        let started = counter.now();
-        let built = KgGrid::for_rig(&rig, &GridConfig::default())
-            .map_err(|error| defmt::error!("grid refused: {}", defmt::Display2Format(&error)))
-            .and_then(|grid| {
-                table.build(&rig, &grid).map_err(|error| defmt::error!("table refused: {}", defmt::Debug2Format(&error)))
-            });
-        if built.is_err() {
-            link.fault(FaultCode::TableRejected, 0);
-            continue;
-        }
-        if table.ring_bytes() > RING_CAPACITY {
-            defmt::error!("remap ring needs {=usize} bytes, have {=usize}", table.ring_bytes(), RING_CAPACITY);
-            link.fault(FaultCode::TableRejected, 0);
-            continue;
-        }
         let build_instructions = counter.now().wrapping_sub(started);
         defmt::info!(
-            "rig accepted: camera {=u16}x{=u16}, KG grid {=usize}x{=usize}, table {=usize} B, ring {=usize} rows",
+            "rig accepted: camera {=u16}x{=u16}, KG grid {=usize}x{=usize}, table {=usize} B, ring {=usize} of {=usize} B, keyframe {=usize} of {=usize} B",
             record.width,
             record.height,
-            table.grid_width(),
-            table.grid_height(),
+            grid.width(),
+            grid.height(),
             RemapTable::size_bytes(),
-            table.ring_rows()
+            table.ring_bytes(),
+            RING_CAPACITY,
+            Gpa::keyframe_bytes(&grid),
+            KEYFRAME_CAPACITY
         );
         if options.bench {
             defmt::println!("bench: table_build: {=u32}", build_instructions);
         }
         link.send(&Message::Hello(record));
-        return Some(record);
+        return Some((rig, grid));
     }
 }
 
-/// Streams frame `index` through the remap. Returns the KG rows emitted and their pixel sum.
-fn remap_frame<R: RowSource, C: CycleCounter>(
+/// The last frame that was processed to the end: what the next frame's odometry starts from.
+#[derive(Clone, Copy)]
+struct Previous {
+    frame: u32,
+    t_s: f64,
+    pose: Pose,
+}
+
+/// Why a frame was given up.
+struct FrameFailure {
+    code: FaultCode,
+    /// Rows had reached the detector: the frame is abandoned mid-way.
+    mid_frame: bool,
+}
+
+/// The per-frame pipeline and the sizes it expects.
+struct Stages<'a, 't, 'r, 'b> {
+    remap: StreamingRemap<'t, 'r>,
+    gpa: &'a mut Gpa<'b>,
+    /// Camera (width, height) of the rig.
+    camera: (usize, usize),
+    grid_height: usize,
+}
+
+/// Streams frame `index` through the remap into the detector and finishes it.
+/// On failure the caller abandons the frame in the detector.
+fn process_frame<R: RowSource, C: CycleCounter>(
     frames: &mut R,
     counter: &C,
-    remap: &mut StreamingRemap,
+    stages: &mut Stages,
     index: u32,
+    odometry: Option<Motion>,
     timing: &mut FrameTiming,
-) -> Result<(u32, u64), FaultCode> {
-    let size = frames.begin_frame(index).map_err(|error| match error {
-        RowSourceError::Missing => FaultCode::FrameMissing,
-        RowSourceError::Format | RowSourceError::RowLength => FaultCode::FrameFormat,
-        RowSourceError::Read => FaultCode::FrameRead,
+) -> Result<Option<FrameReport>, FrameFailure> {
+    let Stages { remap, gpa, camera, grid_height } = stages;
+    let (camera, grid_height) = (*camera, *grid_height);
+    let early = |code| FrameFailure { code, mid_frame: false };
+    let size = frames.begin_frame(index).map_err(|error| {
+        early(match error {
+            RowSourceError::Missing => FaultCode::FrameMissing,
+            RowSourceError::Format | RowSourceError::RowLength => FaultCode::FrameFormat,
+            RowSourceError::Read => FaultCode::FrameRead,
+        })
     })?;
-    let width = usize::from(size.width);
+    let (width, height) = (usize::from(size.width), usize::from(size.height));
+    // The host skips a frame whose size is not the rig's; so do we, before the detector sees it.
+    if (width, height) != camera {
+        return Err(early(FaultCode::FrameFormat));
+    }
     let mut row_buffer = [0u8; MAX_CAMERA_WIDTH];
-    let row = row_buffer.get_mut(..width).ok_or(FaultCode::FrameFormat)?;
+    let row = row_buffer.get_mut(..width).ok_or(early(FaultCode::FrameFormat))?;
+    gpa.begin_frame(index, odometry);
     remap.reset();
-    let (mut kg_rows, mut kg_sum) = (0u32, 0u64);
-    for _ in 0..size.height {
+    let mid = |code| FrameFailure { code, mid_frame: true };
+    let mut kg_rows = 0usize;
+    for _ in 0..height {
         let read_start = counter.now();
-        frames.read_row(row).map_err(|_| FaultCode::FrameRead)?;
+        frames.read_row(row).map_err(|_| mid(FaultCode::FrameRead))?;
         let remap_start = counter.now();
+        let mut detector = 0u32;
         remap
-            .push_row(row, |_, kg_row| {
+            .push_row(row, |j, kg_row| {
+                let start = counter.now();
                 kg_rows += 1;
-                kg_sum += kg_row.iter().map(|&p| u64::from(p)).sum::<u64>();
+                gpa.on_kg_row(j, kg_row);
+                detector = detector.wrapping_add(counter.now().wrapping_sub(start));
             })
-            .map_err(|error| match error {
-                flatland_core::remap::RemapError::RowLength { .. } => FaultCode::FrameFormat,
-                _ => FaultCode::RemapFailed,
+            .map_err(|error| {
+                mid(match error {
+                    RemapError::RowLength { .. } => FaultCode::FrameFormat,
+                    _ => FaultCode::RemapFailed,
+                })
             })?;
         let end = counter.now();
         timing.read = timing.read.wrapping_add(remap_start.wrapping_sub(read_start));
-        timing.remap = timing.remap.wrapping_add(end.wrapping_sub(remap_start));
+        timing.remap = timing.remap.wrapping_add(end.wrapping_sub(remap_start).wrapping_sub(detector));
+        timing.shift_search = timing.shift_search.wrapping_add(detector);
     }
     frames.end_frame();
-    Ok((kg_rows, kg_sum))
+    // The remap re-arms itself after the last camera row; every KG row must have come out.
+    if kg_rows != grid_height {
+        return Err(mid(FaultCode::RemapFailed));
+    }
+    let start = counter.now();
+    let report = gpa.end_frame();
+    timing.decision = counter.now().wrapping_sub(start);
+    Ok(report)
+}
+
+fn log_report(report: &FrameReport) {
+    if report.alarm {
+        // Human-readable alarm line; absent distances print as -1.
+        defmt::warn!(
+            "ALARM frame {=u32} (vs {=u32}): obstacle at {=i32} mm, x {=i32}..{=i32} mm",
+            report.frame,
+            report.ref_frame,
+            report.nearest_mm.unwrap_or(-1),
+            report.left_mm.unwrap_or(-1),
+            report.right_mm.unwrap_or(-1)
+        );
+    } else {
+        defmt::info!(
+            "frame {=u32} (vs {=u32}): clear, shift {=i32},{=i32} /100 px",
+            report.frame,
+            report.ref_frame,
+            report.shift_k,
+            report.shift_g
+        );
+    }
+}
+
+#[inline(never)]
+fn build_detector(
+    rig: &Rig,
+    grid: &KgGrid,
+    table: &'static RemapTable,
+    keyframe: &'static mut [u8],
+) -> &'static mut Result<Gpa<'static>, flatland_core::gpa::GpaError> {
+    DETECTOR.init_with(|| Gpa::new(rig, grid, table, GpaConfig::default(), keyframe))
 }
 
 /// Runs until the host sends `$FLEND`; returns the final counters.
@@ -265,33 +396,44 @@ where
     let mut link = Link { serial, decoder: Decoder::new(), counters: LoopCounters::default() };
     let table: &'static mut RemapTable = TABLE.take();
     let ring: &'static mut [u8; RING_CAPACITY] = RING.take();
+    let keyframe: &'static mut [u8; KEYFRAME_CAPACITY] = KEYFRAME.take();
+    let _ = alarm.set_low();
 
     // Bytes that arrive before the USART is enabled are lost: say when we listen.
     link.send(&Message::Ready);
-    if configure(&mut link, &counter, table, options).is_none() {
+    let Some((rig, grid)) = configure(&mut link, &counter, table, options) else {
         defmt::warn!("no rig before the end of input");
-        let stats = link.stats();
-        link.send(&Message::Stats(stats));
-        return stats;
-    }
+        return link.finish();
+    };
     let table: &RemapTable = table;
-    let mut remap = match StreamingRemap::new(table, &mut ring[..]) {
+    let camera = (table.camera_width(), table.camera_height());
+    // `set_up` checked the ring and keyframe sizes, so these only fail on a
+    // core change; still a typed fault, not a panic.
+    let remap = match StreamingRemap::new(table, &mut ring[..]) {
         Ok(remap) => remap,
         Err(_) => {
-            // `configure` checked the ring size, so this is not reachable from input.
-            link.fault(FaultCode::TableRejected, 0);
-            let stats = link.stats();
-            link.send(&Message::Stats(stats));
-            return stats;
+            link.fault(FaultCode::CameraTooLarge, 0);
+            return link.finish();
         }
     };
-    defmt::warn!("detector not integrated yet: reports carry odometry motion only, alarm stays 0");
+    // The detector (~15 KB) lives in a static, built in place: on the stack
+    // LLVM keeps a temporary and the moved copy, ~30 KB.
+    let gpa = match build_detector(&rig, &grid, table, &mut keyframe[..]) {
+        Ok(gpa) => gpa,
+        Err(error) => {
+            let error = *error;
+            defmt::error!("detector refused: {}", defmt::Debug2Format(&error));
+            link.fault(SetupError::Detector(error).fault_code(), 0);
+            return link.finish();
+        }
+    };
 
-    // The reference (key) frame's pose; None after start-up, a gap or a broken frame.
-    let mut reference: Option<Odometry> = None;
+    let mut stages = Stages { remap, gpa, camera, grid_height: grid.height() };
+    let mut previous: Option<Previous> = None;
+    let mut started = false;
     loop {
-        let pose = match link.receive() {
-            Message::Odometry(pose) => pose,
+        let odometry = match link.receive() {
+            Message::Odometry(odometry) => odometry,
             Message::End => break,
             other => {
                 link.out_of_order(&other);
@@ -299,43 +441,68 @@ where
             }
         };
         let cycle_start = counter.now();
-        if let Some(previous) = reference {
-            if pose.frame != previous.frame.wrapping_add(1) {
-                defmt::warn!("frame gap: {=u32} after {=u32}; keyframe reset", pose.frame, previous.frame);
-                link.counters.frame_gaps = link.counters.frame_gaps.saturating_add(1);
-                reference = None;
-            }
+        let Odometry { frame, t_s, x_mm, z_mm, yaw_deg } = odometry;
+        let pose = Pose { x_mm, z_mm, yaw_deg };
+        // As detect.rs: motion only from the frame just before, and only forward in time.
+        let follows = previous.filter(|p| p.frame.checked_add(1) == Some(frame));
+        let motion = match follows {
+            Some(p) if t_s > p.t_s => Some(Motion::between(&p.pose, &pose)),
+            _ => None,
+        };
+        if motion.is_none() && started {
+            defmt::warn!("frame {=u32}: no odometry from the frame before; keyframe restarts", frame);
+            bump(&mut link.counters.frame_gaps);
         }
+        if follows.is_none() {
+            // A pose (or frame) is missing before this one: detect.rs resets here.
+            stages.gpa.reset_keyframe();
+        }
+        started = true;
+
         let mut timing = FrameTiming::default();
-        let (kg_rows, kg_sum) = match remap_frame(&mut frames, &counter, &mut remap, pose.frame, &mut timing) {
-            Ok(result) => result,
-            Err(code) => {
+        let mut compared = false;
+        match process_frame(&mut frames, &counter, &mut stages, frame, motion, &mut timing) {
+            Ok(outcome) => {
+                match outcome {
+                    Some(report) => {
+                        compared = true;
+                        let _ = if report.alarm { alarm.set_high() } else { alarm.set_low() };
+                        link.send(&Message::Frame(report));
+                        log_report(&report);
+                    }
+                    None => {
+                        // No comparison, so no alarm can be claimed.
+                        let _ = alarm.set_low();
+                        defmt::info!("frame {=u32}: new keyframe, nothing to compare", frame);
+                    }
+                }
+                bump(&mut link.counters.frames);
+                previous = Some(Previous { frame, t_s, pose });
+            }
+            Err(failure) => {
                 frames.end_frame();
-                link.fault(code, pose.frame);
-                reference = None;
+                if failure.mid_frame {
+                    stages.gpa.abort_frame();
+                    bump(&mut link.counters.aborted);
+                }
+                // As detect.rs for a skipped frame: the next one restarts the keyframe.
+                stages.gpa.reset_keyframe();
+                let _ = alarm.set_low();
+                link.fault(failure.code, frame);
+                previous = None;
                 continue;
             }
-        };
-        let reference_pose = reference.unwrap_or(pose);
-        let (tx, tz) = odometry_motion(&reference_pose, &pose);
-        let report = FrameReport { frame: pose.frame, ref_frame: reference_pose.frame, tx, tz, ..FrameReport::default() };
-        let _ = if report.alarm { alarm.set_high() } else { alarm.set_low() };
-        link.send(&Message::Frame(report));
-        link.counters.frames = link.counters.frames.saturating_add(1);
-        reference = Some(pose);
+        }
         timing.cycle = counter.now().wrapping_sub(cycle_start);
-
-        let pixels = u64::from(kg_rows) * table.grid_width() as u64;
-        let mean = kg_sum.checked_div(pixels).unwrap_or(0);
-        defmt::info!("frame {=u32}: {=u32} KG rows, mean level {=u64}", pose.frame, kg_rows, mean);
-        if options.bench {
-            defmt::println!("bench: frame: {=u32}", pose.frame);
+        // Benchmark figures are for detection cycles (frames compared with a keyframe).
+        if options.bench && compared {
+            defmt::println!("bench: frame: {=u32}", frame);
             defmt::println!("bench: read_rows: {=u32}", timing.read);
             defmt::println!("bench: remap: {=u32}", timing.remap);
+            defmt::println!("bench: shift_search: {=u32}", timing.shift_search);
+            defmt::println!("bench: decision: {=u32}", timing.decision);
             defmt::println!("bench: instructions_per_cycle: {=u32}", timing.cycle);
         }
     }
-    let stats = link.stats();
-    link.send(&Message::Stats(stats));
-    stats
+    link.finish()
 }

@@ -25,7 +25,7 @@ fn main() -> ! {
     let stats = frame_loop::run(board, &Options { bench });
 
     defmt::info!(
-        "done: {=u32} frames; serial garbage {=u32} B, truncated {=u32}, too long {=u32}, bad checksum {=u32}, unknown {=u32}, bad field {=u32}, out of order {=u32}, frame gaps {=u32}",
+        "done: {=u32} frames; serial garbage {=u32} B, truncated {=u32}, too long {=u32}, bad checksum {=u32}, unknown {=u32}, bad field {=u32}, out of order {=u32}, frame gaps {=u32}, aborted {=u32}",
         stats.frames,
         stats.garbage_bytes,
         stats.truncated,
@@ -34,12 +34,20 @@ fn main() -> ! {
         stats.unknown_type,
         stats.bad_field,
         stats.out_of_order,
-        stats.frame_gaps
+        stats.frame_gaps,
+        stats.aborted
     );
     let (used, size) = stack_high_water();
     defmt::info!("stack high-water mark: {=usize} of {=usize} bytes", used, size);
     if bench {
         defmt::println!("bench: stack_high_water_bytes: {=usize}", used);
+        defmt::println!("bench: stack_region_bytes: {=usize}", size);
+    }
+    // No guard page below the stack: a stack that reached the statics may
+    // have corrupted them, so the run is not trusted.
+    if used >= size {
+        defmt::error!("stack overflow: the stack reached the statics");
+        exit(Exit::Failure)
     }
     exit(Exit::Success)
 }

@@ -8,4 +8,5 @@ pub mod images;
 pub mod serial_decode;
 pub mod kg;
 pub mod perturb;
+pub mod qemu;
 pub mod recording;

@@ -49,6 +49,16 @@ enum Command {
         #[arg(long)]
         truth: bool,
     },
+    /// Serial tools for the firmware's USART1 byte stream.
+    #[command(subcommand)]
+    Serial(SerialCommand),
+}
+
+#[derive(Subcommand)]
+enum SerialCommand {
+    /// Decode the firmware's serial output (FILE, or stdin when absent or `-`)
+    /// into the csv of `flatland detect`.
+    Decode { file: Option<PathBuf> },
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -254,10 +264,32 @@ fn print_confusion(truth: &Truth, reports: &[FrameReport]) {
     eprintln!("errors outside grace frames: {}{}", c.errors(), if wrong.is_empty() { String::new() } else { format!(" [{}]", wrong.join(", ")) });
 }
 
+fn run_serial_decode(file: Option<&Path>) -> ExitCode {
+    let stdin = std::io::stdin();
+    let mut input: Box<dyn std::io::Read> = match file {
+        None => Box::new(stdin.lock()),
+        Some(path) if path == Path::new("-") => Box::new(stdin.lock()),
+        Some(path) => match std::fs::File::open(path) {
+            Ok(f) => Box::new(f),
+            Err(e) => return fatal(format!("{}: {e}", path.display())),
+        },
+    };
+    match flatland_host::serial_decode::run_serial_decode(&mut input, &mut std::io::stdout().lock()) {
+        Ok(summary) => {
+            for fault in summary.frame_faults {
+                eprintln!("flatland: firmware skipped frame {}: {}", fault.frame, fault.code.as_str());
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => fatal(e),
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Kg { recording, frames, out, mm_per_px } => run_kg(&recording, frames, &out, mm_per_px),
         Command::Detect { recording, format, png, truth } => run_detect(&recording, format, png.as_deref(), truth),
+        Command::Serial(SerialCommand::Decode { file }) => run_serial_decode(file.as_deref()),
     }
 }

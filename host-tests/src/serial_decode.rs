@@ -4,8 +4,27 @@
 use std::fmt;
 use std::io::{self, Read, Write};
 
-use flatland_core::protocol::{Decoder, Fault, Message};
+use flatland_core::protocol::{Decoder, Fault, FaultCode, LinkStats, Message};
 use flatland_core::report::CSV_HEADER;
+
+/// A clean decode: the csv is written; frames the firmware skipped are listed
+/// (as `flatland detect` skips a damaged frame and carries on).
+#[derive(Debug, Default)]
+pub struct DecodeSummary {
+    pub rows: usize,
+    /// Faults about one frame (missing, broken, stopped mid-frame).
+    pub frame_faults: Vec<Fault>,
+    /// The firmware's final counters, if the stream has them.
+    pub stats: Option<LinkStats>,
+}
+
+/// Faults that end the run (the rig could not be used) rather than skip a frame.
+fn is_run_fault(code: FaultCode) -> bool {
+    matches!(
+        code,
+        FaultCode::RigRejected | FaultCode::TableRejected | FaultCode::GridTooLarge | FaultCode::CameraTooLarge
+    )
+}
 
 /// Why the stream did not decode cleanly. The csv of every frame message is
 /// written before this is returned.
@@ -14,7 +33,7 @@ pub enum SerialDecodeError {
     Io(io::Error),
     /// Lines that were refused (bad checksum, truncated, unknown type, ...).
     MalformedLines { count: u32 },
-    /// The firmware reported a fault (the first one).
+    /// The firmware refused the rig (the first such fault).
     FirmwareFault(Fault),
 }
 
@@ -40,11 +59,12 @@ impl From<io::Error> for SerialDecodeError {
 
 /// Reads the whole byte stream and writes [`CSV_HEADER`] plus one row per frame message.
 /// Garbage between lines is ignored, as the firmware ignores it.
-pub fn run_serial_decode(input: &mut dyn Read, out: &mut dyn Write) -> Result<(), SerialDecodeError> {
+pub fn run_serial_decode(input: &mut dyn Read, out: &mut dyn Write) -> Result<DecodeSummary, SerialDecodeError> {
     writeln!(out, "{CSV_HEADER}")?;
     let mut decoder = Decoder::new();
     let mut malformed = 0u32;
     let mut first_fault = None;
+    let mut summary = DecodeSummary::default();
     let mut chunk = [0u8; 4096];
     let mut row = String::new();
     loop {
@@ -61,10 +81,13 @@ pub fn run_serial_decode(input: &mut dyn Read, out: &mut dyn Write) -> Result<()
                     // Writing into a String cannot fail.
                     let _ = report.write_csv(&mut row);
                     writeln!(out, "{row}")?;
+                    summary.rows += 1;
                 }
-                Some(Ok(Message::Fault(fault))) => {
+                Some(Ok(Message::Fault(fault))) if is_run_fault(fault.code) => {
                     first_fault.get_or_insert(fault);
                 }
+                Some(Ok(Message::Fault(fault))) => summary.frame_faults.push(fault),
+                Some(Ok(Message::Stats(stats))) => summary.stats = Some(stats),
                 Some(Ok(_)) => {}
                 Some(Err(_)) => malformed += 1,
                 None => {}
@@ -78,7 +101,7 @@ pub fn run_serial_decode(input: &mut dyn Read, out: &mut dyn Write) -> Result<()
     if malformed > 0 {
         return Err(SerialDecodeError::MalformedLines { count: malformed });
     }
-    Ok(())
+    Ok(summary)
 }
 
 #[cfg(test)]
@@ -99,7 +122,7 @@ mod tests {
             stream.extend_from_slice(encode_line(&Message::Frame(report(frame))).unwrap().as_bytes());
         }
         let mut out = Vec::new();
-        run_serial_decode(&mut stream.as_slice(), &mut out).unwrap();
+        assert_eq!(run_serial_decode(&mut stream.as_slice(), &mut out).unwrap().rows, 2);
         let text = String::from_utf8(out).unwrap();
         let mut expected = format!("{CSV_HEADER}\n");
         for frame in 1..=2 {
@@ -120,9 +143,15 @@ mod tests {
         assert!(matches!(result, Err(SerialDecodeError::MalformedLines { count: 1 })), "{result:?}");
         assert_eq!(String::from_utf8(out).unwrap().lines().count(), 2);
 
-        let fault = Fault { code: FaultCode::FrameMissing, frame: 4 };
+        let fault = Fault { code: FaultCode::RigRejected, frame: 0 };
         let stream = encode_line(&Message::Fault(fault)).unwrap();
         let result = run_serial_decode(&mut stream.as_bytes(), &mut Vec::new());
         assert!(matches!(result, Err(SerialDecodeError::FirmwareFault(f)) if f == fault), "{result:?}");
+
+        // A skipped frame is not a failed decode: it is listed, like detect's stderr line.
+        let skipped = Fault { code: FaultCode::FrameMissing, frame: 4 };
+        let stream = encode_line(&Message::Fault(skipped)).unwrap();
+        let summary = run_serial_decode(&mut stream.as_bytes(), &mut Vec::new()).unwrap();
+        assert_eq!(summary.frame_faults, vec![skipped]);
     }
 }

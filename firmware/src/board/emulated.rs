@@ -20,7 +20,8 @@ use core::ptr::{read_volatile, write_volatile};
 
 use cortex_m_semihosting::{nr, syscall};
 
-use super::pgm_header::parse_pgm_header;
+use flatland_core::pgm::{PgmError, PgmHeader};
+
 use super::{CycleCounter, FrameSize, RowSource, RowSourceError};
 
 const USART1: usize = 0x4001_1000;
@@ -194,7 +195,8 @@ impl CycleCounter for Tim2Counter {
     }
 }
 
-/// Bytes read to find the end of a PGM header (comments included).
+/// Bytes read to find the end of a PGM header (comments included); a longer
+/// header is refused as a format error.
 const HEADER_PREFIX: usize = 256;
 
 /// Frames of a recording read through semihosting, one row per SYS_READ.
@@ -244,10 +246,12 @@ impl RowSource for SemihostingFrames {
         self.handle = Some(handle);
         let mut prefix = [0u8; HEADER_PREFIX];
         let length = Self::read_into(handle, &mut prefix);
-        let header = parse_pgm_header(&prefix[..length]).map_err(|_| RowSourceError::Format)?;
-        if header.maxval != 255 {
-            return Err(RowSourceError::Format);
-        }
+        let header = PgmHeader::parse(&prefix[..length]).map_err(|error| match error {
+            // The file ended inside its header: the source stopped.
+            PgmError::TruncatedHeader if length < HEADER_PREFIX => RowSourceError::Read,
+            _ => RowSourceError::Format,
+        })?;
+        // maxval < 255 is used as is, as the host reader does.
         // SAFETY: SYS_SEEK to an absolute offset inside the file.
         let sought = unsafe { syscall!(SEEK, handle, header.data_offset) };
         if sought != 0 {

@@ -10,7 +10,6 @@
 //! has to implement the same traits.
 
 pub mod emulated;
-pub mod pgm_header;
 
 /// The size of the frame a [`RowSource`] is about to deliver.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]

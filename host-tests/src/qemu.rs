@@ -1,0 +1,398 @@
+//! Runs the firmware in QEMU (netduinoplus2): shared by `cargo fw*` (the
+//! `fw` binary) and the QEMU tests (parity, robustness).
+//!
+//! QEMU's working directory is the recording, so the firmware reads
+//! `frames/NNNNNN.pgm` through semihosting; USART1 is a TCP connection to
+//! this runner, which sends a script of bytes once the firmware announces
+//! `$FLRDY` (normally the rig, the poses and `$FLEND`, see [`host_script`])
+//! and collects what the firmware sends back. The defmt log goes through
+//! defmt-print. Every run has a deadline: QEMU is killed after it.
+
+use std::fs;
+use std::io::{self, BufRead, BufReader, Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::mpsc;
+use std::thread;
+use std::time::{Duration, Instant};
+
+use flatland_core::geometry::Rig;
+use flatland_core::protocol::{encode_line, Decoder, LinkStats, Message, Odometry, RigRecord};
+
+use crate::recording::Recording;
+
+pub const TARGET: &str = "thumbv7em-none-eabihf";
+pub const DEFAULT_RECORDING: &str = "host-tests/data/flat_marks";
+
+pub type Result<T> = std::result::Result<T, String>;
+
+pub fn workspace_root() -> PathBuf {
+    let manifest = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    manifest.parent().map(Path::to_path_buf).unwrap_or(manifest)
+}
+
+// ------------------------------------------------------------------ tools
+
+fn succeeds(command: &mut Command) -> bool {
+    command.stdout(Stdio::null()).stderr(Stdio::null()).status().is_ok_and(|s| s.success())
+}
+
+fn run_checked(command: &mut Command) -> Result<()> {
+    let status = command.status().map_err(|e| format!("{command:?}: {e}"))?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("{command:?} failed: {status}"))
+    }
+}
+
+fn on_path(tool: &str) -> bool {
+    succeeds(Command::new(tool).arg("--version"))
+}
+
+fn target_installed() -> bool {
+    let installed = Command::new("rustup").args(["target", "list", "--installed"]).output();
+    installed.is_ok_and(|o| String::from_utf8_lossy(&o.stdout).lines().any(|l| l.trim() == TARGET))
+}
+
+/// Installs what is missing, and only that (`cargo fw*`).
+pub fn ensure_tools() -> Result<()> {
+    if !target_installed() {
+        eprintln!("fw: installing the {TARGET} target");
+        run_checked(Command::new("rustup").args(["target", "add", TARGET]))?;
+    }
+    if !on_path("qemu-system-arm") {
+        eprintln!("fw: installing qemu-system-arm");
+        let install = || succeeds(Command::new("apt-get").args(["install", "-y", "qemu-system-arm"]));
+        if !install() {
+            run_checked(Command::new("apt-get").arg("update"))?;
+            run_checked(Command::new("apt-get").args(["install", "-y", "qemu-system-arm"]))?;
+        }
+    }
+    if !on_path("defmt-print") {
+        eprintln!("fw: installing defmt-print");
+        run_checked(Command::new("cargo").args(["install", "--locked", "defmt-print"]))?;
+    }
+    Ok(())
+}
+
+/// For tests: fails with a clear message when a tool is missing (tests do
+/// not install; `.ci/test` runs `.ci/ensure-tools` first).
+pub fn require_tools() -> Result<()> {
+    let mut missing = Vec::new();
+    if !target_installed() {
+        missing.push(format!("the rustup target {TARGET}"));
+    }
+    for tool in ["qemu-system-arm", "defmt-print"] {
+        if !on_path(tool) {
+            missing.push(tool.to_string());
+        }
+    }
+    if missing.is_empty() {
+        Ok(())
+    } else {
+        Err(format!("QEMU tests need {}; run .ci/ensure-tools (or .ci/test, which runs it)", missing.join(", ")))
+    }
+}
+
+/// Release build of the firmware; returns the directory of its ELF files.
+pub fn build_firmware() -> Result<PathBuf> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    run_checked(
+        Command::new(cargo)
+            .current_dir(workspace_root())
+            .args(["build", "--quiet", "--release", "-p", "flatland-firmware", "--target", TARGET]),
+    )?;
+    let target_dir = std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or_else(|| workspace_root().join("target"));
+    Ok(target_dir.join(TARGET).join("release"))
+}
+
+// ------------------------------------------------------------------ what is sent
+
+/// The wire's rig record of a validated rig (the same f64 values).
+pub fn rig_record(rig: &Rig) -> RigRecord {
+    let (camera, mount, aoi) = (rig.camera(), rig.mount(), rig.aoi());
+    RigRecord {
+        width: camera.width,
+        height: camera.height,
+        fx: camera.fx,
+        fy: camera.fy,
+        cx: camera.cx,
+        cy: camera.cy,
+        distortion: camera.distortion.map(|d| [d.k1, d.k2, d.p1, d.p2, d.k3]),
+        height_mm: mount.height_mm,
+        tilt_deg: mount.tilt_deg,
+        aoi_half_width_mm: aoi.half_width_mm,
+        aoi_near_mm: aoi.near_mm,
+        aoi_far_mm: aoi.far_mm,
+    }
+}
+
+/// The messages a robot controller sends for a recording: the rig, one
+/// `$FLODO` per poses.csv row, `$FLEND`.
+pub fn host_messages(recording: &Recording) -> Vec<Message> {
+    let mut messages = vec![Message::Rig(rig_record(&recording.rig))];
+    messages.extend(recording.poses.iter().map(|row| {
+        Message::Odometry(Odometry { frame: row.frame, t_s: row.t_s, x_mm: row.pose.x_mm, z_mm: row.pose.z_mm, yaw_deg: row.pose.yaw_deg })
+    }));
+    messages.push(Message::End);
+    messages
+}
+
+/// Encodes messages into the byte script sent to the firmware.
+pub fn encode_script(messages: &[Message]) -> Result<Vec<u8>> {
+    let mut bytes = Vec::new();
+    for message in messages {
+        let line = encode_line(message).map_err(|e| format!("cannot encode {}: {e:?}", message.tag()))?;
+        bytes.extend_from_slice(line.as_bytes());
+    }
+    Ok(bytes)
+}
+
+/// The normal script for a recording.
+pub fn host_script(recording: &Recording) -> Result<Vec<u8>> {
+    encode_script(&host_messages(recording))
+}
+
+// ------------------------------------------------------------------ QEMU
+
+fn qemu_command(elf: &Path, serial: &str, append: &str, icount: bool) -> Command {
+    let mut command = Command::new("qemu-system-arm");
+    command.args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"]);
+    command.args(["-semihosting-config", "enable=on,target=native"]);
+    command.args(["-serial", serial]);
+    if icount {
+        command.args(["-icount", "shift=0"]);
+    }
+    if !append.is_empty() {
+        command.args(["-append", append]);
+    }
+    command.arg("-kernel").arg(elf);
+    command
+}
+
+/// QEMU with its semihosting output piped through defmt-print.
+struct Emulator {
+    qemu: Child,
+    decoder: Child,
+    log: thread::JoinHandle<String>,
+}
+
+impl Emulator {
+    /// `echo_log`: print the decoded log live (else it is only collected).
+    fn start(mut qemu: Command, elf: &Path, echo_log: bool) -> Result<Emulator> {
+        let mut qemu = qemu.stdin(Stdio::null()).stdout(Stdio::piped()).spawn().map_err(|e| format!("qemu-system-arm: {e}"))?;
+        let frames = qemu.stdout.take().ok_or("qemu stdout")?;
+        let mut decoder = match Command::new("defmt-print")
+            .args(["--log-format", "{t} {L} {s}", "-e"])
+            .arg(elf)
+            .stdin(Stdio::from(frames))
+            .stdout(Stdio::piped())
+            .spawn()
+        {
+            Ok(decoder) => decoder,
+            Err(e) => {
+                let _ = qemu.kill();
+                let _ = qemu.wait();
+                return Err(format!("defmt-print: {e}"));
+            }
+        };
+        let output = decoder.stdout.take().ok_or("defmt-print stdout")?;
+        let log = thread::spawn(move || {
+            let mut collected = String::new();
+            for line in BufReader::new(output).lines().map_while(io::Result::ok) {
+                if echo_log {
+                    println!("{line}");
+                }
+                collected.push_str(&line);
+                collected.push('\n');
+            }
+            collected
+        });
+        Ok(Emulator { qemu, decoder, log })
+    }
+
+    /// Waits for QEMU's exit within `deadline`; kills it after.
+    fn finish(mut self, deadline: Instant) -> Result<(ExitStatus, String)> {
+        let status = loop {
+            if let Some(status) = self.qemu.try_wait().map_err(|e| e.to_string())? {
+                break status;
+            }
+            if Instant::now() >= deadline {
+                let _ = self.qemu.kill();
+                let _ = self.qemu.wait();
+                let _ = self.decoder.wait();
+                let log = self.log.join().unwrap_or_default();
+                return Err(format!("QEMU timed out; the log so far:\n{log}"));
+            }
+            thread::sleep(Duration::from_millis(20));
+        };
+        let _ = self.decoder.wait();
+        let log = self.log.join().unwrap_or_default();
+        Ok((status, log))
+    }
+}
+
+/// The serial side of a run.
+#[derive(Debug, Default)]
+pub struct SerialOutcome {
+    /// Every byte the firmware sent.
+    pub raw: Vec<u8>,
+    /// Every message decoded from `raw`, in order.
+    pub messages: Vec<Message>,
+    /// The final `$FLSTA`, if it came.
+    pub stats: Option<LinkStats>,
+}
+
+/// Talks to the firmware over USART1: waits for `$FLRDY`, sends `script`
+/// (from a thread: QEMU reads the socket only as fast as the firmware
+/// drains USART1), and collects everything it sends back until `$FLSTA`.
+fn converse(
+    listener: TcpListener,
+    script: Vec<u8>,
+    deadline: Instant,
+    on_message: &mut dyn FnMut(&Message),
+) -> Result<SerialOutcome> {
+    listener.set_nonblocking(true).map_err(|e| e.to_string())?;
+    let stream = loop {
+        match listener.accept() {
+            Ok((stream, _)) => break stream,
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock && Instant::now() < deadline => {
+                thread::sleep(Duration::from_millis(10))
+            }
+            Err(e) => return Err(format!("QEMU did not connect its serial port: {e}")),
+        }
+    };
+    stream.set_nonblocking(false).map_err(|e| e.to_string())?;
+    stream.set_read_timeout(Some(Duration::from_millis(200))).map_err(|e| e.to_string())?;
+    let mut writer: Option<TcpStream> = Some(stream.try_clone().map_err(|e| e.to_string())?);
+    let mut script = Some(script);
+    let mut reader = stream;
+    let (done_tx, done_rx) = mpsc::channel::<io::Result<()>>();
+    let mut decoder = Decoder::new();
+    let mut outcome = SerialOutcome::default();
+    let mut chunk = [0u8; 4096];
+    loop {
+        if Instant::now() >= deadline {
+            return Err("timed out waiting for the firmware's serial output".into());
+        }
+        if let Ok(Err(e)) = done_rx.try_recv() {
+            return Err(format!("sending to the firmware: {e}"));
+        }
+        let length = match reader.read(&mut chunk) {
+            Ok(0) => break,
+            Ok(length) => length,
+            Err(e) if matches!(e.kind(), io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut) => continue,
+            Err(e) => return Err(format!("serial: {e}")),
+        };
+        outcome.raw.extend_from_slice(&chunk[..length]);
+        for &byte in &chunk[..length] {
+            let Some(Ok(message)) = decoder.push(byte) else { continue };
+            on_message(&message);
+            match message {
+                Message::Ready => {
+                    if let (Some(mut out), Some(bytes)) = (writer.take(), script.take()) {
+                        let done = done_tx.clone();
+                        thread::spawn(move || {
+                            let _ = done.send(out.write_all(&bytes));
+                        });
+                    }
+                }
+                Message::Stats(stats) => outcome.stats = Some(stats),
+                _ => {}
+            }
+            outcome.messages.push(message);
+        }
+        if outcome.stats.is_some() {
+            break;
+        }
+    }
+    Ok(outcome)
+}
+
+/// One firmware run.
+pub struct RunRequest<'a> {
+    /// The firmware ELF.
+    pub elf: &'a Path,
+    /// QEMU's working directory (the recording).
+    pub dir: &'a Path,
+    /// Bytes sent on USART1 after `$FLRDY`.
+    pub script: Vec<u8>,
+    /// `-icount shift=0` and the `bench` command line.
+    pub bench: bool,
+    /// Print the defmt log live.
+    pub echo_log: bool,
+    pub timeout: Duration,
+}
+
+/// What a run produced.
+pub struct RunOutcome {
+    pub status: ExitStatus,
+    /// The decoded defmt log.
+    pub log: String,
+    pub serial: SerialOutcome,
+}
+
+/// Runs the firmware once. `on_message` sees every decoded message as it comes.
+/// Errors: QEMU could not start, the deadline passed, or the serial link failed.
+pub fn run_firmware(request: RunRequest, on_message: &mut dyn FnMut(&Message)) -> Result<RunOutcome> {
+    let listener = TcpListener::bind("127.0.0.1:0").map_err(|e| format!("serial socket: {e}"))?;
+    let port = listener.local_addr().map_err(|e| e.to_string())?.port();
+    let mut qemu = qemu_command(
+        request.elf,
+        &format!("tcp:127.0.0.1:{port}"),
+        if request.bench { "bench" } else { "" },
+        request.bench,
+    );
+    qemu.current_dir(request.dir);
+    let deadline = Instant::now() + request.timeout;
+    let emulator = Emulator::start(qemu, request.elf, request.echo_log)?;
+    let serial = converse(listener, request.script, deadline, on_message);
+    let (status, log) = emulator.finish(deadline)?;
+    let serial = serial.map_err(|e| format!("{e}; firmware exit {status}; log:\n{log}"))?;
+    Ok(RunOutcome { status, log, serial })
+}
+
+/// core's checks on the target (`selftest` ELF), or a deliberate fault
+/// (`request` = "panic" / "hardfault"). Returns the exit status and the log.
+pub fn run_selftest(elf: &Path, request: &str, echo_log: bool, timeout: Duration) -> Result<(ExitStatus, String)> {
+    Emulator::start(qemu_command(elf, "null", request, false), elf, echo_log)?.finish(Instant::now() + timeout)
+}
+
+/// Flash and RAM use of the firmware ELF, from its section headers.
+pub fn memory_use(elf: &Path) -> Result<(u64, u64)> {
+    let bytes = fs::read(elf).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let u16_at = |o: usize| bytes.get(o..o + 2).map(|b| u16::from_le_bytes([b[0], b[1]]) as usize);
+    let u32_at = |o: usize| bytes.get(o..o + 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as u64);
+    let bad = || format!("{}: not a 32-bit little-endian ELF", elf.display());
+    if bytes.get(..6) != Some(&[0x7f, b'E', b'L', b'F', 1, 1][..]) {
+        return Err(bad());
+    }
+    let section_table = u32_at(0x20).ok_or_else(bad)? as usize;
+    let (entry_size, count) = (u16_at(0x2E).ok_or_else(bad)?, u16_at(0x30).ok_or_else(bad)?);
+    let (mut flash, mut ram) = (0, 0);
+    for i in 0..count {
+        let header = section_table + i * entry_size;
+        let (flags, address, size) = (
+            u32_at(header + 8).ok_or_else(bad)?,
+            u32_at(header + 12).ok_or_else(bad)?,
+            u32_at(header + 20).ok_or_else(bad)?,
+        );
+        let kind = u32_at(header + 4).ok_or_else(bad)?;
+        const ALLOC: u64 = 2;
+        const NOBITS: u64 = 8;
+        if flags & ALLOC == 0 {
+            continue;
+        }
+        if (0x0800_0000..0x0810_0000).contains(&address) {
+            flash += size;
+        } else if (0x2000_0000..0x2002_0000).contains(&address) {
+            ram += size;
+            if kind != NOBITS {
+                flash += size; // .data's initial values are stored in flash
+            }
+        }
+    }
+    Ok((flash, ram))
+}

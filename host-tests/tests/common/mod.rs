@@ -1,0 +1,124 @@
+//! Shared by the QEMU tests: builds the firmware once, runs it on a
+//! recording directory with a byte script, and runs the host pipeline
+//! (`flatland detect --format csv`, in-process) for comparison.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use flatland_core::protocol::{Fault, Message};
+use flatland_core::report::CSV_HEADER;
+use flatland_host::detect::{DetectConfig, FrameOutcome, Pipeline};
+use flatland_host::qemu::{self, RunOutcome, RunRequest};
+use flatland_host::recording::Recording;
+use flatland_host::serial_decode::{run_serial_decode, DecodeSummary};
+
+/// Per QEMU run; a run that hangs fails the test instead of hanging it.
+pub const TIMEOUT: Duration = Duration::from_secs(300);
+
+pub fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)
+}
+
+/// The firmware ELF, built once per test binary. Panics (fails the test)
+/// with a clear message when QEMU or defmt-print is missing: never a skip.
+pub fn firmware_elf() -> PathBuf {
+    static ELF: OnceLock<Result<PathBuf, String>> = OnceLock::new();
+    let built = ELF.get_or_init(|| {
+        qemu::require_tools()?;
+        Ok(qemu::build_firmware()?.join("flatland-firmware"))
+    });
+    match built {
+        Ok(elf) => elf.clone(),
+        Err(message) => panic!("cannot run the firmware in QEMU: {message}"),
+    }
+}
+
+/// Runs the firmware in QEMU with `dir` as its working directory.
+pub fn run(dir: &Path, script: Vec<u8>) -> RunOutcome {
+    let elf = firmware_elf();
+    let request = RunRequest { elf: &elf, dir, script, bench: false, echo_log: false, timeout: TIMEOUT };
+    let outcome = qemu::run_firmware(request, &mut |_| {}).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    assert!(outcome.status.success(), "{}: firmware exit {}; log:\n{}", dir.display(), outcome.status, outcome.log);
+    assert!(!outcome.log.contains("panic"), "{}: log mentions a panic:\n{}", dir.display(), outcome.log);
+    outcome
+}
+
+/// The firmware's serial output as `flatland serial decode` prints it.
+pub fn decoded(outcome: &RunOutcome) -> (String, DecodeSummary) {
+    let mut csv = Vec::new();
+    let summary = run_serial_decode(&mut outcome.serial.raw.as_slice(), &mut csv)
+        .unwrap_or_else(|e| panic!("serial decode: {e}; log:\n{}", outcome.log));
+    (String::from_utf8(csv).expect("csv is ASCII"), summary)
+}
+
+/// `flatland detect <dir> --format csv` (stdout), computed in-process.
+pub fn detect_csv(dir: &Path) -> String {
+    let recording = Recording::open(dir).unwrap_or_else(|e| panic!("{e}"));
+    let config = DetectConfig::default();
+    let mut pipeline = Pipeline::new(&recording, &config).unwrap_or_else(|e| panic!("{e}"));
+    let mut csv = format!("{CSV_HEADER}\n");
+    pipeline
+        .run(&recording, &config, |outcome, _| {
+            if let FrameOutcome::Report { report, .. } = outcome {
+                report.write_csv(&mut csv).expect("String write");
+                csv.push('\n');
+            }
+        })
+        .unwrap_or_else(|e| panic!("{e}"));
+    csv
+}
+
+/// The normal host script for a recording (rig, poses, end).
+pub fn script(dir: &Path) -> Vec<u8> {
+    let recording = Recording::open(dir).unwrap_or_else(|e| panic!("{e}"));
+    qemu::host_script(&recording).unwrap_or_else(|e| panic!("{e}"))
+}
+
+pub fn messages(dir: &Path) -> Vec<Message> {
+    qemu::host_messages(&Recording::open(dir).unwrap_or_else(|e| panic!("{e}")))
+}
+
+pub fn faults(outcome: &RunOutcome) -> Vec<Fault> {
+    outcome.serial.messages.iter().filter_map(|m| if let Message::Fault(f) = m { Some(*f) } else { None }).collect()
+}
+
+/// A scratch copy of a bundled recording, removed on drop.
+pub struct TempRecording {
+    pub dir: PathBuf,
+}
+
+impl TempRecording {
+    pub fn copy_of(name: &str, tag: &str) -> TempRecording {
+        let dir = std::env::temp_dir().join(format!("flatland-{tag}-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("frames")).expect("temp dir");
+        let source = data(name);
+        for file in ["rig.toml", "poses.csv", "truth.toml"] {
+            if source.join(file).exists() {
+                std::fs::copy(source.join(file), dir.join(file)).expect("copy");
+            }
+        }
+        for entry in std::fs::read_dir(source.join("frames")).expect("frames") {
+            let entry = entry.expect("entry");
+            std::fs::copy(entry.path(), dir.join("frames").join(entry.file_name())).expect("copy frame");
+        }
+        TempRecording { dir }
+    }
+
+    pub fn frame(&self, index: u32) -> PathBuf {
+        self.dir.join("frames").join(format!("{index:06}.pgm"))
+    }
+}
+
+impl Drop for TempRecording {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// Frame numbers of the csv rows.
+pub fn row_frames(csv: &str) -> Vec<u32> {
+    csv.lines().skip(1).map(|l| l.split(',').next().and_then(|f| f.parse().ok()).expect("frame field")).collect()
+}

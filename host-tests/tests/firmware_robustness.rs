@@ -1,0 +1,171 @@
+//! Firmware robustness in QEMU (issue 7, firmware part): damaged serial
+//! input, a frame source that stops mid-frame, gaps in frames and poses,
+//! rigs that do not fit. Each run must end with exit 0 and no panic (checked
+//! by `common::run`), count what it refused, and still match `flatland detect`.
+
+mod common;
+
+use common::*;
+use flatland_core::gpa::Gpa;
+use flatland_core::grid::{GridConfig, KgGrid};
+use flatland_core::protocol::{checksum, encode_line, FaultCode, Message, Odometry};
+use flatland_host::qemu;
+use flatland_host::recording::Recording;
+
+/// A line with a correct checksum around `body`.
+fn line(body: &str) -> Vec<u8> {
+    format!("${body}*{:02X}\r\n", checksum(body.as_bytes())).into_bytes()
+}
+
+#[test]
+fn garbage_truncated_and_oversized_serial_input_is_counted_not_fatal() {
+    let dir = data("stool_bags");
+    let mut script = b"\x00\xffnoise".to_vec(); // 7 garbage bytes before the rig
+    for (n, message) in messages(&dir).iter().enumerate() {
+        if n == 2 {
+            script.extend_from_slice(b"$FLODO,2,0.2,0,"); // cut short by the next `$`
+            script.extend_from_slice(&line(&format!("FL{}", "A".repeat(600)))); // over MAX_LINE
+            script.extend_from_slice(b"$FLEND*00\r\n"); // wrong checksum
+            script.extend_from_slice(&line("FLXYZ,1")); // unknown type
+            script.extend_from_slice(&line("FLODO,3,0.3,x,0,0")); // bad field
+            script.extend_from_slice(&line("FLODO,3,0.3,0,0")); // too few fields
+            script.extend_from_slice(&line("FLRDY,9")); // wrong version
+            // A well-formed message out of place: the host sending a report.
+            script.extend_from_slice(encode_line(&Message::Frame(Default::default())).unwrap().as_bytes());
+            script.extend_from_slice(b"\r\n\r\nzz"); // blank lines are fine, `zz` is garbage
+        }
+        script.extend_from_slice(encode_line(message).unwrap().as_bytes());
+    }
+    let outcome = run(&dir, script);
+    let (csv, summary) = decoded(&outcome);
+    assert_eq!(csv, detect_csv(&dir), "damaged lines between good ones change nothing");
+    let stats = summary.stats.expect("$FLSTA");
+    assert_eq!(stats.garbage_bytes, 9, "{stats:?}");
+    assert_eq!(stats.truncated, 1, "{stats:?}");
+    assert_eq!(stats.too_long, 1, "{stats:?}");
+    assert_eq!(stats.bad_checksum, 1, "{stats:?}");
+    assert_eq!(stats.unknown_type, 1, "{stats:?}");
+    assert_eq!(stats.bad_field, 3, "{stats:?}");
+    assert_eq!(stats.out_of_order, 1, "{stats:?}");
+    assert_eq!((stats.frame_gaps, stats.aborted), (0, 0), "{stats:?}");
+}
+
+#[test]
+fn input_that_ends_early_or_is_all_garbage_ends_the_run_cleanly() {
+    let dir = data("flat_marks");
+    // No rig at all: random bytes (no `$`), then the end.
+    let mut script: Vec<u8> = (0..5000u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).filter(|&b| b != b'$').collect();
+    let noise = script.iter().filter(|&&b| b != b'\r' && b != b'\n').count() as u32;
+    script.extend_from_slice(encode_line(&Message::End).unwrap().as_bytes());
+    let outcome = run(&dir, script);
+    let stats = outcome.serial.stats.expect("$FLSTA");
+    assert_eq!((stats.frames, stats.garbage_bytes), (0, noise), "{stats:?}");
+}
+
+#[test]
+fn frame_source_that_stops_mid_frame_is_abandoned_and_reported() {
+    let copy = TempRecording::copy_of("stool_bags", "midframe");
+    // Frame 3 stops halfway through its rows; frame 5 inside its header.
+    let bytes = std::fs::read(copy.frame(3)).unwrap();
+    std::fs::write(copy.frame(3), &bytes[..bytes.len() / 2]).unwrap();
+    std::fs::write(copy.frame(5), &bytes[..7]).unwrap();
+    let outcome = run(&copy.dir, script(&copy.dir));
+    let (csv, summary) = decoded(&outcome);
+    assert_eq!(csv, detect_csv(&copy.dir), "the firmware skips what detect skips");
+    let codes: Vec<(FaultCode, u32)> = faults(&outcome).iter().map(|f| (f.code, f.frame)).collect();
+    assert_eq!(codes, [(FaultCode::FrameRead, 3), (FaultCode::FrameRead, 5)]);
+    let stats = summary.stats.expect("$FLSTA");
+    assert_eq!(stats.aborted, 1, "only frame 3 stopped mid-frame: {stats:?}");
+    assert_eq!(stats.frame_gaps, 2, "frames 4 and 6 restart the keyframe: {stats:?}");
+    // Reports before the break stand; the frames after each break restart the keyframe.
+    assert_eq!(row_frames(&csv), [1, 2, 7], "{csv}");
+}
+
+#[test]
+fn gaps_in_frames_poses_or_time_reset_the_keyframe() {
+    let copy = TempRecording::copy_of("approach_box", "gaps");
+    // Frame 10's file is missing, frame 20 has no pose, frame 30's time goes backwards.
+    std::fs::remove_file(copy.frame(10)).unwrap();
+    let poses = std::fs::read_to_string(copy.dir.join("poses.csv")).unwrap();
+    let poses: String = poses
+        .lines()
+        .filter(|l| !l.starts_with("20,"))
+        .map(|l| if l.starts_with("30,") { l.replacen(",3.000,", ",2.850,", 1) } else { l.to_string() })
+        .map(|l| l + "\n")
+        .collect();
+    assert!(poses.contains("30,2.850,"), "poses.csv layout changed: {poses}");
+    std::fs::write(copy.dir.join("poses.csv"), poses).unwrap();
+
+    let outcome = run(&copy.dir, script(&copy.dir));
+    let (csv, summary) = decoded(&outcome);
+    assert_eq!(csv, detect_csv(&copy.dir), "the firmware resets where detect resets");
+    let codes: Vec<(FaultCode, u32)> = faults(&outcome).iter().map(|f| (f.code, f.frame)).collect();
+    assert_eq!(codes, [(FaultCode::FrameMissing, 10)]);
+    let stats = summary.stats.expect("$FLSTA");
+    assert_eq!(stats.frame_gaps, 3, "frames 11, 21 and 30 restart the keyframe: {stats:?}");
+    let rows = row_frames(&csv);
+    for restarted in [10, 11, 20, 21, 30] {
+        assert!(!rows.contains(&restarted), "frame {restarted} has no keyframe to compare with: {csv}");
+    }
+    // After each restart the reference is never older than the gap.
+    for line in csv.lines().skip(1) {
+        let fields: Vec<u32> = line.split(',').take(2).map(|f| f.parse().unwrap()).collect();
+        let (frame, reference) = (fields[0], fields[1]);
+        for gap in [11, 21, 30] {
+            assert!(!(frame > gap && reference < gap), "frame {frame} compared across the gap at {gap}");
+        }
+    }
+}
+
+#[test]
+fn odometry_out_of_sequence_on_the_wire_resets_the_keyframe() {
+    // The poses arrive with one frame's message lost on the link, and one
+    // duplicated: no report may compare across the loss.
+    let dir = data("flat_marks");
+    let mut script = Vec::new();
+    for message in messages(&dir) {
+        if let Message::Odometry(Odometry { frame: 4, .. }) = message {
+            continue;
+        }
+        script.extend_from_slice(encode_line(&message).unwrap().as_bytes());
+        if let Message::Odometry(Odometry { frame: 6, .. }) = message {
+            script.extend_from_slice(encode_line(&message).unwrap().as_bytes());
+        }
+    }
+    let outcome = run(&dir, script);
+    let (csv, summary) = decoded(&outcome);
+    // 5 follows 3 and the repeated 6 follows 6: both restart; 7 follows 6 again.
+    assert_eq!(row_frames(&csv), [1, 2, 3, 6, 7], "{csv}");
+    assert!(csv.lines().skip(1).all(|l| l.split(',').nth(2) == Some("0")), "no false alarm: {csv}");
+    let stats = summary.stats.expect("$FLSTA");
+    assert_eq!(stats.frame_gaps, 2, "frame 5 and the repeated 6: {stats:?}");
+}
+
+#[test]
+fn rig_that_does_not_fit_the_target_is_refused_with_a_typed_fault() {
+    // Widen the QVGA rig's AOI until its KG grid needs more keyframe memory
+    // than the firmware has (72 KiB); a valid rig, so only the capacity refuses it.
+    const KEYFRAME_CAPACITY: usize = 72 * 1024;
+    let base = Recording::open(data("qvga_curb")).unwrap();
+    let mut record = qemu::rig_record(&base.rig);
+    let too_large = (200..1000).step_by(10).find_map(|half_width| {
+        record.aoi_half_width_mm = f64::from(half_width);
+        let rig = flatland_core::geometry::Rig::new_checked(
+            *base.rig.camera(),
+            *base.rig.mount(),
+            flatland_core::geometry::Aoi { half_width_mm: record.aoi_half_width_mm, ..*base.rig.aoi() },
+        )
+        .ok()?;
+        let grid = KgGrid::for_rig(&rig, &GridConfig::default()).ok()?;
+        (Gpa::keyframe_bytes(&grid) > KEYFRAME_CAPACITY).then_some(record)
+    });
+    let too_large = too_large.expect("some valid QVGA rig needs more than 72 KiB of keyframe");
+    let mut too_wide = qemu::rig_record(&base.rig);
+    too_wide.width = 800;
+    too_wide.cx = 399.5;
+    let script = qemu::encode_script(&[Message::Rig(too_large), Message::Rig(too_wide), Message::End]).unwrap();
+    let outcome = run(&data("qvga_curb"), script);
+    let codes: Vec<FaultCode> = faults(&outcome).iter().map(|f| f.code).collect();
+    assert_eq!(codes, [FaultCode::GridTooLarge, FaultCode::CameraTooLarge]);
+    assert!(!outcome.serial.messages.iter().any(|m| matches!(m, Message::Hello(_))), "nothing was accepted");
+}

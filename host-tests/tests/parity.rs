@@ -1,0 +1,72 @@
+//! Parity: the firmware in QEMU gives exactly the csv of `flatland detect`
+//! on the same recording, field for field (the same core, the same integers).
+//! Needs qemu-system-arm and defmt-print (`.ci/ensure-tools`); fails, never
+//! skips, without them.
+
+mod common;
+
+use common::*;
+use flatland_core::report::CSV_HEADER;
+
+fn parity(name: &str) {
+    let dir = data(name);
+    let expected = detect_csv(&dir);
+    let outcome = run(&dir, script(&dir));
+    let (csv, summary) = decoded(&outcome);
+    assert!(summary.frame_faults.is_empty(), "{name}: firmware skipped frames: {:?}", summary.frame_faults);
+    // A row-level diff names the first differing frame and field.
+    for (n, (got, want)) in csv.lines().zip(expected.lines()).enumerate() {
+        if got != want {
+            let header: Vec<&str> = CSV_HEADER.split(',').collect();
+            let fields = got.split(',').zip(want.split(',')).enumerate().find(|(_, (g, w))| g != w);
+            let column = fields.map_or("?", |(i, _)| header.get(i).copied().unwrap_or("?"));
+            panic!("{name}: line {} differs in {column}:\n firmware: {got}\n detect:   {want}", n + 1);
+        }
+    }
+    assert_eq!(csv.lines().count(), expected.lines().count(), "{name}: row counts differ\n{csv}\nvs\n{expected}");
+    assert!(expected.lines().count() > 1, "{name}: detect produced no rows; nothing was compared");
+    let stats = summary.stats.expect("the firmware sends $FLSTA");
+    let frames = std::fs::read_dir(dir.join("frames")).expect("frames").count() as u32;
+    assert_eq!(stats.frames, frames, "{name}: every frame processed");
+    assert_eq!((stats.frame_gaps, stats.aborted, stats.garbage_bytes, stats.bad_checksum), (0, 0, 0, 0), "{name}: {stats:?}");
+}
+
+#[test]
+fn parity_flat_marks() {
+    parity("flat_marks");
+}
+
+#[test]
+fn parity_stool_bags() {
+    parity("stool_bags");
+}
+
+#[test]
+fn parity_turn() {
+    parity("turn");
+}
+
+#[test]
+fn parity_qvga_curb() {
+    parity("qvga_curb");
+}
+
+#[test]
+fn parity_diagonal() {
+    parity("diagonal");
+}
+
+#[test]
+fn parity_noisy_marks() {
+    parity("noisy_marks");
+}
+
+#[test]
+fn parity_approach_box() {
+    parity("approach_box");
+}
+
+#[test]
+fn parity_noisy_approach() {
+    parity("noisy_approach");
+}
