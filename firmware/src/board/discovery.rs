@@ -3,17 +3,19 @@
 //! - Clocks: 168 MHz SYSCLK from the 8 MHz HSE crystal (PLL M=4 N=168 P=2
 //!   Q=7), APB1 42 MHz, APB2 84 MHz.
 //! - Camera: XCLK 16 MHz (HSI on MCO1, PA8), set up over SCCB on I2C1
-//!   (PB8 SIOC, PB9 SIOD) with [`ov7670::SETUP`]: YUV422, 256x256 window.
+//!   (PB8 SIOC, PB9 SIOD) with [`ov7670::SETUP`]: YUV422, full VGA window.
 //! - Capture: DCMI in snapshot mode, one frame per [`RowSource::begin_frame`],
 //!   DMA2 stream 1 in circular mode into a ring of [`CAMERA_RING_LINES`]
-//!   YUV lines; [`RowSource::read_row`] takes one line out and keeps the Y
-//!   bytes. Why not embassy's `Dcmi::capture`: it DMAs a whole frame into one
-//!   buffer, and a 256x256 YUV422 frame is 128 KB (all of RAM); the F407's
-//!   DCMI cannot drop the chroma bytes itself (no byte-select mode).
+//!   YUV lines; [`RowSource::read_row`] takes two lines out, keeps the Y
+//!   bytes and averages 2x2 blocks: 320x240 rows with the sensor's whole field
+//!   of view. Why not embassy's `Dcmi::capture`: it DMAs a whole frame into
+//!   one buffer (VGA YUV422 is 600 KB, QVGA 150 KB; RAM is 128 KB), and the
+//!   F407's DCMI cannot drop the chroma bytes itself (no byte-select mode).
 //! - Serial: USART2 (PA2 TX, PA3 RX), 115200 8N1, interrupt-driven with RAM
 //!   buffers, so odometry lines that arrive while a frame is processed wait.
 //! - Alarm: red LED PD14 and PD11 (for the robot's controller) together;
-//!   green LED PD12 toggles once per frame; orange LED PD13 = camera fault.
+//!   green LED PD12 toggles once per frame; orange LED PD13 = a camera fault
+//!   since reset (set-up failed, DCMI error, ring overrun or no data).
 //! - Cycle counter: DWT CYCCNT (168 MHz). TIM2 runs at 1 MHz for the defmt
 //!   timestamps (rt.rs reads TIM2, as on the emulated board): microseconds.
 //!
@@ -39,16 +41,19 @@ use super::{CycleCounter, FrameSize, RowSource, RowSourceError};
 
 /// SYSCLK, for the millisecond busy-waits.
 pub const SYSCLK_HZ: u32 = 168_000_000;
-/// The camera window delivered to the pipeline.
-pub const WINDOW: Window = ov7670::WINDOW_256;
+/// The sensor window read out.
+pub const WINDOW: Window = ov7670::WINDOW_VGA;
+/// The frame the pipeline sees: the window binned 2x2.
+pub const FRAME: FrameSize = FrameSize { width: WINDOW.width / 2, height: WINDOW.height / 2 };
 /// Bytes per camera line as DCMI delivers it (YUV422: 2 per pixel).
 const LINE_BYTES: usize = WINDOW.width as usize * 2;
+/// One 32-bit DMA word per pixel pair (Y0 U Y1 V).
 const LINE_WORDS: usize = LINE_BYTES / 4;
 /// YUV lines the DMA ring holds: how far the pipeline may fall behind the
-/// camera within a frame (32 lines = 16 KB; at 294 us per line, 9.4 ms).
-pub const CAMERA_RING_LINES: usize = 32;
+/// camera within a frame (16 lines = 20 KB = 8 output rows, 4.7 ms).
+pub const CAMERA_RING_LINES: usize = 16;
 const RING_WORDS: usize = CAMERA_RING_LINES * LINE_WORDS;
-/// No camera data for this long is a dead camera (> two frames at 6.7 fps).
+/// No camera data for this long is a dead camera (> 3 frames at 6.7 fps).
 const LINE_TIMEOUT_CYCLES: u32 = SYSCLK_HZ / 2;
 /// USART2 buffers: a $FLRIG line is < 200 B, a $FLODO < 60 B.
 const SERIAL_RX_BYTES: usize = 1024;
@@ -178,6 +183,7 @@ impl DiscoveryBoard {
                 ring,
                 camera_ok,
                 line: [0; LINE_WORDS],
+                pair_sums: [0; LINE_WORDS],
                 rows_left: 0,
                 heartbeat,
                 fault_led,
@@ -265,14 +271,14 @@ fn configure_camera(sccb: &mut I2c<'static, Blocking, i2c::Master>) -> Result<()
     // Settle: AEC/AGC need a few frames before the image is usable.
     delay_ms(300);
     defmt::info!(
-        "OV7670 {=u8:#x}{=u8:x}: YUV422 {=u16}x{=u16} window at ({=u16},{=u16}) of VGA, CLKRC /{=u8}",
+        "OV7670 {=u8:#x}{=u8:x}: YUV422 {=u16}x{=u16}, CLKRC /{=u8}; frames {=u16}x{=u16} (Y, 2x2 binned)",
         pid,
         ver,
         WINDOW.width,
         WINDOW.height,
-        WINDOW.left,
-        WINDOW.top,
-        ov7670::CLKRC_DIVIDER + 1
+        ov7670::CLKRC_DIVIDER + 1,
+        FRAME.width,
+        FRAME.height
     );
     Ok(())
 }
@@ -281,13 +287,47 @@ fn configure_camera(sccb: &mut I2c<'static, Blocking, i2c::Master>) -> Result<()
 pub struct CameraRows {
     ring: ReadableRingBuffer<'static, u32>,
     camera_ok: bool,
+    /// The YUV line last taken from the ring.
     line: [u32; LINE_WORDS],
+    /// Y0 + Y1 of each pixel pair of the first line of a row pair.
+    pair_sums: [u16; LINE_WORDS],
+    /// Output rows still to come in this frame.
     rows_left: u16,
     heartbeat: Output<'static>,
     fault_led: Output<'static>,
 }
 
 impl CameraRows {
+    /// Fills `line` with the next YUV line from the DMA ring.
+    fn read_line(&mut self) -> Result<(), RowSourceError> {
+        let mut filled = 0;
+        let mut last_progress = DWT::cycle_count();
+        while filled < LINE_WORDS {
+            match self.ring.read(&mut self.line[filled..]) {
+                Ok((0, _)) => {
+                    let status = pac::DCMI.ris().read();
+                    if status.ovr_ris() || status.err_ris() {
+                        defmt::error!("DCMI {=str}", if status.ovr_ris() { "overrun" } else { "sync error" });
+                        return Err(self.fail(RowSourceError::Read));
+                    }
+                    if DWT::cycle_count().wrapping_sub(last_progress) > LINE_TIMEOUT_CYCLES {
+                        defmt::error!("camera: no line for 0.5 s ({=u16} rows left)", self.rows_left);
+                        return Err(self.fail(RowSourceError::Read));
+                    }
+                }
+                Ok((count, _)) => {
+                    filled += count;
+                    last_progress = DWT::cycle_count();
+                }
+                Err(_) => {
+                    defmt::error!("camera ring overrun: the pipeline fell {=usize} lines behind", CAMERA_RING_LINES);
+                    return Err(self.fail(RowSourceError::Read));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Stops DCMI; the DMA stays armed and idles without requests.
     fn stop_capture(&mut self) {
         pac::DCMI.cr().modify(|w| {
@@ -333,59 +373,44 @@ impl RowSource for CameraRows {
         });
         dcmi.cr().modify(|w| w.set_enable(true));
         dcmi.cr().modify(|w| w.set_capture(true));
-        self.rows_left = WINDOW.height;
-        Ok(FrameSize { width: WINDOW.width, height: WINDOW.height })
+        self.rows_left = FRAME.height;
+        Ok(FRAME)
     }
 
+    /// Two camera lines, Y only, 2x2 block means (rounded).
     fn read_row(&mut self, row: &mut [u8]) -> Result<(), RowSourceError> {
-        if row.len() != usize::from(WINDOW.width) {
+        if row.len() != usize::from(FRAME.width) {
             return Err(RowSourceError::RowLength);
         }
         if self.rows_left == 0 {
             return Err(RowSourceError::Read);
         }
-        let mut filled = 0;
-        let mut last_progress = DWT::cycle_count();
-        while filled < LINE_WORDS {
-            match self.ring.read(&mut self.line[filled..]) {
-                Ok((0, _)) => {
-                    let status = pac::DCMI.ris().read();
-                    if status.ovr_ris() || status.err_ris() {
-                        defmt::error!("DCMI {=str}", if status.ovr_ris() { "overrun" } else { "sync error" });
-                        return Err(self.fail(RowSourceError::Read));
-                    }
-                    if DWT::cycle_count().wrapping_sub(last_progress) > LINE_TIMEOUT_CYCLES {
-                        defmt::error!("camera: no line for 0.5 s ({=u16} rows left)", self.rows_left);
-                        return Err(self.fail(RowSourceError::Read));
-                    }
-                }
-                Ok((count, _)) => {
-                    filled += count;
-                    last_progress = DWT::cycle_count();
-                }
-                Err(_) => {
-                    defmt::error!("camera ring overrun: the pipeline fell {=usize} lines behind", CAMERA_RING_LINES);
-                    return Err(self.fail(RowSourceError::Read));
-                }
-            }
+        self.read_line()?;
+        for (sum, &word) in self.pair_sums.iter_mut().zip(self.line.iter()) {
+            *sum = luma_pair(word);
         }
-        // Each word holds two pixels: Y0 U Y1 V, first byte lowest.
-        let shift = 8 * ov7670::Y_OFFSET as u32;
-        for (pair, &word) in row.chunks_exact_mut(2).zip(self.line.iter()) {
-            pair[0] = (word >> shift) as u8;
-            pair[1] = (word >> (16 + shift)) as u8;
+        self.read_line()?;
+        for ((out, &sum), &word) in row.iter_mut().zip(self.pair_sums.iter()).zip(self.line.iter()) {
+            *out = ((sum + luma_pair(word) + 2) / 4) as u8;
         }
         self.rows_left -= 1;
+        if self.rows_left == 0 {
+            self.heartbeat.toggle();
+        }
         Ok(())
     }
 
     fn end_frame(&mut self) {
         self.stop_capture();
-        if self.rows_left == 0 {
-            self.heartbeat.toggle();
-        }
         self.rows_left = 0;
     }
+}
+
+/// Y0 + Y1 of a DMA word: bytes Y0 U Y1 V, first byte lowest (DCMI packs
+/// the first byte into bits 7:0).
+fn luma_pair(word: u32) -> u16 {
+    let shift = 8 * ov7670::Y_OFFSET as u32;
+    ((word >> shift) & 0xFF) as u16 + ((word >> (16 + shift)) & 0xFF) as u16
 }
 
 /// USART2 through embassy's interrupt-driven buffered driver (embedded-io

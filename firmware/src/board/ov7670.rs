@@ -131,9 +131,10 @@ pub struct Window {
     pub height: u16,
 }
 
-/// 256x256 from the centre of the VGA image: cx, cy of a VGA calibration
-/// shift by (-192, -112); fx, fy stay (no scaling).
-pub const WINDOW_256: Window = Window { left: (VGA_WIDTH - 256) / 2, top: (VGA_HEIGHT - 256) / 2, width: 256, height: 256 };
+/// The whole VGA array: the board bins it 2x2 to 320x240 (QVGA field of
+/// view, no sensor scaler involved). A smaller window (a crop: fx, fy stay,
+/// cx, cy shift by `left`, `top`) costs field of view.
+pub const WINDOW_VGA: Window = Window { left: 0, top: 0, width: VGA_WIDTH, height: VGA_HEIGHT };
 
 /// HSTART, HSTOP, HREF, VSTRT, VSTOP, VREF for `window` (11-bit horizontal,
 /// 10-bit vertical counters split across registers; HREF keeps OmniVision's
@@ -154,9 +155,10 @@ pub const fn window_registers(window: Window) -> [(u8, u8); 6] {
 }
 
 /// CLKRC prescaler: PCLK = XCLK / (n + 1). With XCLK = 16 MHz (HSI on MCO1)
-/// and n = 2, PCLK = 5.33 MHz: a line every 294 us (49,000 CPU cycles at
-/// 168 MHz, ~6x the remap's per-row cost) and 6.7 frames/s. Raise the rate
-/// (smaller n) only once the whole per-row pipeline is measured on the board.
+/// and n = 2, PCLK = 5.33 MHz: a VGA line every 294 us, so one binned output
+/// row per 588 us (98,800 CPU cycles at 168 MHz, >10x the remap's per-row
+/// cost), 6.7 frames/s. Raise the rate (smaller n) only once the whole
+/// per-row pipeline is measured on the board.
 pub const CLKRC_DIVIDER: u8 = 2;
 
 /// Register writes after the soft reset (COM7_RESET, then >= 1 ms).
@@ -240,7 +242,7 @@ pub const SETUP: &[(u8, u8)] = &[
 // reproduces the Linux driver's VGA registers HSTART 0x13, HSTOP 0x01,
 // HREF 0xB6, VSTRT 0x02, VSTOP 0x7A, VREF 0x0A.
 const _: () = {
-    let vga = window_registers(Window { left: 0, top: 0, width: VGA_WIDTH, height: VGA_HEIGHT });
+    let vga = window_registers(WINDOW_VGA);
     let expected = [0x13, 0x01, 0xB6, 0x02, 0x7A, 0x0A];
     let mut i = 0;
     while i < 6 {
