@@ -6,10 +6,13 @@
 //! - a [`CycleCounter`].
 //!
 //! [`emulated`] implements them for QEMU's netduinoplus2 (frames through
-//! semihosting); a real STM32F4 board (DCMI camera) is a later issue and only
-//! has to implement the same traits.
+//! semihosting); [`discovery`] (feature `discovery`) for the STM32F4DISCOVERY
+//! with an OV7670 camera on DCMI.
 
+#[cfg(feature = "discovery")]
+pub mod discovery;
 pub mod emulated;
+pub mod ov7670;
 
 /// The size of the frame a [`RowSource`] is about to deliver.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
