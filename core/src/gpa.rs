@@ -38,9 +38,9 @@ pub const MAX_SEARCH_RADIUS: usize = 3;
 const MAX_WINDOW: usize = 2 * MAX_SEARCH_RADIUS + 1;
 /// Spare keyframe rows: how far (rows) the in-place keyframe update may run
 /// ahead of the rows still being read. Bounds the travel per keyframe swap.
-pub const KEYFRAME_SPARE_ROWS: usize = 64;
+pub const KEYFRAME_SPARE_ROWS: usize = 48;
 /// Coarse cells for blob analysis, per side.
-pub const MAX_CELLS_SIDE: usize = 64;
+pub const MAX_CELLS_SIDE: usize = 52;
 /// Height hypotheses for the per-cell parallax test, as fractions of the
 /// camera height H (index 0 is the ground). A point at height h = f*H shows,
 /// beyond the ground prediction, an extra displacement of T * f / (1 - f).
@@ -281,7 +281,9 @@ impl<'b> Gpa<'b> {
             return Err(GpaError::BufferTooSmall { needed });
         }
         let aoi = grid.aoi_pixels(rig);
-        let cell_px = (libm::round(config.cell_mm / grid.mm_per_px) as usize).clamp(3, 15);
+        // At least 5 px: a coherent sample for the parallax test, and the cell
+        // arrays stay within MAX_CELLS_SIDE for the largest grid.
+        let cell_px = (libm::round(config.cell_mm / grid.mm_per_px) as usize).clamp(5, 15);
         let cells_wide = grid.width().div_ceil(cell_px).min(MAX_CELLS_SIDE);
         let cells_high = aoi.bottom.div_ceil(cell_px).min(MAX_CELLS_SIDE);
         let mut current_valid = [(0u16, 0u16); MAX_GRID_SIDE];
@@ -798,8 +800,6 @@ impl<'b> Gpa<'b> {
         // residue blob catches what has no consistent parallax (moving things).
         let parallax = self.find_parallax_obstacle();
         let residue = self.find_blobs().map(|blob| self.locate(&blob));
-        #[cfg(feature = "debug-print")]
-        std::eprintln!("decide frame {}: parallax {:?} residue {:?} ground_like {}", self.frame, parallax, residue, self.ground_like);
         let evidence = parallax.map(|(near, left, right, _)| (near, left, right)).or(residue);
         self.obstacle_height_mm = parallax.map(|(_, _, _, height)| height);
         // Too short a baseline shows too little parallax to clear an alarm:
@@ -932,15 +932,16 @@ impl<'b> Gpa<'b> {
             // sharp ground edge (the camera resolves it differently from
             // another distance). Smooth obstacles leave little residue but
             // parallax over a wider patch.
-            if cells < 3 || (!with_residue && cells < 4) {
+            // A short baseline measures heights coarsely, so its footprints
+            // wander: there a blob must be large to raise an alarm by itself.
+            let short_baseline = self.predicted.distance_mm() < 0.5 * self.config.keyframe_travel_mm;
+            if cells < 3 || (!with_residue && cells < 4) || (short_baseline && cells < 8) {
                 continue;
             }
             // Every cell of a vertical face points at the same footprint; the
             // lower quartile is robust to the odd cell whose height is off.
             footprints.sort_unstable_by(|a, b| a.total_cmp(b));
             let nearest = footprints[(footprints.len() - 1) / 4];
-            #[cfg(feature = "debug-print")]
-            std::eprintln!("  blob cells {cells} residue {with_residue} tallest {tallest} footprints {:?}", footprints.iter().map(|z| *z as i32).collect::<std::vec::Vec<_>>());
             let inside = nearest <= aoi.far
                 && nearest >= aoi.near - self.cell_px as f64 * self.grid.mm_per_px
                 && right >= -aoi.half_width

@@ -27,7 +27,14 @@ pub struct GridConfig {
     /// Fixed resolution; `None` chooses it from the rig. With a fixed
     /// resolution the far margin shrinks as needed to fit the 256 cap.
     pub mm_per_px: Option<f64>,
+    /// Most pixels a chosen grid may have: the keyframe a target stores is
+    /// one grid, so RAM bounds it. A fixed `mm_per_px` is not bound by it.
+    pub max_pixels: usize,
 }
+
+/// Default [`GridConfig::max_pixels`]: a 40 KB keyframe, which leaves room
+/// for the rest of the pipeline in an STM32F4's 128 KB.
+pub const DEFAULT_MAX_PIXELS: usize = 40_000;
 
 /// Far margin for the travel between a keyframe and a later frame.
 pub const TRAVEL_MARGIN_MM: f64 = 100.0;
@@ -36,7 +43,13 @@ pub const LOOK_BEYOND_FRACTION: f64 = 0.25;
 
 impl Default for GridConfig {
     fn default() -> Self {
-        GridConfig { margin_lateral_mm: 150.0, margin_far_mm: None, margin_near_mm: 60.0, mm_per_px: None }
+        GridConfig {
+            margin_lateral_mm: 150.0,
+            margin_far_mm: None,
+            margin_near_mm: 60.0,
+            mm_per_px: None,
+            max_pixels: DEFAULT_MAX_PIXELS,
+        }
     }
 }
 
@@ -82,7 +95,7 @@ impl KgGrid {
         let aoi = rig.aoi();
         let margin_far = config.margin_far_mm.unwrap_or(TRAVEL_MARGIN_MM + LOOK_BEYOND_FRACTION * aoi.far_mm);
         let margins = [config.margin_lateral_mm, margin_far, config.margin_near_mm];
-        if !margins.iter().all(|m| m.is_finite() && *m >= 0.0) {
+        if !margins.iter().all(|m| m.is_finite() && *m >= 0.0) || config.max_pixels == 0 {
             return Err(GridError::Config);
         }
         let extent_x = 2.0 * (aoi.half_width_mm + config.margin_lateral_mm);
@@ -105,7 +118,9 @@ impl KgGrid {
                 let (lateral, longitudinal) =
                     rig.ground_footprint_mm(0.0, aoi.near_mm).ok_or(GridError::NotInView)?;
                 let finest = longitudinal.max(lateral);
-                let chosen = finest.max(extent_x / cap).max((z_far - z_near) / cap);
+                let extent_z = z_far - z_near;
+                let by_pixels = libm::sqrt(extent_x * extent_z / config.max_pixels.max(1) as f64);
+                let chosen = finest.max(extent_x / cap).max(extent_z / cap).max(by_pixels);
                 ceil(chosen / RESOLUTION_QUANTUM_MM) * RESOLUTION_QUANTUM_MM
             }
         };
