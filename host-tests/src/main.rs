@@ -32,6 +32,22 @@ enum Command {
         #[arg(long)]
         mm_per_px: Option<f64>,
     },
+    /// Heights from motion (GTI): points (x, z, h) per frame as CSV on stdout.
+    Heights {
+        /// Recording directory (rig.toml, poses.csv, frames/).
+        recording: PathBuf,
+        /// Output format (only csv).
+        #[arg(long, value_enum, default_value = "csv")]
+        format: HeightsFormat,
+        /// Also write GT-images with fitted loci and a top-view height map here.
+        #[arg(long)]
+        png: Option<PathBuf>,
+    },
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum HeightsFormat {
+    Csv,
 }
 
 fn parse_frame_range(text: &str) -> Result<Range<u32>, String> {
@@ -104,5 +120,16 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Kg { recording, frames, out, mm_per_px } => run_kg(&recording, frames, &out, mm_per_px),
+        Command::Heights { recording, format: HeightsFormat::Csv, png } => {
+            let recording = match Recording::open(&recording) {
+                Ok(r) => r,
+                Err(e) => return fatal(e),
+            };
+            let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+            match flatland_host::heights::run_heights(&recording, png.as_deref(), &mut out) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => fatal(e),
+            }
+        }
     }
 }
