@@ -45,11 +45,16 @@ use libm::{atan2f, cosf, fabsf, floorf, roundf, sinf, sqrtf};
 /// Most GT lines across the AOI.
 pub const MAX_LINES: usize = 16;
 /// Most tracks alive at once, over all lines.
-pub const MAX_TRACKS: usize = 128;
+pub const MAX_TRACKS: usize = 512;
 /// Observations kept per track (a sliding window over the latest frames).
 pub const MAX_OBSERVATIONS: usize = 16;
 /// Most edges considered per line and frame (the strongest win).
 pub const MAX_EDGES_PER_LINE: usize = 24;
+/// Weaker edges per line that established tracks may continue on
+/// (hysteresis: a track's prediction vouches for them).
+pub const MAX_WEAK_EDGES_PER_LINE: usize = 64;
+/// Threshold of the weak edges relative to the detection threshold.
+const WEAK_EDGE_SCALE: f32 = 0.5;
 /// Points of ended tracks kept in the map.
 pub const MAX_MAP_POINTS: usize = 64;
 /// Samples either side of an edge in its matching patch.
@@ -104,7 +109,7 @@ impl Default for GtiConfig {
         GtiConfig {
             lines: 12,
             line_width_px: 3,
-            edge_threshold_sigma: 2.5,
+            edge_threshold_sigma: 1.5,
             min_edge_contrast: 4.0,
             max_misses: 3,
             max_initial_slope: 3.0,
@@ -335,6 +340,7 @@ impl LineSamples {
 struct Edge {
     /// Sub-pixel KG row.
     row: f32,
+    /// Gradient magnitude over the local threshold (> 1).
     strength: f32,
     rising: bool,
     patch: [u8; PATCH],
@@ -350,18 +356,22 @@ struct Track {
     rising: bool,
     misses: u8,
     patch: [u8; PATCH],
+    /// Gradient magnitude of the latest edge, 1/16 gray level per sample:
+    /// weak tracks give way to strong new edges when a line is full.
+    strength: u16,
     /// World direction u (unit) of the locus, and its normal.
     axis: [f32; 2],
-    /// Robot position (odometry world) at the first observation.
-    origin: [f64; 2],
+    /// Robot position (odometry world) at the first observation. f32 is
+    /// enough: its rounding shifts all of a track's c equally (slope unchanged).
+    origin: [f32; 2],
     /// Apparent position along u at the first observation, mm.
     y0: f32,
     /// Latest apparent position across u (mm) and travel across u then.
     w_last: f32,
     across_last: f32,
     observations: Deque<[i16; 2], MAX_OBSERVATIONS>,
-    /// Observation matched in the current frame (for drawing).
-    matched_row: Option<f32>,
+    /// KG row (1/64) of the observation matched this frame (for drawing).
+    matched_row: Option<u16>,
 }
 
 /// A tracked point's estimate.
@@ -612,10 +622,12 @@ impl Gti {
         }
         for l in 0..self.config.lines {
             let mut edges: heapless::Vec<Edge, MAX_EDGES_PER_LINE> = heapless::Vec::new();
+            let mut weak_edges: heapless::Vec<Edge, MAX_WEAK_EDGES_PER_LINE> = heapless::Vec::new();
             if let Some(samples) = self.samples.get(l) {
-                find_edges(samples, &self.config, &mut edges);
+                find_edges(samples, &self.config, 1.0, &mut edges);
+                find_edges(samples, &self.config, WEAK_EDGE_SCALE, &mut weak_edges);
             }
-            self.associate_line(l, &edges);
+            self.associate_line(l, &edges, &weak_edges);
         }
         self.end_lost_tracks();
         // Next frame's lines follow this frame's translation (the best guess
@@ -648,7 +660,10 @@ impl Gti {
 
     /// Distance travelled along and across a track's axis since its origin.
     fn travel(&self, track: &Track) -> (f32, f32) {
-        let d = [(self.position[0] - track.origin[0]) as f32, (self.position[1] - track.origin[1]) as f32];
+        let d = [
+            (self.position[0] - f64::from(track.origin[0])) as f32,
+            (self.position[1] - f64::from(track.origin[1])) as f32,
+        ];
         let u = track.axis;
         (d[0] * u[0] + d[1] * u[1], d[0] * u[1] - d[1] * u[0])
     }
@@ -687,11 +702,12 @@ impl Gti {
         (0.7..=20.0).contains(&slope)
     }
 
-    fn associate_line(&mut self, l: usize, edges: &[Edge]) {
+    fn associate_line(&mut self, l: usize, edges: &[Edge], weak_edges: &[Edge]) {
         let Some(line) = self.lines.get(l).copied() else { return };
         let grid = self.grid;
         let mm_per_px = grid.mm_per_px as f32;
         let mut taken = [false; MAX_EDGES_PER_LINE];
+        let mut weak_taken = [false; MAX_WEAK_EDGES_PER_LINE];
         // Oldest tracks first: their predictions are the tightest.
         let mut order: heapless::Vec<(usize, usize), MAX_TRACKS> = heapless::Vec::new();
         for (index, track) in self.tracks.iter().enumerate() {
@@ -736,47 +752,98 @@ impl Gti {
                     ((ra.min(rb) - gate, ra.max(rb) + gate), None)
                 }
             };
-            let mut best: Option<(usize, f32)> = None;
-            for (e, edge) in edges.iter().enumerate() {
-                if taken.get(e).copied().unwrap_or(true) || edge.rising != track.rising {
-                    continue;
+            let established = preferred.is_some();
+            let track_patch = track.patch;
+            let track_rising = track.rising;
+            let pick = |list: &[Edge], used: &[bool]| -> Option<usize> {
+                let mut best: Option<(usize, f32)> = None;
+                for (e, edge) in list.iter().enumerate() {
+                    if used.get(e).copied().unwrap_or(true) || edge.rising != track_rising {
+                        continue;
+                    }
+                    if edge.row < window.0 || edge.row > window.1 {
+                        continue;
+                    }
+                    let correlation = zncc(&track_patch, &edge.patch);
+                    if correlation < self.config.min_patch_correlation {
+                        continue;
+                    }
+                    let half_width = 0.5 * (window.1 - window.0);
+                    let distance_penalty = preferred.map_or(0.0, |row| 0.2 * fabsf(edge.row - row) / half_width);
+                    let score = correlation - distance_penalty;
+                    if best.is_none_or(|(_, s)| score > s) {
+                        best = Some((e, score));
+                    }
                 }
-                if edge.row < window.0 || edge.row > window.1 {
-                    continue;
+                best.map(|(e, _)| e)
+            };
+            let matched = match pick(edges, &taken) {
+                Some(e) => {
+                    if let Some(flag) = taken.get_mut(e) {
+                        *flag = true;
+                    }
+                    edges.get(e).copied()
                 }
-                let correlation = zncc(&track.patch, &edge.patch);
-                if correlation < self.config.min_patch_correlation {
-                    continue;
+                None if established => {
+                    // Continue on a weaker edge that no strong edge claimed.
+                    let weak = pick(weak_edges, &weak_taken);
+                    if let Some(flag) = weak.and_then(|e| weak_taken.get_mut(e)) {
+                        *flag = true;
+                    }
+                    weak.and_then(|e| weak_edges.get(e)).copied()
                 }
-                let half_width = 0.5 * (window.1 - window.0);
-                let distance_penalty = preferred.map_or(0.0, |row| 0.2 * fabsf(edge.row - row) / half_width);
-                let score = correlation - distance_penalty;
-                if best.is_none_or(|(_, s)| score > s) {
-                    best = Some((e, score));
+                None => None,
+            };
+            if let Some(edge) = matched {
+                // The strong and weak lists share edges: claim it in both.
+                for (e, other) in edges.iter().enumerate() {
+                    if fabsf(other.row - edge.row) < 1e-3 {
+                        if let Some(flag) = taken.get_mut(e) {
+                            *flag = true;
+                        }
+                    }
                 }
-            }
-            if let Some((e, _)) = best {
-                if let (Some(edge), Some(flag)) = (edges.get(e), taken.get_mut(e)) {
-                    *flag = true;
-                    let point = line.point_at_row(&grid, edge.row);
-                    let edge = *edge;
-                    self.observe(index, point, &edge);
+                for (e, other) in weak_edges.iter().enumerate() {
+                    if fabsf(other.row - edge.row) < 1e-3 {
+                        if let Some(flag) = weak_taken.get_mut(e) {
+                            *flag = true;
+                        }
+                    }
                 }
+                let point = line.point_at_row(&grid, edge.row);
+                self.observe(index, point, &edge);
             } else if let Some(track) = self.tracks.get_mut(index).and_then(|t| t.as_mut()) {
                 track.misses = track.misses.saturating_add(1);
             }
         }
-        // Unmatched edges start tracks, strongest first, within the line's share.
+        // Unmatched edges start tracks, strongest first, within the line's
+        // share; when it is full, a much stronger edge replaces the weakest
+        // track (floor texture must not crowd out an obstacle's edges).
         let share = MAX_TRACKS / self.config.lines;
-        let mut on_line = self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l).count();
         for (e, edge) in edges.iter().enumerate() {
-            if on_line >= share {
-                break;
-            }
             if taken.get(e).copied().unwrap_or(true) {
                 continue;
             }
-            let Some(slot) = self.tracks.iter().position(|t| t.is_none()) else { break };
+            let strength = encode_strength(edge.strength);
+            let on_line = self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l).count();
+            let slot = if on_line < share {
+                self.tracks.iter().position(|t| t.is_none())
+            } else {
+                let weakest = self
+                    .tracks
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, t)| t.as_ref().filter(|t| usize::from(t.line) == l).map(|t| (i, t.strength)))
+                    .min_by_key(|&(_, s)| s);
+                match weakest {
+                    Some((i, s)) if u32::from(strength) * 2 > u32::from(s) * 3 => {
+                        self.end_track(i);
+                        Some(i)
+                    }
+                    _ => None,
+                }
+            };
+            let Some(slot) = slot else { continue };
             let point = line.point_at_row(&grid, edge.row);
             let q = self.to_world_rotation(point);
             let axis = self.to_world_rotation(line.direction);
@@ -788,18 +855,18 @@ impl Gti {
                 rising: edge.rising,
                 misses: 0,
                 patch: edge.patch,
+                strength,
                 axis,
-                origin: self.position,
+                origin: [self.position[0] as f32, self.position[1] as f32],
                 y0: q[0] * axis[0] + q[1] * axis[1],
                 w_last: q[0] * axis[1] - q[1] * axis[0],
                 across_last: 0.0,
                 observations,
-                matched_row: Some(edge.row),
+                matched_row: encode_row(edge.row),
             };
             self.next_id = self.next_id.wrapping_add(1);
             if let Some(s) = self.tracks.get_mut(slot) {
                 *s = Some(track);
-                on_line += 1;
             }
         }
     }
@@ -825,7 +892,8 @@ impl Gti {
         track.across_last = across;
         track.misses = 0;
         track.patch = edge.patch;
-        track.matched_row = Some(edge.row);
+        track.strength = encode_strength(edge.strength);
+        track.matched_row = encode_row(edge.row);
     }
 
     /// Ends tracks missed too often or with an implausible locus; good ones
@@ -838,6 +906,14 @@ impl Gti {
             if track.misses <= self.config.max_misses && !implausible {
                 continue;
             }
+            self.end_track(index);
+        }
+    }
+
+    /// Ends a track; a good one becomes a map point.
+    fn end_track(&mut self, index: usize) {
+        {
+            let Some(track) = self.tracks.get(index).and_then(|t| t.as_ref()) else { return };
             if let Some(point) = self.estimate(track) {
                 if point.quality >= self.config.good_quality {
                     let (sin, cos) = (libm::sin(self.yaw_rad), libm::cos(self.yaw_rad));
@@ -857,9 +933,9 @@ impl Gti {
                     });
                 }
             }
-            if let Some(slot) = self.tracks.get_mut(index) {
-                *slot = None;
-            }
+        }
+        if let Some(slot) = self.tracks.get_mut(index) {
+            *slot = None;
         }
     }
 
@@ -912,6 +988,16 @@ impl Gti {
         live.chain(mapped.filter(|p| p.z_mm > 0.0)).filter(move |p| p.quality >= min_quality)
     }
 
+    /// Edges of line `l` in the latest frame: (sub-pixel KG row, gradient
+    /// magnitude, rising), strongest first. Recomputed on each call.
+    pub fn line_edges(&self, l: usize) -> heapless::Vec<(f32, f32, bool), MAX_EDGES_PER_LINE> {
+        let mut edges: heapless::Vec<Edge, MAX_EDGES_PER_LINE> = heapless::Vec::new();
+        if let Some(samples) = self.samples.get(l).filter(|_| l < self.config.lines) {
+            find_edges(samples, &self.config, 1.0, &mut edges);
+        }
+        edges.iter().map(|e| (e.row, e.strength, e.rising)).collect()
+    }
+
     /// Live tracks, for drawing GT-images with their loci.
     pub fn tracks(&self) -> impl Iterator<Item = TrackView> + '_ {
         self.tracks.iter().flatten().map(|track| {
@@ -922,7 +1008,7 @@ impl Gti {
             TrackView {
                 id: track.id,
                 line: usize::from(track.line),
-                observed_row: track.matched_row,
+                observed_row: track.matched_row.map(|r| f32::from(r) / ROW_UNITS),
                 fitted_row,
                 point: self.estimate(track),
             }
@@ -967,6 +1053,14 @@ impl Gti {
     }
 }
 
+const ROW_UNITS: f32 = 64.0;
+fn encode_row(row: f32) -> Option<u16> {
+    (row >= 0.0 && row * ROW_UNITS < f32::from(u16::MAX)).then(|| roundf(row * ROW_UNITS) as u16)
+}
+fn encode_strength(strength: f32) -> u16 {
+    roundf((strength * 16.0).clamp(0.0, f32::from(u16::MAX))) as u16
+}
+
 fn support_tolerance(h_mm: f32) -> f32 {
     SUPPORT_TOLERANCE_MM.max(SUPPORT_TOLERANCE_FRACTION * fabsf(h_mm))
 }
@@ -1009,39 +1103,68 @@ fn sample_across(row: &[u8], valid: &Range<usize>, centre: f32, half: f32) -> Op
     Some(roundf(sum / taps as f32).clamp(0.0, 255.0) as u8)
 }
 
+/// Samples per block in which a line's noise is measured.
+const NOISE_BLOCK: usize = 32;
+
 /// Edges of one line: extrema of the smoothed gradient above
-/// `edge_threshold_sigma` robust sigmas of the line's own gradient (its
-/// texture and noise), strongest first, at most [`MAX_EDGES_PER_LINE`].
-fn find_edges(samples: &LineSamples, config: &GtiConfig, edges: &mut heapless::Vec<Edge, MAX_EDGES_PER_LINE>) {
+/// `edge_threshold_sigma` robust sigmas of the gradient around them (floor
+/// texture and sensor noise), strongest (relative to that) first, at most
+/// [`MAX_EDGES_PER_LINE`].
+fn find_edges<const N: usize>(
+    samples: &LineSamples,
+    config: &GtiConfig,
+    threshold_scale: f32,
+    edges: &mut heapless::Vec<Edge, N>,
+) {
     let valid = samples.valid();
     let values = &samples.values;
     let n = valid.len();
-    // Smoothing [1 2 1] then central difference: gradient at row r uses r-2..=r+2.
-    if n < 2 * PATCH_RADIUS + 3 {
+    // Smoothing [1 2 1], then the difference across +-2 samples: responds to
+    // the contrast of a step spread over a few samples (far ground is
+    // magnified in the KG image, so its edges are soft) more than to
+    // single-sample floor texture. Gradient at row r uses r-3..=r+3.
+    const REACH: usize = 3;
+    if n < 2 * (PATCH_RADIUS + REACH) + 3 {
         return;
     }
     let value = |r: usize| values.get(r).map_or(0.0, |&v| f32::from(v));
     let smooth = |r: usize| 0.25 * (value(r - 1) + 2.0 * value(r) + value(r + 1));
     let mut gradient = [0f32; MAX_LINE_SAMPLES];
-    let (first, last) = (valid.start + 2, valid.end - 2); // gradient defined on [first, last)
+    let (first, last) = (valid.start + REACH, valid.end - REACH); // gradient defined on [first, last)
     for r in first..last {
         if let Some(g) = gradient.get_mut(r) {
-            *g = 0.5 * (smooth(r + 1) - smooth(r - 1));
+            *g = 0.25 * (smooth(r + 2) - smooth(r - 2));
         }
     }
-    let mut magnitudes = [0f32; MAX_LINE_SAMPLES];
-    let count = last - first;
-    for (slot, g) in magnitudes.iter_mut().zip(gradient.get(first..last).unwrap_or(&[])) {
-        *slot = fabsf(*g);
+    // The line's noise (sensor noise plus floor texture) is measured locally,
+    // per block of NOISE_BLOCK samples: the near floor's sharp texture must
+    // not hide the soft edges of far, magnified ground.
+    let mut block_sigma = [0f32; MAX_LINE_SAMPLES / NOISE_BLOCK + 1];
+    for (b, sigma) in block_sigma.iter_mut().enumerate() {
+        let start = first + b * NOISE_BLOCK;
+        if start >= last {
+            break;
+        }
+        // A short last block borrows samples from its predecessor.
+        let end = (start + NOISE_BLOCK).min(last);
+        let start = end.saturating_sub(NOISE_BLOCK).max(first);
+        let mut magnitudes = [0f32; NOISE_BLOCK];
+        for (slot, g) in magnitudes.iter_mut().zip(gradient.get(start..end).unwrap_or(&[])) {
+            *slot = fabsf(*g);
+        }
+        // Median |g| of a zero-mean Gaussian is 0.6745 sigma.
+        *sigma = magnitudes.get_mut(..end - start).and_then(median).unwrap_or(0.0) / 0.6745;
     }
-    let Some(median_magnitude) = magnitudes.get_mut(..count).and_then(median) else { return };
-    // Median |g| of a zero-mean Gaussian is 0.6745 sigma.
-    let sigma = median_magnitude / 0.6745;
-    let threshold = (config.edge_threshold_sigma * sigma).max(config.min_edge_contrast * 0.5);
+    let floor = config.min_edge_contrast * 0.5;
+    let threshold_at = |r: usize| {
+        let sigma = block_sigma.get((r - first) / NOISE_BLOCK).copied().unwrap_or(0.0);
+        threshold_scale * (config.edge_threshold_sigma * sigma).max(floor)
+    };
     let magnitude = |r: usize| gradient.get(r).map_or(0.0, |g| fabsf(*g));
     // Patches must lie inside the valid run.
     for r in (first + 1).max(valid.start + PATCH_RADIUS)..(last - 1).min(valid.end - PATCH_RADIUS) {
         let (before, here, after) = (magnitude(r - 1), magnitude(r), magnitude(r + 1));
+        let threshold = threshold_at(r);
         if !(here > threshold && here >= before && here > after) {
             continue;
         }
@@ -1051,7 +1174,7 @@ fn find_edges(samples: &LineSamples, config: &GtiConfig, edges: &mut heapless::V
         }
         let edge = Edge {
             row: r as f32 + subpixel_peak(before, here, after),
-            strength: here,
+            strength: here / threshold,
             rising: gradient.get(r).is_some_and(|g| *g > 0.0),
             patch,
         };
@@ -1128,7 +1251,7 @@ mod tests {
         samples.start = 40;
         samples.end = 200;
         let mut edges = heapless::Vec::new();
-        find_edges(&samples, &GtiConfig::default(), &mut edges);
+        find_edges(&samples, &GtiConfig::default(), 1.0, &mut edges);
         assert_eq!(edges.len(), 1, "{edges:?}");
         assert!(edges[0].rising);
         assert!((edges[0].row - 100.3).abs() < 0.3, "row {}", edges[0].row);
