@@ -6,7 +6,7 @@
 
 use crate::images::RgbImage;
 use crate::kg::{KgError, KgFrontEnd};
-use crate::recording::{Recording, RecordingError};
+use crate::recording::{Frame, Recording, RecordingError};
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::gti::{Gti, GtiConfig, GtiError, HeightPoint, TrackView};
 use flatland_core::motion::Motion;
@@ -41,9 +41,16 @@ impl std::error::Error for HeightsError {}
 
 /// Runs GTI over every frame of a recording; `each_frame(frame, gti)` is
 /// called after each frame's `end_frame`, when points and tracks are current.
-pub fn run_gti(
+pub fn run_gti(recording: &Recording, config: GtiConfig, each_frame: impl FnMut(u32, &Gti)) -> Result<KgGrid, HeightsError> {
+    run_gti_perturbed(recording, config, |_, _| {}, each_frame)
+}
+
+/// [`run_gti`] with `perturb(frame, pixels)` applied to each frame as it is
+/// loaded (robustness tests: extra sensor noise and the like).
+pub fn run_gti_perturbed(
     recording: &Recording,
     config: GtiConfig,
+    mut perturb: impl FnMut(u32, &mut Frame),
     mut each_frame: impl FnMut(u32, &Gti),
 ) -> Result<KgGrid, HeightsError> {
     let front_end = KgFrontEnd::new(&recording.rig, &GridConfig::default()).map_err(HeightsError::Kg)?;
@@ -54,7 +61,8 @@ pub fn run_gti(
     let mut previous_pose = None;
     for &index in &recording.frames {
         let pose = recording.pose(index).ok_or(HeightsError::MissingPose { frame: index })?.pose;
-        let frame = recording.load_frame(index).map_err(HeightsError::Recording)?;
+        let mut frame = recording.load_frame(index).map_err(HeightsError::Recording)?;
+        perturb(index, &mut frame);
         let mut row_error = None;
         remap.reset();
         for camera_row in frame.pixels.chunks_exact(frame.width) {
