@@ -140,8 +140,8 @@ impl Drawing {
     }
 }
 
-/// Colour for a height: blue (floor) through green to red (>= 1.5x the
-/// minimum obstacle height... up to `full_mm`).
+/// Colour for a height: blue at the floor, green at `full_mm / 2`, red at
+/// `full_mm` and above.
 fn height_colour(h_mm: f32, full_mm: f32) -> [u8; 3] {
     let t = (h_mm / full_mm).clamp(0.0, 1.0);
     if t < 0.5 {
@@ -227,7 +227,7 @@ fn draw_segment(image: &mut RgbImage, x0: f32, y0: f32, x1: f32, y1: f32, colour
     }
 }
 
-/// Top view: 2 mm per pixel, robot at the bottom centre, AOI outlined,
+/// Top view: 4 mm per pixel, robot at the bottom centre, AOI outlined,
 /// each point a 5x5 square coloured by height, with a colour bar on the left.
 fn draw_map(points: &[HeightPoint], recording: &Recording, dir: &Path) -> Result<(), Box<dyn std::error::Error>> {
     const MM_PER_PX: f32 = 4.0;
