@@ -14,6 +14,7 @@
 //! - [`remap`]: the compact fixed-point remap table and the streaming,
 //!   row-by-row remap (the PIPE-like front end).
 //! - [`motion`]: poses and odometry (Tx, Tz, yaw) between frames.
+//! - [`gti`]: heights from motion on GT-images (the seed's §3.2), row-fed.
 //! - [`pgm`]: checked view of binary PGM (P5) headers.
 //! - [`report`]: the per-frame result, shared by the CLI and the serial protocol.
 #![cfg_attr(not(test), no_std)]
@@ -22,6 +23,7 @@
 pub mod geometry;
 pub mod gpa;
 pub mod grid;
+pub mod gti;
 pub mod motion;
 pub mod pgm;
 pub mod remap;

@@ -4,6 +4,7 @@
 
 pub mod detect;
 pub mod evaluate;
+pub mod heights;
 pub mod images;
 pub mod serial_decode;
 pub mod kg;

@@ -49,6 +49,17 @@ enum Command {
         #[arg(long)]
         truth: bool,
     },
+    /// Heights from motion (GTI): points (x, z, h) per frame as CSV on stdout.
+    Heights {
+        /// Recording directory (rig.toml, poses.csv, frames/).
+        recording: PathBuf,
+        /// Output format (only csv).
+        #[arg(long, value_enum, default_value = "csv")]
+        format: HeightsFormat,
+        /// Also write GT-images with fitted loci and a top-view height map here.
+        #[arg(long)]
+        png: Option<PathBuf>,
+    },
     /// Serial tools for the firmware's USART1 byte stream.
     #[command(subcommand)]
     Serial(SerialCommand),
@@ -65,6 +76,11 @@ enum SerialCommand {
 enum Format {
     Csv,
     Json,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum HeightsFormat {
+    Csv,
 }
 
 fn parse_frame_range(text: &str) -> Result<Range<u32>, String> {
@@ -268,5 +284,16 @@ fn main() -> ExitCode {
         Command::Kg { recording, frames, out, mm_per_px } => run_kg(&recording, frames, &out, mm_per_px),
         Command::Detect { recording, format, png, truth } => run_detect(&recording, format, png.as_deref(), truth),
         Command::Serial(SerialCommand::Decode { file }) => run_serial_decode(file.as_deref()),
+        Command::Heights { recording, format: HeightsFormat::Csv, png } => {
+            let recording = match Recording::open(&recording) {
+                Ok(r) => r,
+                Err(e) => return fatal(e),
+            };
+            let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+            match flatland_host::heights::run_heights(&recording, png.as_deref(), &mut out) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => fatal(e),
+            }
+        }
     }
 }

@@ -1,0 +1,266 @@
+//! `flatland heights`: GTI heights from motion over a recording, as CSV and
+//! pictures (GT-images with the fitted loci, and a top-view height map).
+//!
+//! Frames go through the streaming remap row by row and each KG row is fed
+//! to the GTI stage from the remap's callback, exactly as the firmware does.
+
+use crate::images::RgbImage;
+use crate::kg::{KgError, KgFrontEnd};
+use crate::recording::{Frame, Recording, RecordingError};
+use flatland_core::grid::{GridConfig, KgGrid};
+use flatland_core::gti::{Gti, GtiConfig, GtiError, HeightPoint, TrackView};
+use flatland_core::motion::Motion;
+use flatland_core::remap::{RemapError, StreamingRemap};
+use std::collections::BTreeMap;
+use std::fmt;
+use std::io::Write;
+use std::path::Path;
+
+#[derive(Debug)]
+pub enum HeightsError {
+    Recording(RecordingError),
+    Kg(KgError),
+    Gti(GtiError),
+    Remap { frame: u32, error: RemapError },
+    MissingPose { frame: u32 },
+}
+
+impl fmt::Display for HeightsError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            HeightsError::Recording(e) => write!(f, "{e}"),
+            HeightsError::Kg(e) => write!(f, "{e}"),
+            HeightsError::Gti(e) => write!(f, "GTI: {e}"),
+            HeightsError::Remap { frame, error } => write!(f, "frame {frame}: remap: {error}"),
+            HeightsError::MissingPose { frame } => write!(f, "poses.csv has no row for frame {frame}"),
+        }
+    }
+}
+
+impl std::error::Error for HeightsError {}
+
+/// Runs GTI over every frame of a recording; `each_frame(frame, gti)` is
+/// called after each frame's `end_frame`, when points and tracks are current.
+pub fn run_gti(recording: &Recording, config: GtiConfig, each_frame: impl FnMut(u32, &Gti)) -> Result<KgGrid, HeightsError> {
+    run_gti_perturbed(recording, config, |_, _| {}, each_frame)
+}
+
+/// [`run_gti`] with `perturb(frame, pixels)` applied to each frame as it is
+/// loaded (robustness tests: extra sensor noise and the like).
+pub fn run_gti_perturbed(
+    recording: &Recording,
+    config: GtiConfig,
+    mut perturb: impl FnMut(u32, &mut Frame),
+    mut each_frame: impl FnMut(u32, &Gti),
+) -> Result<KgGrid, HeightsError> {
+    let front_end = KgFrontEnd::new(&recording.rig, &GridConfig::default()).map_err(HeightsError::Kg)?;
+    let table = &front_end.table;
+    let mut gti = Gti::new(&recording.rig, &front_end.grid, config).map_err(HeightsError::Gti)?;
+    let mut ring = vec![0u8; table.ring_bytes()];
+    let mut remap = StreamingRemap::new(table, &mut ring).map_err(|error| HeightsError::Remap { frame: 0, error })?;
+    let mut previous_pose = None;
+    for &index in &recording.frames {
+        let pose = recording.pose(index).ok_or(HeightsError::MissingPose { frame: index })?.pose;
+        let mut frame = recording.load_frame(index).map_err(HeightsError::Recording)?;
+        perturb(index, &mut frame);
+        let mut row_error = None;
+        remap.reset();
+        for camera_row in frame.pixels.chunks_exact(frame.width) {
+            remap
+                .push_row(camera_row, |j, kg_row| {
+                    if let Err(e) = gti.on_kg_row(j, kg_row, table.valid_columns(j)) {
+                        row_error.get_or_insert(e);
+                    }
+                })
+                .map_err(|error| HeightsError::Remap { frame: index, error })?;
+        }
+        if let Some(e) = row_error {
+            return Err(HeightsError::Gti(e));
+        }
+        let motion = previous_pose.map_or(Motion::default(), |from| Motion::between(&from, &pose));
+        gti.end_frame(&motion);
+        previous_pose = Some(pose);
+        each_frame(index, &gti);
+    }
+    Ok(front_end.grid)
+}
+
+/// Heights in whole mm, positions in whole mm: what reaches the serial link.
+pub fn csv_row(frame: u32, p: &HeightPoint) -> String {
+    format!("{frame},{:.0},{:.0},{:.0},{}", p.x_mm, p.z_mm, p.h_mm, p.quality)
+}
+
+pub const CSV_HEADER: &str = "frame,x_mm,z_mm,h_mm,quality";
+
+/// What the pictures need, collected frame by frame.
+#[derive(Default)]
+struct Drawing {
+    /// Per line: one column of samples per frame (None where invalid).
+    columns: Vec<Vec<Vec<Option<u8>>>>,
+    /// Per track id: line, and per frame (column index) observed/fitted rows.
+    loci: BTreeMap<u32, Locus>,
+    last_points: Vec<HeightPoint>,
+}
+
+struct Locus {
+    line: usize,
+    observed: Vec<(usize, f32)>,
+    fitted: Vec<(usize, f32)>,
+    h_mm: Option<f32>,
+}
+
+impl Drawing {
+    fn record(&mut self, gti: &Gti) {
+        let column = self.columns.first().map_or(0, Vec::len);
+        let lines = gti.lines().len();
+        self.columns.resize_with(lines, Vec::new);
+        for (l, columns) in self.columns.iter_mut().enumerate() {
+            let column = gti.line_samples(l).map_or_else(Vec::new, |(values, valid)| {
+                values.iter().enumerate().map(|(row, &v)| valid.contains(&row).then_some(v)).collect()
+            });
+            columns.push(column);
+        }
+        for view in gti.tracks() {
+            self.record_track(column, &view);
+        }
+        self.last_points = gti.points().collect();
+    }
+
+    fn record_track(&mut self, column: usize, view: &TrackView) {
+        let locus = self.loci.entry(view.id).or_insert(Locus { line: view.line, observed: vec![], fitted: vec![], h_mm: None });
+        if let Some(row) = view.observed_row {
+            locus.observed.push((column, row));
+        }
+        if let Some(row) = view.fitted_row {
+            locus.fitted.push((column, row));
+        }
+        if let Some(p) = view.point {
+            locus.h_mm = Some(p.h_mm);
+        }
+    }
+}
+
+/// Colour for a height: blue at the floor, green at `full_mm / 2`, red at
+/// `full_mm` and above.
+fn height_colour(h_mm: f32, full_mm: f32) -> [u8; 3] {
+    let t = (h_mm / full_mm).clamp(0.0, 1.0);
+    if t < 0.5 {
+        let k = t * 2.0;
+        [0, (255.0 * k) as u8, (255.0 * (1.0 - k)) as u8]
+    } else {
+        let k = (t - 0.5) * 2.0;
+        [(255.0 * k) as u8, (255.0 * (1.0 - k)) as u8, 0]
+    }
+}
+
+/// Runs GTI and writes the CSV to `out`; with `png_dir`, also writes
+/// `gt_line_NN.png` (GT-images, time to the right, KG row down, observed
+/// edges as dots and fitted loci as lines, coloured by height) and
+/// `map.png` (top view of the final frame's points, coloured by height).
+pub fn run_heights(recording: &Recording, png_dir: Option<&Path>, out: &mut impl Write) -> Result<(), Box<dyn std::error::Error>> {
+    let config = GtiConfig::default();
+    let mut drawing = Drawing::default();
+    let mut rows = Vec::new();
+    let grid = run_gti(recording, config, |frame, gti| {
+        for p in gti.points() {
+            rows.push(csv_row(frame, &p));
+        }
+        if png_dir.is_some() {
+            drawing.record(gti);
+        }
+    })?;
+    writeln!(out, "{CSV_HEADER}")?;
+    for row in rows {
+        writeln!(out, "{row}")?;
+    }
+    if let Some(dir) = png_dir {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        draw_gt_images(&drawing, &grid, recording.rig.height_mm() as f32, dir)?;
+        draw_map(&drawing.last_points, recording, dir)?;
+    }
+    Ok(())
+}
+
+/// Pixels per frame in the GT-images (frames are few, rows many).
+const GT_COLUMN_PX: usize = 4;
+
+fn draw_gt_images(drawing: &Drawing, grid: &KgGrid, mount_height_mm: f32, dir: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let full = 0.5 * mount_height_mm;
+    for (l, columns) in drawing.columns.iter().enumerate() {
+        let width = columns.len() * GT_COLUMN_PX;
+        let height = grid.height();
+        let mut image = RgbImage::new(width.max(1), height);
+        for (c, column) in columns.iter().enumerate() {
+            for (row, value) in column.iter().enumerate() {
+                let v = value.unwrap_or(0);
+                for dx in 0..GT_COLUMN_PX {
+                    image.set(c * GT_COLUMN_PX + dx, row, [v / 2 + 40, v / 2 + 40, v / 2 + 40]);
+                }
+            }
+        }
+        let x_of = |c: usize| c * GT_COLUMN_PX + GT_COLUMN_PX / 2;
+        for locus in drawing.loci.values().filter(|locus| locus.line == l) {
+            let Some(h) = locus.h_mm else { continue };
+            let colour = height_colour(h, full);
+            for pair in locus.fitted.windows(2) {
+                let ((c0, r0), (c1, r1)) = (pair[0], pair[1]);
+                draw_segment(&mut image, x_of(c0) as f32, r0, x_of(c1) as f32, r1, colour);
+            }
+            for &(c, row) in &locus.observed {
+                image.set(x_of(c), row.round().max(0.0) as usize, [255, 255, 255]);
+            }
+        }
+        let path = dir.join(format!("gt_line_{l:02}.png"));
+        image.save(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    Ok(())
+}
+
+fn draw_segment(image: &mut RgbImage, x0: f32, y0: f32, x1: f32, y1: f32, colour: [u8; 3]) {
+    let steps = (x1 - x0).abs().max((y1 - y0).abs()).ceil().max(1.0) as usize;
+    for k in 0..=steps {
+        let t = k as f32 / steps as f32;
+        let (x, y) = (x0 + (x1 - x0) * t, y0 + (y1 - y0) * t);
+        if x >= 0.0 && y >= 0.0 {
+            image.set(x.round() as usize, y.round() as usize, colour);
+        }
+    }
+}
+
+/// Top view: 4 mm per pixel, robot at the bottom centre, AOI outlined,
+/// each point a 5x5 square coloured by height, with a colour bar on the left.
+fn draw_map(points: &[HeightPoint], recording: &Recording, dir: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    const MM_PER_PX: f32 = 4.0;
+    let aoi = recording.rig.aoi();
+    let half = aoi.half_width_mm as f32 + 200.0;
+    let far = aoi.far_mm as f32 + 300.0;
+    let (width, height) = ((2.0 * half / MM_PER_PX) as usize, (far / MM_PER_PX) as usize);
+    let mut image = RgbImage::new(width, height);
+    let to_px = |x: f32, z: f32| ((x + half) / MM_PER_PX, (far - z) / MM_PER_PX);
+    let (l, t) = to_px(-aoi.half_width_mm as f32, aoi.far_mm as f32);
+    let (r, b) = to_px(aoi.half_width_mm as f32, aoi.near_mm as f32);
+    image.rect(l as usize, t as usize, r as usize, b as usize, [90, 90, 90]);
+    let full = 0.5 * recording.rig.height_mm() as f32;
+    for p in points {
+        let (x, y) = to_px(p.x_mm, p.z_mm);
+        let colour = height_colour(p.h_mm, full);
+        for dy in -2..=2 {
+            for dx in -2..=2 {
+                let (px, py) = (x + dx as f32, y + dy as f32);
+                if px >= 0.0 && py >= 0.0 {
+                    image.set(px as usize, py as usize, colour);
+                }
+            }
+        }
+    }
+    // Colour bar: 0 mm at the bottom to H/2 at the top.
+    for y in 0..height {
+        let h = full * (1.0 - y as f32 / height as f32);
+        for x in 0..6 {
+            image.set(x, y, height_colour(h, full));
+        }
+    }
+    let path = dir.join("map.png");
+    image.save(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(())
+}
