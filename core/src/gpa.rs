@@ -41,8 +41,15 @@ const MAX_WINDOW: usize = 2 * MAX_SEARCH_RADIUS + 1;
 pub const KEYFRAME_SPARE_ROWS: usize = 64;
 /// Coarse cells for blob analysis, per side.
 pub const MAX_CELLS_SIDE: usize = 64;
+/// Height hypotheses for the per-cell parallax test, as fractions of the
+/// camera height H (index 0 is the ground). A point at height h = f*H shows,
+/// beyond the ground prediction, an extra displacement of T * f / (1 - f).
+pub const HEIGHT_FRACTIONS: [f64; 8] = [0.0, 0.04, 0.08, 0.13, 0.19, 0.27, 0.37, 0.5];
+const HYPOTHESES: usize = HEIGHT_FRACTIONS.len();
 /// Blobs tracked per frame.
 pub const MAX_BLOBS: usize = 16;
+/// Cells whose footprints a parallax blob keeps for its statistics.
+const MAX_BLOB_CELLS: usize = 128;
 /// The seed's levels: |diff| above 30 is summed, above 50 counted.
 pub const SEED_SUM_LEVEL: u8 = 30;
 pub const SEED_COUNT_LEVEL: u8 = 50;
@@ -54,15 +61,27 @@ pub struct GpaConfig {
     pub search_radius: usize,
     /// Travel since the keyframe at which the current frame becomes the keyframe.
     pub keyframe_travel_mm: f64,
+    /// Turn since the keyframe at which the current frame becomes the keyframe:
+    /// turning shrinks the ground both frames see.
+    pub keyframe_yaw_deg: f64,
     /// A residue pixel exceeds `max(residue_floor, noise_factor * noise)`.
     pub residue_floor: u8,
     pub noise_factor: f64,
     /// Side of a coherence cell, mm of ground.
     pub cell_mm: f64,
-    /// A cell is hot when this percentage of its valid pixels are residue.
-    pub hot_cell_percent: u32,
-    /// Smallest blob (ground area of its hot cells) that counts as an obstacle.
-    pub min_blob_area_mm2: f64,
+    /// A cell joins a blob when this percentage of its valid pixels are residue.
+    pub active_cell_percent: u32,
+    /// A blob is an obstacle when one of its cells reaches this percentage...
+    pub peak_cell_percent: u32,
+    /// ...and its residue covers at least this ground area (mm²).
+    pub min_residue_mm2: f64,
+    /// Parallax test: a cell is elevated when its best height hypothesis
+    /// lowers the cell's SAD by this percentage of the ground hypothesis...
+    pub parallax_gain_percent: u32,
+    /// ...and by at least this many gray levels per pixel (or the noise level, if higher).
+    pub parallax_min_gain: f64,
+    /// Obstacles are at least this tall (mm); lower bumps are ground.
+    pub min_obstacle_height_mm: f64,
 }
 
 impl Default for GpaConfig {
@@ -70,11 +89,16 @@ impl Default for GpaConfig {
         GpaConfig {
             search_radius: 2,
             keyframe_travel_mm: 100.0,
+            keyframe_yaw_deg: 3.0,
             residue_floor: 16,
             noise_factor: 4.0,
             cell_mm: 30.0,
-            hot_cell_percent: 30,
-            min_blob_area_mm2: 3000.0,
+            active_cell_percent: 12,
+            peak_cell_percent: 35,
+            min_residue_mm2: 800.0,
+            parallax_gain_percent: 30,
+            parallax_min_gain: 3.0,
+            min_obstacle_height_mm: 20.0,
         }
     }
 }
@@ -100,6 +124,8 @@ pub struct Blob {
     pub cells: u16,
     /// Residue pixels in the blob.
     pub pixels: u32,
+    /// Highest residue percentage of any of its cells.
+    pub peak_percent: u8,
 }
 
 /// Where the keyframe comes from for this frame.
@@ -108,6 +134,13 @@ enum KeyframeState {
     /// No keyframe: the next frame becomes one and reports nothing.
     Empty,
     Valid,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct AoiMm {
+    near: f64,
+    far: f64,
+    half_width: f64,
 }
 
 /// Per-row warp: reference position of current column 0 and its per-column step, Q16.16.
@@ -129,6 +162,8 @@ fn to_q16(value: f64) -> i32 {
 pub struct Gpa<'b> {
     config: GpaConfig,
     grid: KgGrid,
+    /// H, the camera's height above the ground (mm).
+    camera_height_mm: f64,
     aoi: PixelRect,
     /// Rows analysed: from the top of the grid (beyond the AOI) to the AOI's near edge.
     analysis_rows: usize,
@@ -168,14 +203,34 @@ pub struct Gpa<'b> {
     compared_pixels: u32,
     /// Histogram of the plain |diff| at the predicted shift over the AOI (noise estimate).
     diff_hist: [u32; 256],
+    /// Keyframe sampled at each height hypothesis along the current row.
+    hypothesis_rows: [[Option<u8>; MAX_GRID_SIDE]; HYPOTHESES],
+    /// Extra keyframe offset (KG px, Q16.16) per hypothesis this frame.
+    hypothesis_offset: [(i32, i32); HYPOTHESES],
+    /// Hypotheses whose samples stay clear of the in-place keyframe update.
+    usable_hypotheses: usize,
+    /// Per-hypothesis SAD of the cells of the current cell row.
+    cell_row_sad: [[u32; MAX_CELLS_SIDE]; HYPOTHESES],
+    cell_row_pixels: [[u16; MAX_CELLS_SIDE]; HYPOTHESES],
+    /// Parallax height (mm, 0 = ground or undecided) per cell, this frame.
+    cell_height: [u8; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
     cell_residue: [u8; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
     cell_valid: [u8; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
     /// Residue pixels per grid row (for the blob base).
     row_residue: [u16; MAX_GRID_SIDE],
     /// Noise level (gray levels, x16) measured on earlier frames.
     noise_x16: u32,
+    /// Median plain |diff| per pixel (gray levels) on the last frame: the
+    /// floor noise puts under every plain SAD.
+    noise_floor: u8,
     residue_threshold: u8,
-    previous_alarm: bool,
+    /// The last decided obstacle (nearest, left, right mm), held through
+    /// frames whose baseline is too short to see it.
+    previous_obstacle: Option<(i32, i32, i32)>,
+    /// Odometry since the previous frame.
+    step: Motion,
+    /// Parallax height of the obstacle found this frame (mm).
+    obstacle_height_mm: Option<i32>,
     blobs: heapless::Vec<Blob, MAX_BLOBS>,
 }
 
@@ -192,7 +247,15 @@ impl<'b> Gpa<'b> {
         config: GpaConfig,
         keyframe: &'b mut [u8],
     ) -> Result<Gpa<'b>, GpaError> {
-        let finite = [config.keyframe_travel_mm, config.noise_factor, config.cell_mm, config.min_blob_area_mm2];
+        let finite = [
+            config.keyframe_travel_mm,
+            config.keyframe_yaw_deg,
+            config.noise_factor,
+            config.cell_mm,
+            config.min_residue_mm2,
+            config.parallax_min_gain,
+            config.min_obstacle_height_mm,
+        ];
         if config.search_radius == 0
             || config.search_radius > MAX_SEARCH_RADIUS
             || !finite.iter().all(|v| v.is_finite() && *v > 0.0)
@@ -232,6 +295,7 @@ impl<'b> Gpa<'b> {
         Ok(Gpa {
             config,
             grid: *grid,
+            camera_height_mm: rig.height_mm(),
             aoi,
             analysis_rows: aoi.bottom,
             reference_valid,
@@ -261,12 +325,21 @@ impl<'b> Gpa<'b> {
             seed_count: [[0; MAX_WINDOW]; MAX_WINDOW],
             compared_pixels: 0,
             diff_hist: [0; 256],
+            hypothesis_rows: [[None; MAX_GRID_SIDE]; HYPOTHESES],
+            hypothesis_offset: [(0, 0); HYPOTHESES],
+            usable_hypotheses: 0,
+            cell_row_sad: [[0; MAX_CELLS_SIDE]; HYPOTHESES],
+            cell_row_pixels: [[0; MAX_CELLS_SIDE]; HYPOTHESES],
+            cell_height: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
             cell_residue: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
             cell_valid: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
             row_residue: [0; MAX_GRID_SIDE],
             noise_x16: 0,
+            noise_floor: 0,
             residue_threshold: config.residue_floor,
-            previous_alarm: false,
+            previous_obstacle: None,
+            step: Motion::default(),
+            obstacle_height_mm: None,
             blobs: heapless::Vec::new(),
         })
     }
@@ -277,7 +350,7 @@ impl<'b> Gpa<'b> {
     pub fn reset_keyframe(&mut self) {
         self.keyframe_state = KeyframeState::Empty;
         self.frame_active = false;
-        self.previous_alarm = false;
+        self.previous_obstacle = None;
     }
 
     /// Frame the current keyframe was taken at (if any).
@@ -294,6 +367,7 @@ impl<'b> Gpa<'b> {
         let consecutive = self.keyframe_state == KeyframeState::Valid && frame == self.last_frame.wrapping_add(1);
         match odometry {
             Some(step) if consecutive => {
+                self.step = step;
                 self.predicted = self.motion_to_last.then(&step);
             }
             _ => self.keyframe_state = KeyframeState::Empty,
@@ -304,13 +378,34 @@ impl<'b> Gpa<'b> {
             self.new_base = self.keyframe_base;
             return;
         }
-        // This frame replaces the keyframe if the baseline is long enough and
-        // the in-place update stays behind the rows still being read.
-        let shift_rows = self.predicted.tz_mm / self.grid.mm_per_px;
+        // Height hypotheses: extra keyframe offset T * f / (1 - f), in KG px.
+        let (di, dj) = (self.predicted.tx_mm / self.grid.mm_per_px, -self.predicted.tz_mm / self.grid.mm_per_px);
+        for (slot, f) in self.hypothesis_offset.iter_mut().zip(HEIGHT_FRACTIONS) {
+            let g = f / (1.0 - f);
+            *slot = (to_q16(di * g), to_q16(dj * g));
+        }
+        // This frame replaces the keyframe once the baseline is long enough.
+        // The in-place update runs KEYFRAME_SPARE_ROWS ahead of the write
+        // position, so reads must stay within that lead: hypotheses that would
+        // reach further are left out for this frame.
         let yaw_rows = libm::fabs(libm::sin(self.predicted.dyaw_deg.to_radians())) * self.grid.width() as f64;
-        let lead = libm::ceil(libm::fabs(shift_rows) + yaw_rows) as usize + self.config.search_radius + 2;
-        self.becomes_keyframe =
-            self.predicted.distance_mm() >= self.config.keyframe_travel_mm && lead < KEYFRAME_SPARE_ROWS;
+        let base_lead = libm::fabs(dj) + yaw_rows + (self.config.search_radius + 3) as f64;
+        self.becomes_keyframe = self.predicted.distance_mm() >= self.config.keyframe_travel_mm
+            || libm::fabs(self.predicted.dyaw_deg) >= self.config.keyframe_yaw_deg;
+        self.usable_hypotheses = HYPOTHESES;
+        if self.becomes_keyframe {
+            self.usable_hypotheses = HEIGHT_FRACTIONS
+                .iter()
+                .take_while(|f| base_lead + libm::fabs(dj) * **f / (1.0 - **f) < KEYFRAME_SPARE_ROWS as f64)
+                .count();
+            if self.usable_hypotheses == 0 {
+                // Moved too far to compare in place: start afresh from this frame.
+                self.keyframe_state = KeyframeState::Empty;
+                self.predicted = Motion::default();
+                self.new_base = self.keyframe_base;
+                return;
+            }
+        }
         self.new_base = (self.keyframe_base + self.keyframe_rows - KEYFRAME_SPARE_ROWS) % self.keyframe_rows;
 
         // Current pixel (i, j) -> keyframe pixel: ground point, then back through the motion.
@@ -334,6 +429,9 @@ impl<'b> Gpa<'b> {
         self.cell_residue = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
         self.cell_valid = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
         self.row_residue = [0; MAX_GRID_SIDE];
+        self.cell_height = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
+        self.cell_row_sad = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
+        self.cell_row_pixels = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
     }
 
     fn row_warp(&self, j: usize) -> RowWarp {
@@ -381,45 +479,63 @@ impl<'b> Gpa<'b> {
         }
     }
 
+    /// Bilinear keyframe sample at (i, j) Q16.16, or None outside the grid.
+    fn sample_checked(&self, i: i32, j: i32) -> Option<u8> {
+        let rows_limit = (self.grid.height() as i32 - 1) << FRAC;
+        let inside = i >= 0 && (i >> FRAC) + 1 < self.grid.width() as i32 && j >= 0 && j < rows_limit;
+        inside.then(|| self.sample_keyframe(i, j))
+    }
+
     fn compare_row(&mut self, j: usize, row: &[u8]) {
         let s = self.config.search_radius;
         let width = self.grid.width();
         let warp = self.row_warp(j);
         let (cur_lo, cur_hi) = self.current_valid[j];
         let (cur_lo, cur_hi) = (usize::from(cur_lo), usize::from(cur_hi));
+        let cell_row = j / self.cell_px;
+        let last_row_of_cell = (j + 1) % self.cell_px == 0 || j + 1 == self.analysis_rows;
         if cur_hi <= cur_lo {
+            if last_row_of_cell {
+                self.finish_cell_row(cell_row);
+            }
             return;
         }
-        // Warp the keyframe into the band: band[dg + S][c + S] = keyframe at
-        // warp(c) + (0, dg), for columns c in [cur_lo - S, cur_hi + S).
         let rows_limit = (self.grid.height() as i32 - 1) << FRAC;
+        let reference_at = |c: usize| {
+            let i = warp.i_start.wrapping_add((c as i32).wrapping_mul(warp.i_step));
+            let jr = warp.j_start.wrapping_add((c as i32).wrapping_mul(warp.j_step));
+            (i, jr)
+        };
+        // Columns whose whole search neighbourhood lies in the keyframe's view.
         let mut usable = [false; MAX_GRID_SIDE];
         for c in cur_lo..cur_hi {
-            let i_ref = warp.i_start.wrapping_add((c as i32).wrapping_mul(warp.i_step));
-            let j_ref = warp.j_start.wrapping_add((c as i32).wrapping_mul(warp.j_step));
+            let (i_ref, j_ref) = reference_at(c);
             let (i0, j0) = (i_ref >> FRAC, j_ref >> FRAC);
-            usable[c] = j_ref >= 0
-                && j_ref < rows_limit
-                && i0 >= 0
-                && (i0 as usize) < width
-                && {
-                    let (lo, hi) = self.reference_valid[j0 as usize];
-                    (i0 as usize) >= usize::from(lo) && (i0 as usize) < usize::from(hi)
-                };
+            usable[c] = j_ref >= 0 && j_ref < rows_limit && i0 >= 0 && (i0 as usize) < width && {
+                let (lo, hi) = self.reference_valid[j0 as usize];
+                (i0 as usize) >= usize::from(lo) && (i0 as usize) < usize::from(hi)
+            };
         }
+        // The search band: band[dg][c + MAX_SEARCH_RADIUS] = keyframe at warp(c) + (0, dg - S).
         let first = cur_lo.saturating_sub(s);
         let last = (cur_hi + s).min(width);
         for dg in 0..=2 * s {
             for c in first..last {
-                let i_ref = warp.i_start.wrapping_add((c as i32).wrapping_mul(warp.i_step));
-                let j_ref = warp.j_start.wrapping_add((c as i32).wrapping_mul(warp.j_step)) + ((dg as i32 - s as i32) << FRAC);
-                let inside = i_ref >= 0 && (i_ref >> FRAC) + 1 < width as i32 && j_ref >= 0 && j_ref < rows_limit;
-                let value = if inside { self.sample_keyframe(i_ref, j_ref) } else { 0 };
+                let (i_ref, j_ref) = reference_at(c);
+                let value = self.sample_checked(i_ref, j_ref + ((dg as i32 - s as i32) << FRAC)).unwrap_or(0);
                 self.band[dg][c + MAX_SEARCH_RADIUS] = value;
             }
         }
+        // Height hypotheses (0 = the ground prediction itself, band[S]).
+        // A sample off the keyframe is None: that hypothesis skips the pixel.
+        for k in 1..self.usable_hypotheses {
+            let (oi, oj) = self.hypothesis_offset[k];
+            for c in cur_lo..cur_hi {
+                let (i_ref, j_ref) = reference_at(c);
+                self.hypothesis_rows[k][c] = self.sample_checked(i_ref.wrapping_add(oi), j_ref.wrapping_add(oj));
+            }
+        }
         let in_aoi_row = j >= self.aoi.top && j < self.aoi.bottom;
-        let cell_row = j / self.cell_px;
         let threshold = self.residue_threshold;
         for c in cur_lo..cur_hi {
             if !usable[c] {
@@ -427,26 +543,44 @@ impl<'b> Gpa<'b> {
             }
             let value = row[c];
             let centre = c + MAX_SEARCH_RADIUS;
-            // Tolerant residue against the 3x3 neighbourhood of the prediction.
-            let (mut low, mut high) = (u8::MAX, u8::MIN);
-            for dg in s - 1..=s + 1 {
-                for dk in 0..3 {
-                    let v = self.band[dg][centre + dk - 1];
-                    low = low.min(v);
-                    high = high.max(v);
-                }
+            // Tolerant residue (Birchfield-Tomasi style): the current value
+            // against the range the warped keyframe spans within half a pixel
+            // of the prediction, along K and along G.
+            let here = self.band[s][centre];
+            let half = |other: u8| ((u16::from(here) + u16::from(other) + 1) >> 1) as u8;
+            let neighbours = [
+                half(self.band[s][centre - 1]),
+                half(self.band[s][centre + 1]),
+                half(self.band[s - 1][centre]),
+                half(self.band[s + 1][centre]),
+            ];
+            let (mut low, mut high) = (here, here);
+            for v in neighbours {
+                low = low.min(v);
+                high = high.max(v);
             }
             let residue = value.saturating_sub(high).max(low.saturating_sub(value));
-            let cell = cell_row * MAX_CELLS_SIDE + c / self.cell_px;
-            if cell_row < self.cells_high && c / self.cell_px < self.cells_wide {
+            let cell_column = c / self.cell_px;
+            if cell_row < self.cells_high && cell_column < self.cells_wide {
+                let cell = cell_row * MAX_CELLS_SIDE + cell_column;
                 self.cell_valid[cell] = self.cell_valid[cell].saturating_add(1);
                 if residue > threshold {
                     self.cell_residue[cell] = self.cell_residue[cell].saturating_add(1);
                     self.row_residue[j] = self.row_residue[j].saturating_add(1);
                 }
+                // The ground is the null hypothesis: it gets the half-pixel
+                // tolerance, the heights must beat it outright.
+                self.cell_row_pixels[0][cell_column] += 1;
+                self.cell_row_sad[0][cell_column] += u32::from(residue);
+                for k in 1..self.usable_hypotheses {
+                    if let Some(sample) = self.hypothesis_rows[k][c] {
+                        self.cell_row_pixels[k][cell_column] += 1;
+                        self.cell_row_sad[k][cell_column] += u32::from(value.abs_diff(sample));
+                    }
+                }
             }
             if in_aoi_row && c >= self.aoi.left && c < self.aoi.right {
-                self.diff_hist[usize::from(value.abs_diff(self.band[s][centre]))] += 1;
+                self.diff_hist[usize::from(value.abs_diff(here))] += 1;
                 self.compared_pixels += 1;
                 for dg in 0..=2 * s {
                     for dk in 0..=2 * s {
@@ -463,6 +597,89 @@ impl<'b> Gpa<'b> {
                 }
             }
         }
+        if last_row_of_cell {
+            self.finish_cell_row(cell_row);
+        }
+    }
+
+    /// Decides the parallax height of each cell of a finished cell row.
+    fn finish_cell_row(&mut self, cell_row: usize) {
+        if cell_row >= self.cells_high {
+            return;
+        }
+        let min_pixels = (self.cell_px * self.cell_px / 2) as u16;
+        let noise = f64::from(self.noise_x16) / 16.0;
+        let min_gain = self.config.parallax_min_gain.max(noise);
+        for column in 0..self.cells_wide {
+            let pixels = self.cell_row_pixels[0][column];
+            let cell = cell_row * MAX_CELLS_SIDE + column;
+            self.cell_height[cell] = 0;
+            if pixels < min_pixels || self.usable_hypotheses < 2 {
+                continue;
+            }
+            // Each hypothesis' SAD scaled to the cell's pixel count; one that
+            // saw less than 3/4 of the cell (off the keyframe) does not compete.
+            let mut sads = [u32::MAX; HYPOTHESES];
+            for (k, sad) in sads.iter_mut().enumerate().take(self.usable_hypotheses) {
+                let seen = u32::from(self.cell_row_pixels[k][column]);
+                if seen * 4 >= u32::from(pixels) * 3 {
+                    *sad = ((u64::from(self.cell_row_sad[k][column]) * u64::from(pixels)) / u64::from(seen.max(1))) as u32;
+                }
+            }
+            if let Some(fraction) = self.parallax_fraction(&sads[..self.usable_hypotheses], pixels, min_gain) {
+                let height = fraction * self.camera_height_mm;
+                self.cell_height[cell] = libm::round(height).clamp(1.0, 255.0) as u8;
+            }
+        }
+        self.cell_row_sad = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
+        self.cell_row_pixels = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
+    }
+
+    /// The height (as a fraction of H) that a cell's hypothesis SADs point
+    /// at, or None if the ground explains the cell as well.
+    fn parallax_fraction(&self, sads: &[u32], pixels: u16, min_gain: f64) -> Option<f64> {
+        let ground = sads[0];
+        let mut best = 0;
+        for k in 1..sads.len() {
+            if sads[k] < sads[best] {
+                best = k;
+            }
+        }
+        if best == 0 {
+            return None;
+        }
+        let best_sad = sads[best];
+        let gain = ground - best_sad;
+        // Sensor noise puts a floor under every plain SAD (the ground's
+        // tolerant residue sits lower); compare what lies above it.
+        let floor = u32::from(self.noise_floor) * u32::from(pixels);
+        let above = |sad: u32| u64::from(sad.saturating_sub(floor));
+        let keep = u64::from(100 - self.config.parallax_gain_percent);
+        let relative = above(best_sad) * 100 <= u64::from(ground) * keep;
+        let absolute = f64::from(gain) >= min_gain * f64::from(pixels);
+        // Uniqueness, as in stereo matching: structure that is uniform along
+        // the motion (a tape strip driven along) matches every height
+        // equally; only a distinct minimum is a measurement.
+        let runner_up = (1..sads.len()).filter(|k| k.abs_diff(best) > 1).map(|k| sads[k]).min().unwrap_or(0);
+        let distinct = above(best_sad) * 100 <= above(runner_up) * keep;
+        if !(relative && absolute && distinct) {
+            return None;
+        }
+        // Parabola through the neighbouring hypotheses, in the displacement
+        // they stand for (f / (1 - f)), not in index.
+        let g = |k: usize| HEIGHT_FRACTIONS[k] / (1.0 - HEIGHT_FRACTIONS[k]);
+        if best + 1 >= sads.len() || sads[best + 1] == u32::MAX {
+            return Some(HEIGHT_FRACTIONS[best]);
+        }
+        let (a, b, c) = (f64::from(sads[best - 1]), f64::from(best_sad), f64::from(sads[best + 1]));
+        let curvature = a - 2.0 * b + c;
+        let offset = if curvature > 0.0 { (0.5 * (a - c) / curvature).clamp(-0.5, 0.5) } else { 0.0 };
+        let displacement = if offset < 0.0 {
+            g(best) + offset * (g(best) - g(best - 1))
+        } else {
+            g(best) + offset * (g(best + 1) - g(best))
+        };
+        Some(displacement / (1.0 + displacement))
     }
 
     /// Abandons the current frame (dropped or broken mid-frame). If it was
@@ -543,14 +760,29 @@ impl<'b> Gpa<'b> {
         self.motion_to_last = if interior_k && interior_g { refined } else { self.predicted };
 
         self.update_noise();
-        let alarm_blob = self.find_blobs();
-        let alarm = alarm_blob.is_some();
-        self.previous_alarm = alarm;
-        let (nearest_mm, left_mm, right_mm) = match alarm_blob {
-            Some(blob) => {
-                let (near, left, right) = self.locate(&blob);
-                (Some(near), Some(left), Some(right))
+        // Parallax first: it measures height and footprint directly. The
+        // residue blob catches what has no consistent parallax (moving things).
+        let parallax = self.find_parallax_obstacle();
+        let residue = self.find_blobs().map(|blob| self.locate(&blob));
+        let evidence = parallax.map(|(near, left, right, _)| (near, left, right)).or(residue);
+        self.obstacle_height_mm = parallax.map(|(_, _, _, height)| height);
+        // Too short a baseline shows too little parallax to clear an alarm:
+        // hold the last obstacle, moved by the odometry, until a frame with
+        // enough baseline decides again.
+        let short_baseline = self.predicted.distance_mm() < 0.5 * self.config.keyframe_travel_mm;
+        let obstacle = match (evidence, self.previous_obstacle) {
+            (Some(found), _) => Some(found),
+            (None, Some((near, left, right))) if short_baseline => {
+                let (dx, dz) = (self.step.tx_mm, self.step.tz_mm);
+                let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
+                Some((moved(near, dz), moved(left, dx), moved(right, dx)))
             }
+            _ => None,
+        };
+        self.previous_obstacle = obstacle;
+        let alarm = obstacle.is_some();
+        let (nearest_mm, left_mm, right_mm) = match obstacle {
+            Some((near, left, right)) => (Some(near), Some(left), Some(right)),
             None => (None, None, None),
         };
         FrameReport {
@@ -566,7 +798,7 @@ impl<'b> Gpa<'b> {
             shift_g: libm::round(shift_g * f64::from(SHIFT_SCALE)) as i32,
             tx: libm::round(self.motion_to_last.tx_mm * f64::from(MOTION_SCALE)) as i32,
             tz: libm::round(self.motion_to_last.tz_mm * f64::from(MOTION_SCALE)) as i32,
-            obstacle_h_mm: None,
+            obstacle_h_mm: if alarm { self.obstacle_height_mm } else { None },
         }
     }
 
@@ -588,6 +820,7 @@ impl<'b> Gpa<'b> {
                 break;
             }
         }
+        self.noise_floor = median.min(255) as u8;
         // sigma = median / (0.674 * 1.414) ~= median * 1.05
         let sigma = f64::from(median) * 1.05;
         self.noise_x16 = libm::round(sigma * 16.0) as u32;
@@ -595,33 +828,121 @@ impl<'b> Gpa<'b> {
         self.residue_threshold = threshold.clamp(u32::from(self.config.residue_floor), 120) as u8;
     }
 
-    /// Labels hot cells into blobs; returns the nearest blob whose base is in the AOI.
-    fn find_blobs(&mut self) -> Option<Blob> {
-        self.blobs.clear();
+    /// Percentage of a cell's pixels that are residue (0 for cells mostly out of view).
+    fn residue_percent(&self, cell: usize) -> u32 {
+        let valid = u32::from(self.cell_valid[cell]);
+        if valid * 2 < (self.cell_px * self.cell_px) as u32 {
+            return 0;
+        }
+        u32::from(self.cell_residue[cell]) * 100 / valid
+    }
+
+    /// Groups cells whose parallax height reaches the obstacle height; returns
+    /// the nearest footprint inside the AOI: (nearest z, left x, right x, height).
+    ///
+    /// A cell at apparent ground position p with height h stands on p*(H-h)/H,
+    /// so every cell of a vertical face points at the face's own footprint.
+    fn find_parallax_obstacle(&self) -> Option<(i32, i32, i32, i32)> {
         let (w, h) = (self.cells_wide, self.cells_high);
-        let mut label = [0u8; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
-        let hot = |cell: usize| {
-            let valid = u32::from(self.cell_valid[cell]);
-            valid * 2 >= (self.cell_px * self.cell_px) as u32
-                && u32::from(self.cell_residue[cell]) * 100 >= valid * self.config.hot_cell_percent
-        };
+        let min_height = self.config.min_obstacle_height_mm;
+        let tall = |cell: usize| f64::from(self.cell_height[cell]) >= min_height;
+        let aoi = self.aoi_mm();
+        let mut seen = [false; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
         let mut stack: heapless::Vec<u16, 512> = heapless::Vec::new();
-        let mut next_label = 1u8;
+        let mut best: Option<(f64, f64, f64, f64)> = None;
         for start in 0..h * w {
-            let (sr, sc) = (start / w, start % w);
-            let start_cell = sr * MAX_CELLS_SIDE + sc;
-            if label[start_cell] != 0 || !hot(start_cell) || usize::from(next_label) > MAX_BLOBS {
+            let start_cell = (start / w) * MAX_CELLS_SIDE + start % w;
+            if seen[start_cell] || !tall(start_cell) {
                 continue;
             }
-            let mut blob = Blob {
-                cell_left: sc as u8,
-                cell_right: sc as u8,
-                cell_top: sr as u8,
-                cell_bottom: sr as u8,
-                cells: 0,
-                pixels: 0,
-            };
-            label[start_cell] = next_label;
+            seen[start_cell] = true;
+            stack.clear();
+            let _ = stack.push(start_cell as u16);
+            let mut with_residue = false;
+            let mut footprints: heapless::Vec<f64, MAX_BLOB_CELLS> = heapless::Vec::new();
+            let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
+            let mut cells = 0usize;
+            while let Some(cell) = stack.pop() {
+                let cell = usize::from(cell);
+                let (r, c) = (cell / MAX_CELLS_SIDE, cell % MAX_CELLS_SIDE);
+                cells += 1;
+                with_residue |= self.residue_percent(cell) >= self.config.active_cell_percent;
+                let height = f64::from(self.cell_height[cell]);
+                // The cell's measured height belongs to its centre.
+                let scale = (self.camera_height_mm - height) / self.camera_height_mm;
+                let centre_row = (r as f64 + 0.5) * self.cell_px as f64 - 0.5;
+                let (x_left, z_centre) = self.grid.pixel_to_ground((c * self.cell_px) as f64, centre_row);
+                let (x_right, _) = self.grid.pixel_to_ground(((c + 1) * self.cell_px) as f64 - 1.0, 0.0);
+                let _ = footprints.push(z_centre * scale);
+                left = left.min(x_left * scale);
+                right = right.max(x_right * scale);
+                tallest = tallest.max(height);
+                for (dr, dc) in [(-1i32, -1i32), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)] {
+                    let (nr, nc) = (r as i32 + dr, c as i32 + dc);
+                    if nr < 0 || nc < 0 || nr as usize >= h || nc as usize >= w {
+                        continue;
+                    }
+                    let neighbour = nr as usize * MAX_CELLS_SIDE + nc as usize;
+                    if !seen[neighbour] && tall(neighbour) {
+                        seen[neighbour] = true;
+                        let _ = stack.push(neighbour as u16);
+                    }
+                }
+            }
+            // One cell alone is too easily a fluke of texture, and a small
+            // patch of parallax without any residue is a blur difference on a
+            // sharp ground edge (the camera resolves it differently from
+            // another distance). Smooth obstacles leave little residue but
+            // parallax over a wider patch.
+            if cells < 3 || (!with_residue && cells < 4) {
+                continue;
+            }
+            // Every cell of a vertical face points at the same footprint; the
+            // lower quartile is robust to the odd cell whose height is off.
+            footprints.sort_unstable_by(|a, b| a.total_cmp(b));
+            let nearest = footprints[(footprints.len() - 1) / 4];
+            #[cfg(feature = "debug-print")]
+            std::eprintln!("  blob cells {cells} residue {with_residue} tallest {tallest} footprints {:?}", footprints.iter().map(|z| *z as i32).collect::<std::vec::Vec<_>>());
+            let inside = nearest <= aoi.far
+                && nearest >= aoi.near - self.cell_px as f64 * self.grid.mm_per_px
+                && right >= -aoi.half_width
+                && left <= aoi.half_width;
+            if inside && best.is_none_or(|b| nearest < b.0) {
+                best = Some((nearest, left.max(-aoi.half_width), right.min(aoi.half_width), tallest));
+            }
+        }
+        best.map(|(z, left, right, height)| {
+            let z = z.max(aoi.near);
+            (libm::round(z) as i32, libm::round(left) as i32, libm::round(right) as i32, libm::round(height) as i32)
+        })
+    }
+
+    /// The AOI in mm (robot frame).
+    fn aoi_mm(&self) -> AoiMm {
+        let (left, far) = self.grid.pixel_to_ground(self.aoi.left as f64, self.aoi.top as f64);
+        let (_, near) = self.grid.pixel_to_ground(0.0, self.aoi.bottom as f64 - 1.0);
+        AoiMm { near, far, half_width: -left }
+    }
+
+    /// Labels active cells into blobs; returns the nearest obstacle blob whose
+    /// base (nearest point, corrected for where parallax becomes visible)
+    /// lies in the AOI.
+    fn find_blobs(&mut self) -> Option<Blob> {
+        let mut blobs: heapless::Vec<Blob, MAX_BLOBS> = heapless::Vec::new();
+        let (w, h) = (self.cells_wide, self.cells_high);
+        let mut label = [false; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
+        let percent = |cell: usize| self.residue_percent(cell);
+        let active = |cell: usize| percent(cell) >= self.config.active_cell_percent;
+        let mut stack: heapless::Vec<u16, 512> = heapless::Vec::new();
+        for start in 0..h * w {
+            let start_cell = (start / w) * MAX_CELLS_SIDE + start % w;
+            if label[start_cell] || !active(start_cell) {
+                continue;
+            }
+            let (sr, sc) = ((start / w) as u8, (start % w) as u8);
+            let mut blob =
+                Blob { cell_left: sc, cell_right: sc, cell_top: sr, cell_bottom: sr, cells: 0, pixels: 0, peak_percent: 0 };
+            label[start_cell] = true;
             stack.clear();
             let _ = stack.push(start_cell as u16);
             while let Some(cell) = stack.pop() {
@@ -629,6 +950,7 @@ impl<'b> Gpa<'b> {
                 let (r, c) = (cell / MAX_CELLS_SIDE, cell % MAX_CELLS_SIDE);
                 blob.cells += 1;
                 blob.pixels += u32::from(self.cell_residue[cell]);
+                blob.peak_percent = blob.peak_percent.max(percent(cell).min(100) as u8);
                 blob.cell_left = blob.cell_left.min(c as u8);
                 blob.cell_right = blob.cell_right.max(c as u8);
                 blob.cell_top = blob.cell_top.min(r as u8);
@@ -639,29 +961,32 @@ impl<'b> Gpa<'b> {
                         continue;
                     }
                     let neighbour = nr as usize * MAX_CELLS_SIDE + nc as usize;
-                    if label[neighbour] == 0 && hot(neighbour) {
-                        label[neighbour] = next_label;
+                    if !label[neighbour] && active(neighbour) {
+                        label[neighbour] = true;
                         // A full stack only truncates this blob's growth.
                         let _ = stack.push(neighbour as u16);
                     }
                 }
             }
-            next_label += 1;
-            let _ = self.blobs.push(blob);
+            if blobs.push(blob).is_err() {
+                break;
+            }
         }
-        let cell_area_mm2 = (self.cell_px as f64 * self.grid.mm_per_px) * (self.cell_px as f64 * self.grid.mm_per_px);
-        let min_cells = libm::ceil(self.config.min_blob_area_mm2 / cell_area_mm2).max(1.0) as u16;
+        self.blobs = blobs;
+        let pixel_mm2 = self.grid.mm_per_px * self.grid.mm_per_px;
         let mut best: Option<Blob> = None;
         for blob in self.blobs.iter() {
-            if blob.cells < min_cells {
+            let obstacle = u32::from(blob.peak_percent) >= self.config.peak_cell_percent
+                && f64::from(blob.pixels) * pixel_mm2 >= self.config.min_residue_mm2;
+            if !obstacle {
                 continue;
             }
-            // Base: the blob's nearest row must be inside the AOI rows and the
-            // blob must overlap the AOI's columns.
-            let base_row = (usize::from(blob.cell_bottom) + 1) * self.cell_px - 1;
             let left_px = usize::from(blob.cell_left) * self.cell_px;
             let right_px = (usize::from(blob.cell_right) + 1) * self.cell_px;
-            let in_aoi = base_row >= self.aoi.top && right_px > self.aoi.left && left_px < self.aoi.right;
+            let (_, base_z) = self.base_of(blob);
+            let aoi = self.aoi;
+            let (_, aoi_far_z) = self.grid.pixel_to_ground(0.0, aoi.top as f64);
+            let in_aoi = base_z <= aoi_far_z + 0.5 * self.grid.mm_per_px && right_px > aoi.left && left_px < aoi.right;
             if in_aoi && best.is_none_or(|b| blob.cell_bottom > b.cell_bottom) {
                 best = Some(*blob);
             }
@@ -669,27 +994,55 @@ impl<'b> Gpa<'b> {
         best
     }
 
-    /// Nearest point and lateral extent of a blob, robot frame mm.
-    fn locate(&self, blob: &Blob) -> (i32, i32, i32) {
+    /// Nearest residue row of a blob and its apparent ground distance (mm).
+    /// Residue of anything standing up appears beyond its footprint, so this
+    /// never places a static obstacle nearer than it is: the residue path
+    /// cannot raise an early alarm, and parallax measures the true footprint.
+    fn base_of(&self, blob: &Blob) -> (usize, f64) {
         let top = usize::from(blob.cell_top) * self.cell_px;
         let bottom = ((usize::from(blob.cell_bottom) + 1) * self.cell_px).min(self.analysis_rows);
-        // Base row: the nearest row in the blob with residue, clipped to the AOI.
         let mut base = bottom.saturating_sub(1);
         while base > top && self.row_residue[base] < 2 {
             base -= 1;
         }
-        let base = base.min(self.aoi.bottom.saturating_sub(1));
-        let (_, z) = self.grid.pixel_to_ground(0.0, base as f64);
+        let (_, apparent_z) = self.grid.pixel_to_ground(0.0, base as f64);
+        (base, apparent_z)
+    }
+
+    /// Nearest point and lateral extent of a blob, robot frame mm.
+    fn locate(&self, blob: &Blob) -> (i32, i32, i32) {
+        let (_, near_z) = self.base_of(blob);
+        let (_, aoi_near_z) = self.grid.pixel_to_ground(0.0, (self.aoi.bottom.saturating_sub(1)) as f64);
+        let near_z = near_z.max(aoi_near_z);
         let left_px = usize::from(blob.cell_left) * self.cell_px;
         let right_px = ((usize::from(blob.cell_right) + 1) * self.cell_px).min(self.grid.width()) - 1;
         let (left, _) = self.grid.pixel_to_ground(left_px as f64, 0.0);
         let (right, _) = self.grid.pixel_to_ground(right_px as f64, 0.0);
-        (libm::round(z) as i32, libm::round(left) as i32, libm::round(right) as i32)
+        (libm::round(near_z) as i32, libm::round(left) as i32, libm::round(right) as i32)
     }
 
     /// Blobs found in the last frame (for pictures and tests).
     pub fn blobs(&self) -> &[Blob] {
         &self.blobs
+    }
+    /// (residue pixels, valid pixels) of coherence cell (row, column) in the last frame.
+    pub fn cell_counts(&self, row: usize, column: usize) -> (u8, u8) {
+        if row >= self.cells_high || column >= self.cells_wide {
+            return (0, 0);
+        }
+        let cell = row * MAX_CELLS_SIDE + column;
+        (self.cell_residue[cell], self.cell_valid[cell])
+    }
+    /// Parallax height (mm) of a cell in the last frame, 0 for ground.
+    pub fn cell_height(&self, row: usize, column: usize) -> u8 {
+        if row >= self.cells_high || column >= self.cells_wide {
+            return 0;
+        }
+        self.cell_height[row * MAX_CELLS_SIDE + column]
+    }
+    /// Coherence cells (rows, columns).
+    pub fn cells(&self) -> (usize, usize) {
+        (self.cells_high, self.cells_wide)
     }
     pub fn cell_px(&self) -> usize {
         self.cell_px

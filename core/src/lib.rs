@@ -16,7 +16,7 @@
 //! - [`motion`]: poses and odometry (Tx, Tz, yaw) between frames.
 //! - [`pgm`]: checked view of binary PGM (P5) headers.
 //! - [`report`]: the per-frame result, shared by the CLI and the serial protocol.
-#![cfg_attr(not(test), no_std)]
+#![cfg_attr(not(any(test, feature = "debug-print")), no_std)]
 #![deny(clippy::unwrap_used, clippy::expect_used)]
 
 pub mod geometry;

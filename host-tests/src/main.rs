@@ -148,7 +148,16 @@ fn run_detect(path: &Path, format: Format, png: Option<&Path>, truth: bool) -> E
         Ok(r) => r,
         Err(e) => return fatal(e),
     };
-    let config = DetectConfig::default();
+    let mut config = DetectConfig::default();
+    if let Ok(tune) = std::env::var("FLATLAND_TUNE") {
+        let v: Vec<f64> = tune.split(',').map(|x| x.parse().unwrap()).collect();
+        config.gpa.residue_floor = v[0] as u8;
+        config.gpa.active_cell_percent = v[1] as u32;
+        config.gpa.peak_cell_percent = v[2] as u32;
+        config.gpa.min_residue_mm2 = v[3];
+        config.gpa.noise_factor = v[4];
+        if v.len() > 5 { config.grid.margin_far_mm = v[5]; }
+    }
     let mut pipeline = match Pipeline::new(&recording, &config) {
         Ok(p) => p,
         Err(e) => return fatal(format!("{}: {e}", path.display())),
@@ -182,6 +191,20 @@ fn run_detect(path: &Path, format: Format, png: Option<&Path>, truth: bool) -> E
                 let path = dir.join(format!("{:06}.png", report.frame));
                 if let Err(e) = detect_picture(&recording.rig, &grid, reference, &kg, &report, gpa).save(&path) {
                     picture_error.get_or_insert(format!("{}: {e}", path.display()));
+                }
+            }
+            if std::env::var_os("FLATLAND_DEBUG_CELLS").is_some() {
+                let (rows, cols) = gpa.cells();
+                eprintln!("frame {} threshold {} baseline {:.0} blobs {:?}", report.frame, gpa.residue_threshold(), gpa.predicted().distance_mm(), gpa.blobs().iter().map(|b| (b.cell_top, b.cell_bottom, b.cell_left, b.cell_right, b.pixels, b.peak_percent)).collect::<Vec<_>>());
+                for r in 0..rows {
+                    let line: String = (0..cols)
+                        .map(|c| {
+                            let (res, valid) = gpa.cell_counts(r, c);
+                            let h = gpa.cell_height(r, c);
+                            if valid == 0 { "  .    ".to_string() } else { format!("{:3}/{:<3}", u32::from(res) * 100 / u32::from(valid), h) }
+                        })
+                        .collect();
+                    eprintln!("{line}");
                 }
             }
             if gpa.keyframe_frame() == Some(report.frame) {
