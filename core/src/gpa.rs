@@ -256,8 +256,12 @@ pub struct Gpa<'b> {
     /// The last decided obstacle (nearest, left, right mm), held through
     /// frames whose baseline is too short to see it.
     previous_obstacle: Option<(i32, i32, i32)>,
-    /// Odometry since the previous frame.
+    /// Odometry since the previous frame, scale-corrected.
     step: Motion,
+    /// Refined motion keyframe -> previous frame, when this frame began.
+    motion_before_step: Motion,
+    /// Measured ratio of true to odometry travel (1.0 until measured).
+    odometry_scale: f64,
     /// Parallax height of the obstacle found this frame (mm).
     obstacle_height_mm: Option<i32>,
     alarm_source: AlarmSource,
@@ -376,6 +380,8 @@ impl<'b> Gpa<'b> {
             residue_threshold: config.residue_floor,
             previous_obstacle: None,
             step: Motion::default(),
+            motion_before_step: Motion::default(),
+            odometry_scale: 1.0,
             obstacle_height_mm: None,
             alarm_source: AlarmSource::None,
             blobs: heapless::Vec::new(),
@@ -405,8 +411,15 @@ impl<'b> Gpa<'b> {
         let consecutive = self.keyframe_state == KeyframeState::Valid && frame == self.last_frame.wrapping_add(1);
         match odometry {
             Some(step) if consecutive => {
-                self.step = step;
-                self.predicted = self.motion_to_last.then(&step);
+                // Wheel odometry with a constant scale error (a worn tyre) is
+                // corrected by the scale the shift search has been measuring.
+                self.step = Motion {
+                    tx_mm: step.tx_mm * self.odometry_scale,
+                    tz_mm: step.tz_mm * self.odometry_scale,
+                    dyaw_deg: step.dyaw_deg,
+                };
+                self.motion_before_step = self.motion_to_last;
+                self.predicted = self.motion_to_last.then(&self.step);
             }
             _ => self.keyframe_state = KeyframeState::Empty,
         }
@@ -437,8 +450,15 @@ impl<'b> Gpa<'b> {
         // reach further are left out for this frame.
         let yaw_rows = libm::fabs(libm::sin(self.predicted.dyaw_deg.to_radians())) * self.grid.width() as f64;
         let base_lead = libm::fabs(dj) + yaw_rows + (self.config.search_radius + 3) as f64;
-        self.becomes_keyframe = self.predicted.distance_mm() >= self.config.keyframe_travel_mm
-            || libm::fabs(self.predicted.dyaw_deg) >= self.config.keyframe_yaw_deg;
+        // Also swap when the next frame, moving like this one, would overshoot
+        // by half again: a slightly short step must not make the next
+        // baseline twice as long (less overlap, too far to update in place).
+        let (travel, turn) = (self.predicted.distance_mm(), libm::fabs(self.predicted.dyaw_deg));
+        let (step_travel, step_turn) = (self.step.distance_mm(), libm::fabs(self.step.dyaw_deg));
+        self.becomes_keyframe = travel >= self.config.keyframe_travel_mm
+            || turn >= self.config.keyframe_yaw_deg
+            || travel + step_travel >= 1.5 * self.config.keyframe_travel_mm
+            || turn + step_turn >= 1.5 * self.config.keyframe_yaw_deg;
         self.usable_hypotheses = HYPOTHESES;
         if self.becomes_keyframe {
             self.usable_hypotheses = HEIGHT_FRACTIONS
@@ -831,6 +851,9 @@ impl<'b> Gpa<'b> {
         }
         // A minimum on the window's edge is not a measurement: keep odometry.
         self.motion_to_last = if interior_k && interior_g { refined } else { self.predicted };
+        if interior_k && interior_g {
+            self.learn_odometry_scale();
+        }
 
         self.update_noise();
         // Parallax first: it measures height and footprint directly. The
@@ -878,6 +901,25 @@ impl<'b> Gpa<'b> {
             tx: libm::round(self.motion_to_last.tx_mm * f64::from(MOTION_SCALE)) as i32,
             tz: libm::round(self.motion_to_last.tz_mm * f64::from(MOTION_SCALE)) as i32,
             obstacle_h_mm: if alarm { self.obstacle_height_mm } else { None },
+        }
+    }
+
+    /// Updates the odometry scale from this frame's refined step: a slow
+    /// average, so random per-step errors cancel and a constant one remains.
+    fn learn_odometry_scale(&mut self) {
+        // The step as measured: refined keyframe->now, minus keyframe->before.
+        let (dx, dz) = (
+            self.motion_to_last.tx_mm - self.motion_before_step.tx_mm,
+            self.motion_to_last.tz_mm - self.motion_before_step.tz_mm,
+        );
+        let odometry = self.step.distance_mm() / self.odometry_scale;
+        // Short steps measure the scale poorly.
+        if odometry < 4.0 * self.grid.mm_per_px {
+            return;
+        }
+        let measured = libm::hypot(dx, dz) / odometry;
+        if (0.8..=1.25).contains(&measured) {
+            self.odometry_scale = (0.8 * self.odometry_scale + 0.2 * measured).clamp(0.8, 1.25);
         }
     }
 
