@@ -6,6 +6,7 @@ use flatland_core::report::{FrameReport, CSV_HEADER, MOTION_SCALE, SHIFT_SCALE};
 use flatland_host::detect::{DetectConfig, FrameOutcome, Pipeline};
 use flatland_host::evaluate::{is_grace, score};
 use flatland_host::images::{detect_picture, save_gray};
+use flatland_host::perturb::Perturbation;
 use flatland_host::recording::Truth;
 use std::io::Write;
 use flatland_host::kg::KgFrontEnd;
@@ -48,6 +49,13 @@ enum Command {
         /// Compare with truth.toml and print a confusion table (stderr).
         #[arg(long)]
         truth: bool,
+        /// Perturb the recording first (testing robustness), e.g.
+        /// `noise=3,flicker=0.02,odometry=0.03,bias=0.04,yaw=0.1,seed=7`.
+        #[arg(long, value_parser = parse_perturbation)]
+        perturb: Option<Perturbation>,
+        /// Say on stderr which evidence decided each frame.
+        #[arg(long)]
+        verbose: bool,
     },
     /// Heights from motion (GTI): points (x, z, h) per frame as CSV on stdout.
     Heights {
@@ -169,15 +177,36 @@ fn json_row(report: &FrameReport) -> String {
     )
 }
 
-fn run_detect(path: &Path, format: Format, png: Option<&Path>, truth: bool) -> ExitCode {
+fn parse_perturbation(text: &str) -> Result<Perturbation, String> {
+    let mut p = Perturbation::default();
+    for item in text.split(',') {
+        let (key, value) = item.split_once('=').ok_or_else(|| format!("{item:?} is not key=value"))?;
+        let number: f64 = value.parse().map_err(|_| format!("{value:?} is not a number"))?;
+        match key {
+            "noise" => p.noise_sigma = number,
+            "flicker" => p.gain_flicker = number,
+            "odometry" => p.odometry_scale_sigma = number,
+            "bias" => p.odometry_scale_bias = number,
+            "yaw" => p.yaw_sigma_deg = number,
+            "seed" => p.seed = number as u64,
+            _ => return Err(format!("unknown perturbation {key:?} (noise, flicker, odometry, bias, yaw, seed)")),
+        }
+    }
+    Ok(p)
+}
+
+fn run_detect(
+    path: &Path,
+    format: Format,
+    png: Option<&Path>,
+    truth: bool,
+    perturbation: Option<Perturbation>,
+    verbose: bool,
+) -> ExitCode {
     let mut recording = match Recording::open(path) {
         Ok(r) => r,
         Err(e) => return fatal(e),
     };
-    let perturbation = std::env::var("FLATLAND_PERTURB").ok().map(|text| {
-        let v: Vec<f64> = text.split(',').map(|x| x.parse().unwrap()).collect();
-        flatland_host::perturb::Perturbation { noise_sigma: v[0], gain_flicker: v[1], odometry_scale_sigma: v[2], odometry_scale_bias: v[3], yaw_sigma_deg: v[4], seed: v[5] as u64 }
-    });
     if let Some(p) = perturbation {
         p.poses(&mut recording);
     }
@@ -200,7 +229,6 @@ fn run_detect(path: &Path, format: Format, png: Option<&Path>, truth: bool) -> E
         let _ = writeln!(out, "{CSV_HEADER}");
     }
     let mut picture_error = None;
-    let verbose = std::env::var_os("FLATLAND_VERBOSE").is_some();
     let result = pipeline.run_with(&recording, &config, |index, frame| if let Some(p) = perturbation { p.frame(index, frame) }, |outcome, gpa| match outcome {
         FrameOutcome::Report { report, kg } => {
             let line = match format {
@@ -286,7 +314,9 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Kg { recording, frames, out, mm_per_px } => run_kg(&recording, frames, &out, mm_per_px),
-        Command::Detect { recording, format, png, truth } => run_detect(&recording, format, png.as_deref(), truth),
+        Command::Detect { recording, format, png, truth, perturb, verbose } => {
+            run_detect(&recording, format, png.as_deref(), truth, perturb, verbose)
+        }
         Command::Serial(SerialCommand::Decode { file }) => run_serial_decode(file.as_deref()),
         Command::Heights { recording, format: HeightsFormat::Csv, png } => {
             let recording = match Recording::open(&recording) {

@@ -50,18 +50,71 @@ fn every_bundled_recording_has_no_errors_outside_grace_frames() {
     }
 }
 
-#[test]
-fn perturbed_recordings_sweep() {
-    let cases = [
-        ("noise 3, flicker 2%", Perturbation { seed: 1, noise_sigma: 3.0, gain_flicker: 0.02, ..Default::default() }),
-        ("odometry 3% per step", Perturbation { seed: 2, odometry_scale_sigma: 0.03, yaw_sigma_deg: 0.1, ..Default::default() }),
-        ("odometry +4% bias", Perturbation { seed: 3, odometry_scale_bias: 0.04, ..Default::default() }),
-        ("all at once", Perturbation { seed: 4, noise_sigma: 2.5, gain_flicker: 0.015, odometry_scale_sigma: 0.025, yaw_sigma_deg: 0.05, ..Default::default() }),
-    ];
-    for (label, perturbation) in cases {
-        for name in RECORDINGS {
+/// Errors outside grace frames per recording under one perturbation.
+fn sweep(label: &str, perturbation: Perturbation) -> Vec<u32> {
+    RECORDINGS
+        .iter()
+        .map(|name| {
             let (confusion, _) = detect(name, Some(perturbation));
-            println!("{label:>22} {name:>15}: errors {} {confusion:?}", confusion.errors());
-        }
+            println!("{label:>28} {name:>15}: errors {} {confusion:?}", confusion.errors());
+            confusion.errors()
+        })
+        .collect()
+}
+
+// The bounds below are what the detector achieves today (README, "Detection
+// under perturbation"); they guard against regressions. The misses left are
+// first frames of an obstacle at the detection limit: the 40 mm curb under
+// odometry noise and a bag entering from the side of a turn.
+
+#[test]
+fn added_sensor_noise_and_gain_flicker() {
+    let errors = sweep("noise 3, flicker 2%", Perturbation { seed: 1, noise_sigma: 3.0, gain_flicker: 0.02, ..Default::default() });
+    assert!(errors.iter().all(|&e| e <= 1), "{errors:?}");
+    assert!(errors.iter().sum::<u32>() <= 2, "{errors:?}");
+}
+
+#[test]
+fn per_step_odometry_error() {
+    let p = Perturbation { seed: 2, odometry_scale_sigma: 0.03, yaw_sigma_deg: 0.1, ..Default::default() };
+    let errors = sweep("odometry 3% + 0.1 deg/step", p);
+    assert!(errors.iter().all(|&e| e <= 1), "{errors:?}");
+    assert!(errors.iter().sum::<u32>() <= 3, "{errors:?}");
+}
+
+#[test]
+fn constant_odometry_scale_error() {
+    for bias in [0.04, -0.04] {
+        let errors = sweep(&format!("odometry scale {bias:+}"), Perturbation { seed: 3, odometry_scale_bias: bias, ..Default::default() });
+        assert!(errors.iter().sum::<u32>() <= 4, "{bias}: {errors:?}");
+    }
+}
+
+#[test]
+fn clean_recordings_made_noisy() {
+    // What noisy_marks/noisy_approach carry, on the other recordings too.
+    let p = Perturbation { seed: 5, noise_sigma: 2.0, gain_flicker: 0.012, odometry_scale_sigma: 0.025, yaw_sigma_deg: 0.05, ..Default::default() };
+    let errors = sweep("sigma 2, 1.2%, 2.5%, 0.05 deg", p);
+    assert!(errors.iter().sum::<u32>() <= 4, "{errors:?}");
+}
+
+/// Where the obstacle is: nearest_mm against truth on alarm frames.
+#[test]
+fn obstacle_distance_follows_truth() {
+    for name in ["stool_bags", "approach_box", "qvga_curb", "noisy_approach"] {
+        let recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)).unwrap();
+        let truth = recording.truth.as_ref().unwrap();
+        let (_, reports) = detect(name, None);
+        let mut errors: Vec<f64> = reports
+            .iter()
+            .filter_map(|r| {
+                let want = truth.pair(r.frame)?.nearest_mm?;
+                Some((f64::from(r.nearest_mm?) - want).abs())
+            })
+            .collect();
+        errors.sort_by(f64::total_cmp);
+        let median = errors[errors.len() / 2];
+        println!("{name}: nearest_mm error median {median:.0} mm, max {:.0} mm over {} frames", errors[errors.len() - 1], errors.len());
+        assert!(median <= 100.0, "{name}: median error {median}");
     }
 }
