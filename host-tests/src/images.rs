@@ -72,10 +72,13 @@ use flatland_core::report::{FrameReport, MOTION_SCALE};
 const GREEN: [u8; 3] = [40, 220, 60];
 const RED: [u8; 3] = [255, 40, 40];
 const ORANGE: [u8; 3] = [255, 160, 0];
+const MAGENTA: [u8; 3] = [230, 60, 230];
 
 /// The detection picture: keyframe aligned by the refined motion, the current
-/// KG image, and |diff| (x3) at that alignment; AOI in green, blobs in orange,
-/// the obstacle that raised the alarm in red with its nearest row.
+/// KG image, and |diff| (x3) at that alignment. AOI in green, unexplained
+/// residue blobs in orange, cells whose parallax puts them 20 mm or more
+/// above the ground in magenta (on the difference), and the obstacle that
+/// raised the alarm as a red line at its nearest point, across its width.
 pub fn detect_picture(rig: &Rig, grid: &KgGrid, reference: &[u8], current: &[u8], report: &FrameReport, gpa: &Gpa) -> RgbImage {
     let (w, h) = (grid.width(), grid.height());
     let motion = Motion {
@@ -118,6 +121,17 @@ pub fn detect_picture(rig: &Rig, grid: &KgGrid, reference: &[u8], current: &[u8]
             let (l, r) = (usize::from(blob.cell_left) * cell, (usize::from(blob.cell_right) + 1) * cell - 1);
             let (t, b) = (usize::from(blob.cell_top) * cell, (usize::from(blob.cell_bottom) + 1) * cell - 1);
             picture.rect(left + l, t, left + r.min(w - 1), b.min(h - 1), ORANGE);
+        }
+        if panel == 2 {
+            let (rows, columns) = gpa.cells();
+            for row in 0..rows {
+                for column in 0..columns {
+                    if gpa.cell_height(row, column) >= 20 {
+                        let (l, t) = (left + column * cell, row * cell);
+                        picture.rect(l + 1, t + 1, l + cell - 2, t + cell - 2, MAGENTA);
+                    }
+                }
+            }
         }
         if let (Some(near), Some(l), Some(r)) = (report.nearest_mm, report.left_mm, report.right_mm) {
             let (li, row) = grid.ground_to_pixel(f64::from(l), f64::from(near));
