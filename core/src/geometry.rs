@@ -499,7 +499,7 @@ fn monotonic_radius_sq(camera: &Intrinsics, d: &Distortion) -> Result<f64, RigEr
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use libm::tan;
 

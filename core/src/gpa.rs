@@ -158,6 +158,42 @@ enum KeyframeState {
     Valid,
 }
 
+/// Visits the cells connected to `start` (neighbours within `radius` cells,
+/// in a grid of `size` = (columns, rows) cells stored MAX_CELLS_SIDE apart)
+/// for which `member` holds, marking them in `seen`; `visit` gets (cell,
+/// row, column). The work stack is bounded: a full one truncates the growth.
+fn flood_cells(
+    size: (usize, usize),
+    radius: i32,
+    start: usize,
+    seen: &mut [bool],
+    member: impl Fn(usize) -> bool,
+    mut visit: impl FnMut(usize, usize, usize),
+) {
+    let (w, h) = size;
+    let mut stack: heapless::Vec<u16, 256> = heapless::Vec::new();
+    seen[start] = true;
+    let _ = stack.push(start as u16);
+    while let Some(cell) = stack.pop() {
+        let cell = usize::from(cell);
+        let (r, c) = (cell / MAX_CELLS_SIDE, cell % MAX_CELLS_SIDE);
+        visit(cell, r, c);
+        for dr in -radius..=radius {
+            for dc in -radius..=radius {
+                let (nr, nc) = (r as i32 + dr, c as i32 + dc);
+                if nr < 0 || nc < 0 || nr as usize >= h || nc as usize >= w {
+                    continue;
+                }
+                let neighbour = nr as usize * MAX_CELLS_SIDE + nc as usize;
+                if !seen[neighbour] && member(neighbour) {
+                    seen[neighbour] = true;
+                    let _ = stack.push(neighbour as u16);
+                }
+            }
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug)]
 struct AoiMm {
     near: f64,
@@ -997,23 +1033,19 @@ impl<'b> Gpa<'b> {
         let tall = |cell: usize| f64::from(self.cell_height[cell]) >= min_height;
         let aoi = self.aoi_mm();
         let mut seen = [false; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
-        let mut stack: heapless::Vec<u16, 512> = heapless::Vec::new();
         let mut best: Option<(f64, f64, f64, f64)> = None;
         for start in 0..h * w {
             let start_cell = (start / w) * MAX_CELLS_SIDE + start % w;
             if seen[start_cell] || !tall(start_cell) {
                 continue;
             }
-            seen[start_cell] = true;
-            stack.clear();
-            let _ = stack.push(start_cell as u16);
             let mut with_residue = false;
             let mut footprints: heapless::Vec<f64, MAX_BLOB_CELLS> = heapless::Vec::new();
             let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
             let mut cells = 0usize;
-            while let Some(cell) = stack.pop() {
-                let cell = usize::from(cell);
-                let (r, c) = (cell / MAX_CELLS_SIDE, cell % MAX_CELLS_SIDE);
+            // Parallax is measured only where there is texture, so a face can
+            // leave a cell out here and there: bridge one-cell gaps (radius 2).
+            flood_cells((w, h), 2, start_cell, &mut seen, tall, |cell, r, c| {
                 cells += 1;
                 with_residue |= self.residue_percent(cell) >= self.config.active_cell_percent;
                 let height = f64::from(self.cell_height[cell]);
@@ -1026,20 +1058,7 @@ impl<'b> Gpa<'b> {
                 left = left.min(x_left * scale);
                 right = right.max(x_right * scale);
                 tallest = tallest.max(height);
-                // Parallax is measured only where there is texture, so a face
-                // can leave a cell out here and there: bridge one-cell gaps.
-                for (dr, dc) in (-2i32..=2).flat_map(|dr| (-2i32..=2).map(move |dc| (dr, dc))) {
-                    let (nr, nc) = (r as i32 + dr, c as i32 + dc);
-                    if nr < 0 || nc < 0 || nr as usize >= h || nc as usize >= w {
-                        continue;
-                    }
-                    let neighbour = nr as usize * MAX_CELLS_SIDE + nc as usize;
-                    if !seen[neighbour] && tall(neighbour) {
-                        seen[neighbour] = true;
-                        let _ = stack.push(neighbour as u16);
-                    }
-                }
-            }
+            });
             // One cell alone is too easily a fluke of texture, and a small
             // patch of parallax without any residue is a blur difference on a
             // sharp ground edge (the camera resolves it differently from
@@ -1085,7 +1104,6 @@ impl<'b> Gpa<'b> {
         let mut label = [false; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
         let percent = |cell: usize| self.residue_percent(cell);
         let active = |cell: usize| percent(cell) >= self.config.active_cell_percent;
-        let mut stack: heapless::Vec<u16, 512> = heapless::Vec::new();
         for start in 0..h * w {
             let start_cell = (start / w) * MAX_CELLS_SIDE + start % w;
             if label[start_cell] || !active(start_cell) {
@@ -1094,12 +1112,7 @@ impl<'b> Gpa<'b> {
             let (sr, sc) = ((start / w) as u8, (start % w) as u8);
             let mut blob =
                 Blob { cell_left: sc, cell_right: sc, cell_top: sr, cell_bottom: sr, cells: 0, pixels: 0, peak_percent: 0 };
-            label[start_cell] = true;
-            stack.clear();
-            let _ = stack.push(start_cell as u16);
-            while let Some(cell) = stack.pop() {
-                let cell = usize::from(cell);
-                let (r, c) = (cell / MAX_CELLS_SIDE, cell % MAX_CELLS_SIDE);
+            flood_cells((w, h), 1, start_cell, &mut label, active, |cell, r, c| {
                 blob.cells += 1;
                 blob.pixels += u32::from(self.cell_residue[cell]);
                 blob.peak_percent = blob.peak_percent.max(percent(cell).min(100) as u8);
@@ -1107,19 +1120,7 @@ impl<'b> Gpa<'b> {
                 blob.cell_right = blob.cell_right.max(c as u8);
                 blob.cell_top = blob.cell_top.min(r as u8);
                 blob.cell_bottom = blob.cell_bottom.max(r as u8);
-                for (dr, dc) in [(-1i32, -1i32), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)] {
-                    let (nr, nc) = (r as i32 + dr, c as i32 + dc);
-                    if nr < 0 || nc < 0 || nr as usize >= h || nc as usize >= w {
-                        continue;
-                    }
-                    let neighbour = nr as usize * MAX_CELLS_SIDE + nc as usize;
-                    if !label[neighbour] && active(neighbour) {
-                        label[neighbour] = true;
-                        // A full stack only truncates this blob's growth.
-                        let _ = stack.push(neighbour as u16);
-                    }
-                }
-            }
+            });
             if blobs.push(blob).is_err() {
                 break;
             }

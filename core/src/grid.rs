@@ -207,15 +207,9 @@ impl PixelRect {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{Aoi, Intrinsics, Mount};
 
     fn rig() -> Rig {
-        Rig::new_checked(
-            Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
-            Mount { height_mm: 400.0, tilt_deg: 32.0 },
-            Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
-        )
-        .unwrap()
+        crate::geometry::tests::sample_rig()
     }
 
     #[test]
