@@ -3,7 +3,7 @@
 //! and reports each frame on USART1 (see PROTOCOL.md).
 //!
 //! Semihosting command line (QEMU `-append`): `bench` adds instruction
-//! counts to the log.
+//! counts to the log; `mm_per_px=X` fixes the KG resolution (benchmarks).
 #![no_std]
 #![no_main]
 #![deny(clippy::unwrap_used, clippy::expect_used)]
@@ -18,11 +18,18 @@ fn main() -> ! {
     paint_stack();
     defmt::info!("flatland firmware {=str}", env!("CARGO_PKG_VERSION"));
     let mut buf = [0u8; 512];
-    let bench = command_line(&mut buf).split(|&b| b == b' ').any(|word| word == b"bench");
+    let line = command_line(&mut buf);
+    let bench = line.split(|&b| b == b' ').any(|word| word == b"bench");
+    let mm_per_px = line
+        .split(|&b| b == b' ')
+        .find_map(|word| word.strip_prefix(b"mm_per_px="))
+        .and_then(|value| core::str::from_utf8(value).ok())
+        .and_then(|value| value.parse::<f64>().ok());
 
     let parts = EmulatedBoard::take();
     let board = Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames };
-    let stats = frame_loop::run(board, &Options { bench });
+    let options = Options { bench, mm_per_px, clock: Some(flatland_firmware::board::emulated::instructions_now) };
+    let stats = frame_loop::run(board, &options);
 
     defmt::info!(
         "done: {=u32} frames; serial garbage {=u32} B, truncated {=u32}, too long {=u32}, bad checksum {=u32}, unknown {=u32}, bad field {=u32}, out of order {=u32}, frame gaps {=u32}, aborted {=u32}",
