@@ -85,72 +85,79 @@ pub mod portable {
 mod dsp {
     use super::{portable, SeedSums, COUNT_LEVEL, SUM_LEVEL};
 
-    /// Four bytes from `bytes[at..at + 4]` as one word (unaligned `ldr`, fine on M4).
-    #[inline(always)]
-    fn word(bytes: &[u8]) -> u32 {
-        u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]])
-    }
-
-    #[inline(always)]
-    fn usada8(acc: u32, a: u32, b: u32) -> u32 {
-        let out: u32;
-        // SAFETY: pure register arithmetic.
-        unsafe {
-            core::arch::asm!(
-                "usada8 {out}, {a}, {b}, {acc}",
-                out = lateout(reg) out, a = in(reg) a, b = in(reg) b, acc = in(reg) acc,
-                options(pure, nomem, nostack, preserves_flags)
-            );
-        }
-        out
-    }
-
     #[inline]
     pub fn sad(a: &[u8], b: &[u8]) -> u32 {
         let n = a.len().min(b.len());
-        let (a, b) = (&a[..n], &b[..n]);
+        let words = n / 4;
         let mut acc = 0u32;
-        let (mut a4, mut b4) = (a.chunks_exact(4), b.chunks_exact(4));
-        for (x, y) in (&mut a4).zip(&mut b4) {
-            acc = usada8(acc, word(x), word(y));
-        }
-        acc + portable::sad(a4.remainder(), b4.remainder())
-    }
-
-    #[inline]
-    pub fn seed_sums(a: &[u8], b: &[u8]) -> SeedSums {
-        let n = a.len().min(b.len());
-        let (a, b) = (&a[..n], &b[..n]);
-        let (mut sad, mut above, mut count) = (0u32, 0u32, 0u32);
-        let sum_level = u32::from_ne_bytes([SUM_LEVEL + 1; 4]);
-        let count_level = u32::from_ne_bytes([COUNT_LEVEL + 1; 4]);
-        let ones = 0x0101_0101u32;
-        let (mut a4, mut b4) = (a.chunks_exact(4), b.chunks_exact(4));
-        for (x, y) in (&mut a4).zip(&mut b4) {
-            // One block: the GE flags must not be touched between usub8 and sel.
-            // SAFETY: register arithmetic and the APSR.GE flags only.
+        if words > 0 {
+            // SAFETY: reads `words` words (unaligned ldr is fine on M4) from
+            // `a` and `b`, which hold at least 4 * words bytes each.
             unsafe {
                 core::arch::asm!(
-                    "usub8 {t}, {a}, {b}",            // GE[i] = a >= b
-                    "usub8 {d}, {b}, {a}",            // GE[i] = b >= a
-                    "sel {d}, {d}, {t}",              // d = |a - b| per byte
-                    "usada8 {sad}, {d}, {zero}, {sad}",
-                    "usub8 {t}, {d}, {sl}",           // GE[i] = d > SUM_LEVEL
-                    "sel {t}, {d}, {zero}",
-                    "usada8 {above}, {t}, {zero}, {above}",
-                    "usub8 {t}, {d}, {cl}",           // GE[i] = d > COUNT_LEVEL
-                    "sel {t}, {ones}, {zero}",
-                    "usada8 {count}, {t}, {zero}, {count}",
-                    a = in(reg) word(x), b = in(reg) word(y),
-                    t = out(reg) _, d = out(reg) _,
-                    sad = inout(reg) sad, above = inout(reg) above, count = inout(reg) count,
-                    zero = in(reg) 0u32, sl = in(reg) sum_level, cl = in(reg) count_level, ones = in(reg) ones,
-                    options(pure, nomem, nostack)
+                    "2:",
+                    "ldr {x}, [{pa}], #4",
+                    "ldr {y}, [{pb}], #4",
+                    "usada8 {acc}, {x}, {y}, {acc}",
+                    "subs {n}, {n}, #1",
+                    "bne 2b",
+                    pa = inout(reg) a.as_ptr() => _, pb = inout(reg) b.as_ptr() => _,
+                    n = inout(reg) words => _, acc = inout(reg) acc,
+                    x = out(reg) _, y = out(reg) _,
+                    options(readonly, nostack)
                 );
             }
         }
-        let tail = portable::seed_sums(a4.remainder(), b4.remainder());
-        SeedSums { sad: sad + tail.sad, sum_above: above + tail.sum_above, count_above: count + tail.count_above }
+        acc + portable::sad(&a[4 * words..n], &b[4 * words..n])
+    }
+
+    /// The word loop is one `asm!` block: the GE flags must survive from
+    /// `usub8` to `sel`, and inlined into the GPA's row code LLVM spilled
+    /// every accumulator (30 instructions per word instead of 12).
+    #[inline]
+    pub fn seed_sums(a: &[u8], b: &[u8]) -> SeedSums {
+        let n = a.len().min(b.len());
+        let words = n / 4;
+        let (mut sad, mut above, mut count31) = (0u32, 0u32, 0u32);
+        if words > 0 {
+            let sum_level = u32::from_ne_bytes([SUM_LEVEL + 1; 4]);
+            let count_level = u32::from_ne_bytes([COUNT_LEVEL + 1; 4]);
+            // SAFETY: reads `words` words from `a` and `b` (at least
+            // 4 * words bytes each); register arithmetic and APSR.GE only.
+            unsafe {
+                core::arch::asm!(
+                    "2:",
+                    "ldr {x}, [{pa}], #4",
+                    "ldr {y}, [{pb}], #4",
+                    "usada8 {sad}, {x}, {y}, {sad}",
+                    "usub8 {t}, {x}, {y}",            // GE[i] = x >= y
+                    "usub8 {y}, {y}, {x}",            // GE[i] = y >= x
+                    "sel {x}, {y}, {t}",              // x = |x - y| per byte
+                    "usub8 {t}, {x}, {sl}",           // GE[i] = d > SUM_LEVEL
+                    "sel {t}, {x}, {zero}",
+                    "usada8 {above}, {t}, {zero}, {above}",
+                    "usub8 {t}, {x}, {cl}",           // GE[i] = d > COUNT_LEVEL
+                    // Out of registers for a 0x01 constant: count in units of
+                    // SUM_LEVEL + 1 (31) and divide at the end.
+                    "sel {t}, {sl}, {zero}",
+                    "usada8 {count}, {t}, {zero}, {count}",
+                    "subs {n}, {n}, #1",
+                    "bne 2b",
+                    pa = inout(reg) a.as_ptr() => _, pb = inout(reg) b.as_ptr() => _,
+                    n = inout(reg) words => _,
+                    x = out(reg) _, y = out(reg) _, t = out(reg) _,
+                    sad = inout(reg) sad, above = inout(reg) above, count = inout(reg) count31,
+                    zero = in(reg) 0u32, sl = in(reg) sum_level, cl = in(reg) count_level,
+                    options(readonly, nostack)
+                );
+            }
+        }
+        let tail = portable::seed_sums(&a[4 * words..n], &b[4 * words..n]);
+        SeedSums {
+            sad: sad + tail.sad,
+            sum_above: above + tail.sum_above,
+            count_above: count31 / u32::from(SUM_LEVEL + 1) + tail.count_above,
+        }
     }
 }
 
