@@ -264,6 +264,7 @@ fn configure<S: Read + Write, C: CycleCounter>(
         );
         if options.bench {
             defmt::println!("bench: table_build: {=u32}", build_instructions);
+            defmt::println!("bench: grid: {=usize}x{=usize}", grid.width(), grid.height());
         }
         link.send(&Message::Hello(record));
         return Some((rig, grid));
