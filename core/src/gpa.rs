@@ -32,10 +32,14 @@ use crate::grid::{KgGrid, PixelRect, MAX_GRID_SIDE};
 use crate::motion::Motion;
 use crate::remap::RemapTable;
 use crate::report::{FrameReport, MOTION_SCALE, SHIFT_SCALE};
+use crate::sad;
+use core::ops::Range;
 
 /// Largest search radius S (the window is `(2S+1)^2` shifts).
 pub const MAX_SEARCH_RADIUS: usize = 3;
 const MAX_WINDOW: usize = 2 * MAX_SEARCH_RADIUS + 1;
+/// Band row length: the grid plus S columns each side.
+const BAND_WIDTH: usize = MAX_GRID_SIDE + 2 * MAX_SEARCH_RADIUS;
 /// Spare keyframe rows: how far (rows) the in-place keyframe update may run
 /// ahead of the rows still being read. Bounds the travel per keyframe swap.
 pub const KEYFRAME_SPARE_ROWS: usize = 48;
@@ -51,8 +55,8 @@ pub const MAX_BLOBS: usize = 16;
 /// Cells whose footprints a parallax blob keeps for its statistics.
 const MAX_BLOB_CELLS: usize = 128;
 /// The seed's levels: |diff| above 30 is summed, above 50 counted.
-pub const SEED_SUM_LEVEL: u8 = 30;
-pub const SEED_COUNT_LEVEL: u8 = 50;
+pub const SEED_SUM_LEVEL: u8 = sad::SUM_LEVEL;
+pub const SEED_COUNT_LEVEL: u8 = sad::COUNT_LEVEL;
 
 /// Tuning, in physical units so it carries across cameras and grids.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -93,7 +97,13 @@ pub struct GpaConfig {
 
 impl Default for GpaConfig {
     fn default() -> Self {
-        GpaConfig {
+        GpaConfig::DEFAULT
+    }
+}
+
+impl GpaConfig {
+    /// The defaults (a constant, so [`Gpa::EMPTY`] can hold it).
+    pub const DEFAULT: GpaConfig = GpaConfig {
             search_radius: 2,
             keyframe_travel_mm: 100.0,
             keyframe_yaw_deg: 3.0,
@@ -108,8 +118,7 @@ impl Default for GpaConfig {
             min_obstacle_height_mm: 20.0,
             odometry_error_fraction: 0.05,
             odometry_yaw_error_deg: 0.1,
-        }
-    }
+    };
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -202,7 +211,7 @@ struct AoiMm {
 }
 
 /// Per-row warp: reference position of current column 0 and its per-column step, Q16.16.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 struct RowWarp {
     i_start: i32,
     i_step: i32,
@@ -254,7 +263,7 @@ pub struct Gpa<'b> {
     warp_origin: (f64, f64),
     warp_column: (f64, f64),
     warp_row: (f64, f64),
-    band: [[u8; MAX_GRID_SIDE + 2 * MAX_SEARCH_RADIUS]; MAX_WINDOW],
+    band: [[u8; BAND_WIDTH]; MAX_WINDOW],
     sad: [[u32; MAX_WINDOW]; MAX_WINDOW],
     /// The part of `sad` from the far half of the AOI rows.
     sad_far: [[u32; MAX_WINDOW]; MAX_WINDOW],
@@ -263,8 +272,6 @@ pub struct Gpa<'b> {
     compared_pixels: u32,
     /// Histogram of the plain |diff| at the predicted shift over the AOI (noise estimate).
     diff_hist: [u32; 256],
-    /// Keyframe sampled at each height hypothesis along the current row.
-    hypothesis_rows: [[Option<u8>; MAX_GRID_SIDE]; HYPOTHESES],
     /// Extra keyframe offset (KG px, Q16.16) per hypothesis this frame.
     hypothesis_offset: [(i32, i32); HYPOTHESES],
     /// Hypotheses whose samples stay clear of the in-place keyframe update.
@@ -302,6 +309,175 @@ pub struct Gpa<'b> {
     obstacle_height_mm: Option<i32>,
     alarm_source: AlarmSource,
     blobs: heapless::Vec<Blob, MAX_BLOBS>,
+    /// Benchmark clock (instructions or ns); None: no profiling.
+    clock: Option<fn() -> u32>,
+    profile: GpaProfile,
+    /// Tests: run the plain per-pixel reference instead of the fast paths.
+    #[cfg(test)]
+    reference: bool,
+}
+
+/// Where one frame's `on_kg_row` time went, in ticks of the clock given to
+/// [`Gpa::set_clock`] (0 without one).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct GpaProfile {
+    /// Usable columns and the warped keyframe band (2S+1 rows per KG row).
+    pub warp: u32,
+    /// Tolerant residue and the per-cell residue counts.
+    pub residue: u32,
+    /// Height hypotheses: warped samples, per-cell SADs, per-cell decision.
+    pub parallax: u32,
+    /// The (2S+1)^2-shift SAD with the seed's statistics, and the |diff| histogram.
+    pub shift_search: u32,
+    /// Copying the row into the new keyframe.
+    pub keyframe_update: u32,
+}
+
+/// Read access to the row-circular keyframe (split from `Gpa` so the band
+/// can be written while the keyframe is read).
+struct KeyframeView<'a> {
+    data: &'a [u8],
+    width: usize,
+    height: usize,
+    rows: usize,
+    base: usize,
+}
+
+impl KeyframeView<'_> {
+    #[inline(always)]
+    fn row(&self, j: usize) -> &[u8] {
+        // base < rows and j < height < rows: one subtraction replaces `%`.
+        let mut slot = self.base + j;
+        if slot >= self.rows {
+            slot -= self.rows;
+        }
+        &self.data[slot * self.width..][..self.width]
+    }
+
+    #[inline(always)]
+    fn inside(&self, i: i32, j: i32) -> bool {
+        let rows_limit = (self.height as i32 - 1) << FRAC;
+        i >= 0 && (i >> FRAC) + 1 < self.width as i32 && j >= 0 && j < rows_limit
+    }
+
+    /// Bilinear sample at (i, j) Q16.16; the caller checked [`Self::inside`].
+    #[inline(always)]
+    fn sample(&self, i: i32, j: i32) -> u8 {
+        let (i0, j0) = ((i >> FRAC) as usize, (j >> FRAC) as usize);
+        let wx = ((i >> 8) & 0xFF) as u32;
+        let wy = ((j >> 8) & 0xFF) as u32;
+        let upper = self.row(j0);
+        let lower = self.row(j0 + 1);
+        let top = u32::from(upper[i0]) * (256 - wx) + u32::from(upper[i0 + 1]) * wx;
+        let bottom = u32::from(lower[i0]) * (256 - wx) + u32::from(lower[i0 + 1]) * wx;
+        ((top * (256 - wy) + bottom * wy + (1 << 15)) >> 16) as u8
+    }
+
+    /// Samples the keyframe along `line` at `columns` into `out[c]`, bilinear
+    /// exactly as [`Self::sample`]; returns the columns whose 2x2
+    /// neighbourhood is inside the grid, and writes 0 at the others.
+    /// Insideness is linear in c (a warp step is a rotation, |step| <= 1 px,
+    /// so nothing wraps), hence one interval.
+    fn sample_line(&self, line: RowWarp, columns: Range<usize>, out: &mut [u8]) -> Range<usize> {
+        if columns.is_empty() {
+            return columns;
+        }
+        if line.i_step == 1 << FRAC && line.j_step == 0 {
+            // Pure translation (no yaw, the common case): one pair of
+            // keyframe rows and constant weights along the whole line.
+            let rows_limit = (self.height as i32 - 1) << FRAC;
+            let i0 = i64::from(line.i_start >> FRAC);
+            let (lo, hi) = if line.j_start >= 0 && line.j_start < rows_limit {
+                let lo = (columns.start as i64).max(-i0);
+                let hi = (columns.end as i64).min(self.width as i64 - 1 - i0);
+                (lo, hi.max(lo))
+            } else {
+                (columns.start as i64, columns.start as i64)
+            };
+            let (lo, hi) = (lo as usize, hi as usize);
+            out[columns.start..lo].fill(0);
+            out[hi..columns.end].fill(0);
+            if hi > lo {
+                let j0 = (line.j_start >> FRAC) as usize;
+                let start = (i0 + lo as i64) as usize;
+                let wx = ((line.i_start >> 8) & 0xFF) as u32;
+                let wy = ((line.j_start >> 8) & 0xFF) as u32;
+                let upper = &self.row(j0)[start..=start + (hi - lo)];
+                let lower = &self.row(j0 + 1)[start..=start + (hi - lo)];
+                bilinear_line(upper, lower, wx, wy, &mut out[lo..hi]);
+            }
+            return lo..hi;
+        }
+        let (mut first, mut end) = (usize::MAX, 0);
+        for c in columns.clone() {
+            let i = line.i_start.wrapping_add((c as i32).wrapping_mul(line.i_step));
+            let j = line.j_start.wrapping_add((c as i32).wrapping_mul(line.j_step));
+            out[c] = if self.inside(i, j) {
+                first = first.min(c);
+                end = c + 1;
+                self.sample(i, j)
+            } else {
+                0
+            };
+        }
+        if first == usize::MAX {
+            columns.start..columns.start
+        } else {
+            first..end
+        }
+    }
+}
+
+/// One line of bilinear samples with constant weights: `out[n]` from
+/// `upper[n..=n + 1]` and `lower[n..=n + 1]`, rounded as [`KeyframeView::sample`].
+#[inline]
+fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
+    let (ax, ay) = (256 - wx, 256 - wy);
+    for ((pixel, u), l) in out.iter_mut().zip(upper.windows(2)).zip(lower.windows(2)) {
+        let top = u32::from(u[0]) * ax + u32::from(u[1]) * wx;
+        let bottom = u32::from(l[0]) * ax + u32::from(l[1]) * wx;
+        *pixel = ((top * ay + bottom * wy + (1 << 15)) >> 16) as u8;
+    }
+}
+
+/// Tolerant residue of `value` against the warped keyframe around it (see
+/// `compare_row`): `full_k`/`full_g` widen the range to the whole neighbour.
+#[inline(always)]
+fn tolerant_residue<const FULL_K: bool, const FULL_G: bool>(value: u8, here: u8, neighbours: [u8; 4]) -> u8 {
+    let reach = |other: u8, full: bool| if full { other } else { ((u16::from(here) + u16::from(other) + 1) >> 1) as u8 };
+    let values = [
+        reach(neighbours[0], FULL_K),
+        reach(neighbours[1], FULL_K),
+        reach(neighbours[2], FULL_G),
+        reach(neighbours[3], FULL_G),
+    ];
+    let (mut low, mut high) = (here, here);
+    for v in values {
+        low = low.min(v);
+        high = high.max(v);
+    }
+    value.saturating_sub(high).max(low.saturating_sub(value))
+}
+
+/// Residues of `row[c]` for `c` in `columns` into `out[c]`; `band` rows are
+/// indexed `c + MAX_SEARCH_RADIUS` (centre row `s`).
+fn residue_line<const FULL_K: bool, const FULL_G: bool>(
+    row: &[u8],
+    band: &[[u8; BAND_WIDTH]; MAX_WINDOW],
+    s: usize,
+    columns: Range<usize>,
+    out: &mut [u8],
+) {
+    let (a, b) = (columns.start, columns.end);
+    let r = MAX_SEARCH_RADIUS;
+    let centre = &band[s][a + r..b + r];
+    let left = &band[s][a + r - 1..b + r - 1];
+    let right = &band[s][a + r + 1..b + r + 1];
+    let up = &band[s - 1][a + r..b + r];
+    let down = &band[s + 1][a + r..b + r];
+    for (n, slot) in out[a..b].iter_mut().enumerate() {
+        *slot = tolerant_residue::<FULL_K, FULL_G>(row[a + n], centre[n], [left[n], right[n], up[n], down[n]]);
+    }
 }
 
 impl<'b> Gpa<'b> {
@@ -310,6 +486,72 @@ impl<'b> Gpa<'b> {
         (grid.height() + KEYFRAME_SPARE_ROWS) * grid.width()
     }
 
+    /// A detector with no rig and no keyframe buffer: a constant, so a
+    /// target can hold it in a `static` and [`Gpa::init`] it in place (by
+    /// value it is ~13 KB, and LLVM keeps stack temporaries of it).
+    pub const EMPTY: Gpa<'static> = Gpa {
+        config: GpaConfig::DEFAULT,
+        grid: KgGrid { mm_per_px: 1.0, x_left_mm: 0.0, z_far_mm: 0.0, width: 0, height: 0 },
+        camera_height_mm: 0.0,
+        aoi: PixelRect { left: 0, right: 0, top: 0, bottom: 0 },
+        analysis_rows: 0,
+        reference_valid: [(0, 0); MAX_GRID_SIDE],
+        current_valid: [(0, 0); MAX_GRID_SIDE],
+        cell_px: 5,
+        cells_wide: 0,
+        cells_high: 0,
+        // An empty slice: nothing to read or write until `init` gives the buffer.
+        // SAFETY: a dangling, aligned, non-null pointer with length 0 is a valid slice.
+        keyframe: unsafe { core::slice::from_raw_parts_mut(core::ptr::NonNull::<u8>::dangling().as_ptr(), 0) },
+        keyframe_rows: 0,
+        keyframe_base: 0,
+        keyframe_state: KeyframeState::Empty,
+        keyframe_frame: 0,
+        motion_to_last: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
+        last_frame: 0,
+        frame: 0,
+        predicted: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
+        becomes_keyframe: false,
+        new_base: 0,
+        frame_active: false,
+        rows_seen: 0,
+        warp_origin: (0.0, 0.0),
+        warp_column: (0.0, 0.0),
+        warp_row: (0.0, 0.0),
+        band: [[0; BAND_WIDTH]; MAX_WINDOW],
+        sad: [[0; MAX_WINDOW]; MAX_WINDOW],
+        sad_far: [[0; MAX_WINDOW]; MAX_WINDOW],
+        seed_sum: [[0; MAX_WINDOW]; MAX_WINDOW],
+        seed_count: [[0; MAX_WINDOW]; MAX_WINDOW],
+        compared_pixels: 0,
+        diff_hist: [0; 256],
+        hypothesis_offset: [(0, 0); HYPOTHESES],
+        usable_hypotheses: 0,
+        ground_like: 1,
+        full_tolerance: (false, false),
+        cell_row_sad: [[0; MAX_CELLS_SIDE]; HYPOTHESES],
+        cell_row_pixels: [[0; MAX_CELLS_SIDE]; HYPOTHESES],
+        cell_height: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
+        cell_residue: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
+        cell_valid: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
+        row_residue: [0; MAX_GRID_SIDE],
+        noise_x16: 0,
+        noise_floor: 0,
+        residue_threshold: 0,
+        previous_obstacle: None,
+        step: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
+        motion_before_step: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
+        odometry_scale: 1.0,
+        obstacle_height_mm: None,
+        alarm_source: AlarmSource::None,
+        blobs: heapless::Vec::new(),
+        clock: None,
+        profile: GpaProfile { warp: 0, residue: 0, parallax: 0, shift_search: 0, keyframe_update: 0 },
+        #[cfg(test)]
+        reference: false,
+    };
+
+    /// Builds a detector by value (host convenience; see [`Gpa::init`]).
     pub fn new(
         rig: &Rig,
         grid: &KgGrid,
@@ -317,6 +559,21 @@ impl<'b> Gpa<'b> {
         config: GpaConfig,
         keyframe: &'b mut [u8],
     ) -> Result<Gpa<'b>, GpaError> {
+        let mut gpa = Gpa::EMPTY;
+        gpa.init(rig, grid, table, config, keyframe)?;
+        Ok(gpa)
+    }
+
+    /// (Re)initialises the detector in place for a rig; every earlier state
+    /// (keyframe, noise, obstacle) is forgotten. On error it is left unchanged.
+    pub fn init(
+        &mut self,
+        rig: &Rig,
+        grid: &KgGrid,
+        table: &RemapTable,
+        config: GpaConfig,
+        keyframe: &'b mut [u8],
+    ) -> Result<(), GpaError> {
         let finite = [
             config.keyframe_travel_mm,
             config.keyframe_yaw_deg,
@@ -345,18 +602,16 @@ impl<'b> Gpa<'b> {
         // At least 5 px: a coherent sample for the parallax test, and the cell
         // arrays stay within MAX_CELLS_SIDE for the largest grid.
         let cell_px = (libm::round(config.cell_mm / grid.mm_per_px) as usize).clamp(5, 15);
-        let cells_wide = grid.width().div_ceil(cell_px).min(MAX_CELLS_SIDE);
-        let cells_high = aoi.bottom.div_ceil(cell_px).min(MAX_CELLS_SIDE);
-        let mut current_valid = [(0u16, 0u16); MAX_GRID_SIDE];
-        for (j, slot) in current_valid.iter_mut().enumerate().take(grid.height()) {
+        self.current_valid = [(0, 0); MAX_GRID_SIDE];
+        for (j, slot) in self.current_valid.iter_mut().enumerate().take(grid.height()) {
             let range = table.valid_columns(j);
             *slot = (range.start as u16, range.end as u16);
         }
         // A reference sample around row j' touches rows j'-S-1 ..= j'+S+2 and
         // columns i'-S-1 ..= i'+S+2: keep the columns where all of them are in view.
         let reach = config.search_radius + 1;
-        let mut reference_valid = [(0u16, 0u16); MAX_GRID_SIDE];
-        for (j, slot) in reference_valid.iter_mut().enumerate().take(grid.height()) {
+        self.reference_valid = [(0, 0); MAX_GRID_SIDE];
+        for (j, slot) in self.reference_valid.iter_mut().enumerate().take(grid.height()) {
             let (mut lo, mut hi) = (0usize, grid.width());
             for r in j as isize - reach as isize..=(j + reach + 1) as isize {
                 let range = if r < 0 || r as usize >= grid.height() { 0..0 } else { table.valid_columns(r as usize) };
@@ -366,62 +621,78 @@ impl<'b> Gpa<'b> {
             let (lo, hi) = (lo + reach, hi.saturating_sub(reach + 1));
             *slot = if hi > lo { (lo as u16, hi as u16) } else { (0, 0) };
         }
-        Ok(Gpa {
-            config,
-            grid: *grid,
-            camera_height_mm: rig.height_mm(),
-            aoi,
-            analysis_rows: aoi.bottom,
-            reference_valid,
-            current_valid,
-            cell_px,
-            cells_wide,
-            cells_high,
-            keyframe,
-            keyframe_rows: grid.height() + KEYFRAME_SPARE_ROWS,
-            keyframe_base: 0,
-            keyframe_state: KeyframeState::Empty,
-            keyframe_frame: 0,
-            motion_to_last: Motion::default(),
-            last_frame: 0,
-            frame: 0,
-            predicted: Motion::default(),
-            becomes_keyframe: false,
-            new_base: 0,
-            frame_active: false,
-            rows_seen: 0,
-            warp_origin: (0.0, 0.0),
-            warp_column: (0.0, 0.0),
-            warp_row: (0.0, 0.0),
-            band: [[0; MAX_GRID_SIDE + 2 * MAX_SEARCH_RADIUS]; MAX_WINDOW],
-            sad: [[0; MAX_WINDOW]; MAX_WINDOW],
-            sad_far: [[0; MAX_WINDOW]; MAX_WINDOW],
-            seed_sum: [[0; MAX_WINDOW]; MAX_WINDOW],
-            seed_count: [[0; MAX_WINDOW]; MAX_WINDOW],
-            compared_pixels: 0,
-            diff_hist: [0; 256],
-            hypothesis_rows: [[None; MAX_GRID_SIDE]; HYPOTHESES],
-            hypothesis_offset: [(0, 0); HYPOTHESES],
-            usable_hypotheses: 0,
-            ground_like: 1,
-            full_tolerance: (false, false),
-            cell_row_sad: [[0; MAX_CELLS_SIDE]; HYPOTHESES],
-            cell_row_pixels: [[0; MAX_CELLS_SIDE]; HYPOTHESES],
-            cell_height: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
-            cell_residue: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
-            cell_valid: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
-            row_residue: [0; MAX_GRID_SIDE],
-            noise_x16: 0,
-            noise_floor: 0,
-            residue_threshold: config.residue_floor,
-            previous_obstacle: None,
-            step: Motion::default(),
-            motion_before_step: Motion::default(),
-            odometry_scale: 1.0,
-            obstacle_height_mm: None,
-            alarm_source: AlarmSource::None,
-            blobs: heapless::Vec::new(),
-        })
+        self.config = config;
+        self.grid = *grid;
+        self.camera_height_mm = rig.height_mm();
+        self.aoi = aoi;
+        self.analysis_rows = aoi.bottom;
+        self.cell_px = cell_px;
+        self.cells_wide = grid.width().div_ceil(cell_px).min(MAX_CELLS_SIDE);
+        self.cells_high = aoi.bottom.div_ceil(cell_px).min(MAX_CELLS_SIDE);
+        self.keyframe = keyframe;
+        self.keyframe_rows = grid.height() + KEYFRAME_SPARE_ROWS;
+        self.keyframe_base = 0;
+        self.keyframe_state = KeyframeState::Empty;
+        self.keyframe_frame = 0;
+        self.motion_to_last = Motion::default();
+        self.last_frame = 0;
+        self.frame = 0;
+        self.predicted = Motion::default();
+        self.becomes_keyframe = false;
+        self.new_base = 0;
+        self.frame_active = false;
+        self.rows_seen = 0;
+        self.warp_origin = (0.0, 0.0);
+        self.warp_column = (0.0, 0.0);
+        self.warp_row = (0.0, 0.0);
+        self.band = [[0; BAND_WIDTH]; MAX_WINDOW];
+        self.sad = [[0; MAX_WINDOW]; MAX_WINDOW];
+        self.sad_far = [[0; MAX_WINDOW]; MAX_WINDOW];
+        self.seed_sum = [[0; MAX_WINDOW]; MAX_WINDOW];
+        self.seed_count = [[0; MAX_WINDOW]; MAX_WINDOW];
+        self.compared_pixels = 0;
+        self.diff_hist = [0; 256];
+        self.hypothesis_offset = [(0, 0); HYPOTHESES];
+        self.usable_hypotheses = 0;
+        self.ground_like = 1;
+        self.full_tolerance = (false, false);
+        self.cell_row_sad = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
+        self.cell_row_pixels = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
+        self.cell_height = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
+        self.cell_residue = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
+        self.cell_valid = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
+        self.row_residue = [0; MAX_GRID_SIDE];
+        self.noise_x16 = 0;
+        self.noise_floor = 0;
+        self.residue_threshold = config.residue_floor;
+        self.previous_obstacle = None;
+        self.step = Motion::default();
+        self.motion_before_step = Motion::default();
+        self.odometry_scale = 1.0;
+        self.obstacle_height_mm = None;
+        self.alarm_source = AlarmSource::None;
+        self.blobs = heapless::Vec::new();
+        self.profile = GpaProfile::default();
+        Ok(())
+    }
+
+    /// Profiles `on_kg_row` per stage with `clock` (any monotonic counter;
+    /// the firmware gives TIM2's instruction count). None turns it off.
+    pub fn set_clock(&mut self, clock: Option<fn() -> u32>) {
+        self.clock = clock;
+    }
+
+    /// Per-stage ticks of the current (or last) frame; see [`GpaProfile`].
+    pub fn profile(&self) -> GpaProfile {
+        self.profile
+    }
+
+    #[inline(always)]
+    fn tick(&self) -> u32 {
+        match self.clock {
+            Some(clock) => clock(),
+            None => 0,
+        }
     }
 
     /// Forgets the keyframe: after a gap in frames or odometry the motion
@@ -441,6 +712,7 @@ impl<'b> Gpa<'b> {
     /// Starts frame `frame`; `odometry` is the motion since the previous
     /// frame (None if unknown: the keyframe is reset).
     pub fn begin_frame(&mut self, frame: u32, odometry: Option<Motion>) {
+        self.profile = GpaProfile::default();
         self.frame = frame;
         self.frame_active = true;
         self.rows_seen = 0;
@@ -548,22 +820,15 @@ impl<'b> Gpa<'b> {
         }
     }
 
-    fn keyframe_row(&self, base: usize, j: usize) -> &[u8] {
-        let slot = (base + j) % self.keyframe_rows;
-        &self.keyframe[slot * self.grid.width()..][..self.grid.width()]
-    }
-
-    /// Bilinear sample of the keyframe at (i, j) Q16.16; the caller guarantees
-    /// the 2x2 neighbourhood is inside the grid.
-    fn sample_keyframe(&self, i: i32, j: i32) -> u8 {
-        let (i0, j0) = ((i >> FRAC) as usize, (j >> FRAC) as usize);
-        let wx = ((i >> 8) & 0xFF) as u32;
-        let wy = ((j >> 8) & 0xFF) as u32;
-        let upper = self.keyframe_row(self.keyframe_base, j0);
-        let lower = self.keyframe_row(self.keyframe_base, j0 + 1);
-        let top = u32::from(upper[i0]) * (256 - wx) + u32::from(upper[i0 + 1]) * wx;
-        let bottom = u32::from(lower[i0]) * (256 - wx) + u32::from(lower[i0 + 1]) * wx;
-        ((top * (256 - wy) + bottom * wy + (1 << 15)) >> 16) as u8
+    #[cfg(test)]
+    fn keyframe_view(&self) -> KeyframeView<'_> {
+        KeyframeView {
+            data: self.keyframe,
+            width: self.grid.width(),
+            height: self.grid.height(),
+            rows: self.keyframe_rows,
+            base: self.keyframe_base,
+        }
     }
 
     /// Feeds KG row `j` of the current frame (rows arrive in order 0..height).
@@ -573,24 +838,238 @@ impl<'b> Gpa<'b> {
         }
         self.rows_seen = j + 1;
         if self.keyframe_state == KeyframeState::Valid && j < self.analysis_rows {
+            #[cfg(test)]
+            if self.reference {
+                self.compare_row_reference(j, row);
+            } else {
+                self.compare_row(j, row);
+            }
+            #[cfg(not(test))]
             self.compare_row(j, row);
         }
         if self.becomes_keyframe {
+            let start = self.tick();
             // Written S+2+lead rows behind the reads by construction of new_base.
-            let slot = (self.new_base + j) % self.keyframe_rows;
+            let mut slot = self.new_base + j;
+            if slot >= self.keyframe_rows {
+                slot -= self.keyframe_rows;
+            }
             let width = self.grid.width();
             self.keyframe[slot * width..][..width].copy_from_slice(row);
+            self.profile.keyframe_update = self.profile.keyframe_update.wrapping_add(self.tick().wrapping_sub(start));
         }
     }
 
-    /// Bilinear keyframe sample at (i, j) Q16.16, or None outside the grid.
-    fn sample_checked(&self, i: i32, j: i32) -> Option<u8> {
+    /// One KG row against the warped keyframe: band, residue, hypotheses,
+    /// shift search. Same results as the per-pixel reference below, organised
+    /// as whole-line passes: keyframe rows looked up once per line, constant
+    /// bilinear weights on translation rows, per-cell sums over column
+    /// segments, and the shift search as block kernels (`sad.rs`).
+    fn compare_row(&mut self, j: usize, row: &[u8]) {
+        let s = self.config.search_radius;
+        let width = self.grid.width();
+        let warp = self.row_warp(j);
+        let (cur_lo, cur_hi) = self.current_valid[j];
+        let (cur_lo, cur_hi) = (usize::from(cur_lo), usize::from(cur_hi));
+        let cell_row = j / self.cell_px;
+        let last_row_of_cell = (j + 1) % self.cell_px == 0 || j + 1 == self.analysis_rows;
+        if cur_hi <= cur_lo {
+            if last_row_of_cell {
+                self.finish_cell_row(cell_row);
+            }
+            return;
+        }
+        let t_start = self.tick();
+        // Usable columns (whole search neighbourhood in the keyframe's view),
+        // as runs. A translation row has one; a yawed row may have several.
+        let mut runs = [(0u16, 0u16); MAX_GRID_SIDE / 2 + 1];
+        let mut run_count = 0;
         let rows_limit = (self.grid.height() as i32 - 1) << FRAC;
-        let inside = i >= 0 && (i >> FRAC) + 1 < self.grid.width() as i32 && j >= 0 && j < rows_limit;
-        inside.then(|| self.sample_keyframe(i, j))
+        if warp.i_step == 1 << FRAC && warp.j_step == 0 {
+            if warp.j_start >= 0 && warp.j_start < rows_limit {
+                let (lo, hi) = self.reference_valid[(warp.j_start >> FRAC) as usize];
+                let i0 = i64::from(warp.i_start >> FRAC);
+                let first = (i64::from(lo) - i0).max(cur_lo as i64);
+                let end = (i64::from(hi) - i0).min(cur_hi as i64);
+                if end > first {
+                    runs[0] = (first as u16, end as u16);
+                    run_count = 1;
+                }
+            }
+        } else {
+            let mut open: Option<usize> = None;
+            for c in cur_lo..=cur_hi {
+                let usable = c < cur_hi && {
+                    let i_ref = warp.i_start.wrapping_add((c as i32).wrapping_mul(warp.i_step));
+                    let j_ref = warp.j_start.wrapping_add((c as i32).wrapping_mul(warp.j_step));
+                    let (i0, j0) = (i_ref >> FRAC, j_ref >> FRAC);
+                    j_ref >= 0 && j_ref < rows_limit && i0 >= 0 && (i0 as usize) < width && {
+                        let (lo, hi) = self.reference_valid[j0 as usize];
+                        (i0 as usize) >= usize::from(lo) && (i0 as usize) < usize::from(hi)
+                    }
+                };
+                match (usable, open) {
+                    (true, None) => open = Some(c),
+                    (false, Some(first)) => {
+                        runs[run_count] = (first as u16, c as u16);
+                        run_count += 1;
+                        open = None;
+                    }
+                    _ => {}
+                }
+            }
+        }
+        let runs = &runs[..run_count];
+        // The search band: band[dg][c + MAX_SEARCH_RADIUS] = keyframe at warp(c) + (0, dg - S).
+        let view = KeyframeView {
+            data: self.keyframe,
+            width,
+            height: self.grid.height(),
+            rows: self.keyframe_rows,
+            base: self.keyframe_base,
+        };
+        let band_columns = cur_lo.saturating_sub(s)..(cur_hi + s).min(width);
+        for dg in 0..=2 * s {
+            let line = RowWarp { j_start: warp.j_start + ((dg as i32 - s as i32) << FRAC), ..warp };
+            view.sample_line(line, band_columns.clone(), &mut self.band[dg][MAX_SEARCH_RADIUS..]);
+        }
+        let t_warp = self.tick();
+        self.profile.warp = self.profile.warp.wrapping_add(t_warp.wrapping_sub(t_start));
+
+        // Residue and the per-cell statistics, one cell segment at a time.
+        let cell_px = self.cell_px;
+        let in_cells = cell_row < self.cells_high;
+        let cells_end = (self.cells_wide * cell_px).min(width);
+        let clip = |(a, b): (u16, u16), lo: usize, hi: usize| usize::from(a).max(lo)..usize::from(b).min(hi);
+        // Calls `f(cell_column, columns)` for the cell segments of `columns`.
+        let segments = |columns: Range<usize>, f: &mut dyn FnMut(usize, Range<usize>)| {
+            let mut c = columns.start;
+            while c < columns.end {
+                let cell_column = c / cell_px;
+                let end = ((cell_column + 1) * cell_px).min(columns.end);
+                f(cell_column, c..end);
+                c = end;
+            }
+        };
+        if in_cells {
+            // Two tolerant residues (see compare_row_reference): the ground
+            // hypothesis's (half a pixel, or a full one along an axis the
+            // odometry may be that far off, sideways also where a heading
+            // error moves far ground by more than half a pixel) and the wide
+            // one (full neighbours) that flags anything unexplained.
+            let (_, row_z) = self.grid.pixel_to_ground(0.0, j as f64);
+            let yaw_blur = row_z * self.config.odometry_yaw_error_deg.to_radians() > 0.5 * self.grid.mm_per_px;
+            let tolerance = (self.full_tolerance.0 || yaw_blur, self.full_tolerance.1);
+            let mut residues = [0u8; MAX_GRID_SIDE];
+            let mut unexplained = [0u8; MAX_GRID_SIDE];
+            let threshold = self.residue_threshold;
+            let cell_base = cell_row * MAX_CELLS_SIDE;
+            for &run in runs {
+                let columns = clip(run, 0, cells_end);
+                if columns.is_empty() {
+                    continue;
+                }
+                match tolerance {
+                    (false, false) => residue_line::<false, false>(row, &self.band, s, columns.clone(), &mut residues),
+                    (true, false) => residue_line::<true, false>(row, &self.band, s, columns.clone(), &mut residues),
+                    (false, true) => residue_line::<false, true>(row, &self.band, s, columns.clone(), &mut residues),
+                    (true, true) => residue_line::<true, true>(row, &self.band, s, columns.clone(), &mut residues),
+                }
+                if tolerance == (true, true) {
+                    unexplained[columns.clone()].copy_from_slice(&residues[columns.clone()]);
+                } else {
+                    residue_line::<true, true>(row, &self.band, s, columns.clone(), &mut unexplained);
+                }
+                let mut row_residue = 0u32;
+                segments(columns, &mut |cell_column, columns| {
+                    let cell = cell_base + cell_column;
+                    let n = columns.len();
+                    let (mut hot, mut sum) = (0u32, 0u32);
+                    for (&r, &wide) in residues[columns.clone()].iter().zip(&unexplained[columns]) {
+                        hot += u32::from(wide > threshold);
+                        sum += u32::from(r);
+                    }
+                    self.cell_valid[cell] = self.cell_valid[cell].saturating_add(n.min(255) as u8);
+                    self.cell_residue[cell] = self.cell_residue[cell].saturating_add(hot.min(255) as u8);
+                    row_residue += hot;
+                    // The ground is the null hypothesis: it gets the half-pixel
+                    // tolerance, the heights must beat it outright.
+                    self.cell_row_pixels[0][cell_column] += n as u16;
+                    self.cell_row_sad[0][cell_column] += sum;
+                });
+                self.row_residue[j] = self.row_residue[j].saturating_add(row_residue.min(u32::from(u16::MAX)) as u16);
+            }
+        }
+        let t_residue = self.tick();
+        self.profile.residue = self.profile.residue.wrapping_add(t_residue.wrapping_sub(t_warp));
+
+        // Height hypotheses (0 = the ground prediction itself, band[S]):
+        // columns whose sample is off the keyframe skip that hypothesis.
+        if in_cells {
+            let mut samples = [0u8; MAX_GRID_SIDE];
+            for k in 1..self.usable_hypotheses {
+                let (oi, oj) = self.hypothesis_offset[k];
+                let line = RowWarp {
+                    i_start: warp.i_start.wrapping_add(oi),
+                    j_start: warp.j_start.wrapping_add(oj),
+                    ..warp
+                };
+                let seen = view.sample_line(line, cur_lo..cur_hi, &mut samples);
+                for &run in runs {
+                    let columns = clip(run, seen.start, seen.end.min(cells_end));
+                    segments(columns, &mut |cell_column, columns| {
+                        self.cell_row_pixels[k][cell_column] += columns.len() as u16;
+                        self.cell_row_sad[k][cell_column] += sad::sad(&row[columns.clone()], &samples[columns]);
+                    });
+                }
+            }
+        }
+        let t_parallax = self.tick();
+        self.profile.parallax = self.profile.parallax.wrapping_add(t_parallax.wrapping_sub(t_residue));
+
+        // The shift search over the AOI, and the |diff| histogram at the prediction.
+        if j >= self.aoi.top && j < self.aoi.bottom {
+            // The far half of the AOI gets its own SADs: a yaw error shifts
+            // far rows sideways more than near ones, which is how it is measured.
+            let far_half = j < (self.aoi.top + self.aoi.bottom) / 2;
+            let r = MAX_SEARCH_RADIUS;
+            for &run in runs {
+                let columns = clip(run, self.aoi.left, self.aoi.right);
+                if columns.is_empty() {
+                    continue;
+                }
+                let current = &row[columns.clone()];
+                let centre = &self.band[s][columns.start + r..columns.end + r];
+                for (&value, &here) in current.iter().zip(centre) {
+                    self.diff_hist[usize::from(value.abs_diff(here))] += 1;
+                }
+                self.compared_pixels += columns.len() as u32;
+                for dg in 0..=2 * s {
+                    for dk in 0..=2 * s {
+                        let start = columns.start + r + dk - s;
+                        let sums = sad::seed_sums(current, &self.band[dg][start..start + current.len()]);
+                        self.sad[dg][dk] += sums.sad;
+                        if far_half {
+                            self.sad_far[dg][dk] += sums.sad;
+                        }
+                        self.seed_sum[dg][dk] += sums.sum_above;
+                        self.seed_count[dg][dk] += sums.count_above;
+                    }
+                }
+            }
+        }
+        let t_shift = self.tick();
+        self.profile.shift_search = self.profile.shift_search.wrapping_add(t_shift.wrapping_sub(t_parallax));
+        if last_row_of_cell {
+            self.finish_cell_row(cell_row);
+            self.profile.parallax = self.profile.parallax.wrapping_add(self.tick().wrapping_sub(t_shift));
+        }
     }
 
-    fn compare_row(&mut self, j: usize, row: &[u8]) {
+    /// The plain per-pixel form of [`Self::compare_row`], kept as its
+    /// reference: the tests check that both leave identical state.
+    #[cfg(test)]
+    fn compare_row_reference(&mut self, j: usize, row: &[u8]) {
         let s = self.config.search_radius;
         let width = self.grid.width();
         let warp = self.row_warp(j);
@@ -626,17 +1105,22 @@ impl<'b> Gpa<'b> {
         for dg in 0..=2 * s {
             for c in first..last {
                 let (i_ref, j_ref) = reference_at(c);
-                let value = self.sample_checked(i_ref, j_ref + ((dg as i32 - s as i32) << FRAC)).unwrap_or(0);
+                let (i, jr) = (i_ref, j_ref + ((dg as i32 - s as i32) << FRAC));
+                let view = self.keyframe_view();
+                let value = if view.inside(i, jr) { view.sample(i, jr) } else { 0 };
                 self.band[dg][c + MAX_SEARCH_RADIUS] = value;
             }
         }
         // Height hypotheses (0 = the ground prediction itself, band[S]).
         // A sample off the keyframe is None: that hypothesis skips the pixel.
+        let mut hypothesis_rows = [[None; MAX_GRID_SIDE]; HYPOTHESES];
         for k in 1..self.usable_hypotheses {
             let (oi, oj) = self.hypothesis_offset[k];
+            let view = self.keyframe_view();
             for c in cur_lo..cur_hi {
                 let (i_ref, j_ref) = reference_at(c);
-                self.hypothesis_rows[k][c] = self.sample_checked(i_ref.wrapping_add(oi), j_ref.wrapping_add(oj));
+                let (i, jr) = (i_ref.wrapping_add(oi), j_ref.wrapping_add(oj));
+                hypothesis_rows[k][c] = view.inside(i, jr).then(|| view.sample(i, jr));
             }
         }
         let in_aoi_row = j >= self.aoi.top && j < self.aoi.bottom;
@@ -692,7 +1176,7 @@ impl<'b> Gpa<'b> {
                 self.cell_row_pixels[0][cell_column] += 1;
                 self.cell_row_sad[0][cell_column] += u32::from(residue);
                 for k in 1..self.usable_hypotheses {
-                    if let Some(sample) = self.hypothesis_rows[k][c] {
+                    if let Some(sample) = hypothesis_rows[k][c] {
                         self.cell_row_pixels[k][cell_column] += 1;
                         self.cell_row_sad[k][cell_column] += u32::from(value.abs_diff(sample));
                     }
@@ -1209,5 +1693,106 @@ impl<'b> Gpa<'b> {
     }
     pub fn predicted(&self) -> Motion {
         self.predicted
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Aoi, Intrinsics, Mount};
+    use crate::grid::GridConfig;
+    use crate::motion::Pose;
+
+    fn rig() -> Rig {
+        Rig::new_checked(
+            Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
+            Mount { height_mm: 400.0, tilt_deg: 32.0 },
+            Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
+        )
+        .unwrap()
+    }
+
+    /// Ground texture at world (x, z): smooth structure, edges and noise-like detail.
+    fn texture(x: f64, z: f64) -> u8 {
+        let smooth = 90.0 * libm::sin(x * 0.031) * libm::cos(z * 0.027);
+        let edges = if (libm::floor(x / 37.0) as i64 + libm::floor(z / 53.0) as i64) % 3 == 0 { 45.0 } else { 0.0 };
+        let hash = ((libm::floor(x / 3.0) as i64).wrapping_mul(73_856_093) ^ (libm::floor(z / 3.0) as i64).wrapping_mul(19_349_663)) & 31;
+        (120.0 + smooth + edges + hash as f64).clamp(0.0, 255.0) as u8
+    }
+
+    /// The KG image seen from `pose`, with a box-like patch that breaks the ground model.
+    fn kg_image(grid: &KgGrid, table: &RemapTable, pose: &Pose, frame: u32) -> std::vec::Vec<u8> {
+        let yaw = pose.yaw_deg.to_radians();
+        let mut image = std::vec![0u8; grid.len()];
+        for j in 0..grid.height() {
+            for i in table.valid_columns(j) {
+                let (x, z) = grid.pixel_to_ground(i as f64, j as f64);
+                let (wx, wz) = (pose.x_mm + x * libm::cos(yaw) - z * libm::sin(yaw), pose.z_mm + x * libm::sin(yaw) + z * libm::cos(yaw));
+                let mut value = texture(wx, wz);
+                if (x - 40.0).abs() < 60.0 && (wz - 1700.0).abs() < 40.0 {
+                    value = value.wrapping_add((frame as u8).wrapping_mul(37));
+                }
+                image[j * grid.width() + i] = value;
+            }
+        }
+        image
+    }
+
+    fn state(gpa: &Gpa) -> std::vec::Vec<u32> {
+        let mut v = std::vec::Vec::new();
+        v.extend(gpa.sad.iter().flatten());
+        v.extend(gpa.seed_sum.iter().flatten());
+        v.extend(gpa.seed_count.iter().flatten());
+        v.extend(gpa.diff_hist.iter());
+        v.push(gpa.compared_pixels);
+        v.extend(gpa.cell_residue.iter().map(|&x| u32::from(x)));
+        v.extend(gpa.cell_valid.iter().map(|&x| u32::from(x)));
+        v.extend(gpa.cell_height.iter().map(|&x| u32::from(x)));
+        v.extend(gpa.row_residue.iter().map(|&x| u32::from(x)));
+        v.extend(gpa.band.iter().flatten().map(|&x| u32::from(x)));
+        v
+    }
+
+    /// The fast row paths leave exactly the state of the per-pixel reference,
+    /// on translation (integer and fractional), yaw, reverse, and keyframe swaps.
+    #[test]
+    fn fast_rows_equal_reference() {
+        let rig = rig();
+        for mm_per_px in [None, Some(5.0), Some(4.3)] {
+            let grid = KgGrid::for_rig(&rig, &GridConfig { mm_per_px, ..GridConfig::default() }).unwrap();
+            let table = RemapTable::new(&rig, &grid).unwrap();
+            let (mut kf_fast, mut kf_ref) = (std::vec![0u8; Gpa::keyframe_bytes(&grid)], std::vec![0u8; Gpa::keyframe_bytes(&grid)]);
+            let mut fast = Gpa::new(&rig, &grid, &table, GpaConfig::default(), &mut kf_fast).unwrap();
+            let mut reference = Gpa::new(&rig, &grid, &table, GpaConfig::default(), &mut kf_ref).unwrap();
+            reference.reference = true;
+            let steps = [(0.0, 100.0, 0.0), (0.0, 50.0, 0.0), (13.7, 61.3, 0.0), (-20.0, 40.0, 2.0), (5.0, 30.0, -1.5), (0.0, -35.0, 0.0), (30.0, 60.0, 0.0), (0.0, 45.5, 0.4)];
+            let mut pose = Pose::default();
+            let mut poses = std::vec![pose];
+            for &(tx, tz, dyaw) in steps.iter().cycle().take(14) {
+                let yaw = pose.yaw_deg.to_radians();
+                pose = Pose {
+                    x_mm: pose.x_mm + tx * libm::cos(yaw) - tz * libm::sin(yaw),
+                    z_mm: pose.z_mm + tx * libm::sin(yaw) + tz * libm::cos(yaw),
+                    yaw_deg: pose.yaw_deg + dyaw,
+                };
+                poses.push(pose);
+            }
+            let mut compared = 0;
+            for (n, p) in poses.iter().enumerate() {
+                let image = kg_image(&grid, &table, p, n as u32);
+                let odometry = (n > 0).then(|| Motion::between(&poses[n - 1], p));
+                for gpa in [&mut fast, &mut reference] {
+                    gpa.begin_frame(n as u32, odometry);
+                    for (j, row) in image.chunks_exact(grid.width()).enumerate() {
+                        gpa.on_kg_row(j, row);
+                    }
+                }
+                let (a, b) = (fast.end_frame(), reference.end_frame());
+                assert_eq!(a, b, "frame {n}");
+                assert!(state(&fast) == state(&reference), "frame {n}: state differs");
+                compared += usize::from(a.is_some());
+            }
+            assert!(compared >= 10 && fast.compared_pixels > 1000, "too little compared: {compared}");
+        }
     }
 }

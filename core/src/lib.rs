@@ -27,6 +27,7 @@ pub mod gti;
 pub mod motion;
 pub mod pgm;
 pub mod remap;
+pub mod sad;
 pub mod protocol;
 pub mod report;
 /// core's checks as a list for the on-target runner (`cargo fw-test`).

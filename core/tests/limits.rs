@@ -27,7 +27,7 @@ fn largest_rig() -> Rig {
 /// Margins that make both grid extents exactly 255 pixels of 5 mm:
 /// 2 * (250 + 387.5) = 1275 and (1400 + 265) - (450 - 60) = 1275.
 fn largest_grid(rig: &Rig) -> KgGrid {
-    let config = GridConfig { margin_lateral_mm: 387.5, margin_far_mm: 265.0, margin_near_mm: 60.0, mm_per_px: Some(5.0) };
+    let config = GridConfig { margin_lateral_mm: 387.5, margin_far_mm: Some(265.0), margin_near_mm: 60.0, mm_per_px: Some(5.0), ..GridConfig::default() };
     KgGrid::for_rig(rig, &config).expect("256x256 grid")
 }
 

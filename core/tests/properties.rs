@@ -339,7 +339,16 @@ fn frame_report() -> impl Strategy<Value = FrameReport> {
 }
 
 fn message() -> impl Strategy<Value = Message> {
-    let codes = [FaultCode::RigRejected, FaultCode::TableRejected, FaultCode::FrameMissing, FaultCode::FrameFormat, FaultCode::FrameRead, FaultCode::RemapFailed];
+    let codes = [
+        FaultCode::RigRejected,
+        FaultCode::TableRejected,
+        FaultCode::FrameMissing,
+        FaultCode::FrameFormat,
+        FaultCode::FrameRead,
+        FaultCode::RemapFailed,
+        FaultCode::GridTooLarge,
+        FaultCode::CameraTooLarge,
+    ];
     prop_oneof![
         Just(Message::Ready),
         Just(Message::End),
@@ -348,11 +357,11 @@ fn message() -> impl Strategy<Value = Message> {
         (any::<u32>(), finite(), finite(), finite(), finite())
             .prop_map(|(frame, t_s, x_mm, z_mm, yaw_deg)| Message::Odometry(Odometry { frame, t_s, x_mm, z_mm, yaw_deg })),
         frame_report().prop_map(Message::Frame),
-        any::<[u32; 9]>().prop_map(|c| Message::Stats(LinkStats {
+        any::<[u32; 10]>().prop_map(|c| Message::Stats(LinkStats {
             frames: c[0], garbage_bytes: c[1], truncated: c[2], too_long: c[3], bad_checksum: c[4],
-            unknown_type: c[5], bad_field: c[6], out_of_order: c[7], frame_gaps: c[8],
+            unknown_type: c[5], bad_field: c[6], out_of_order: c[7], frame_gaps: c[8], aborted: c[9],
         })),
-        (0usize..6, any::<u32>()).prop_map(move |(c, frame)| Message::Fault(Fault { code: codes[c], frame })),
+        (0usize..codes.len(), any::<u32>()).prop_map(move |(c, frame)| Message::Fault(Fault { code: codes[c], frame })),
     ]
 }
 

@@ -25,7 +25,7 @@ use flatland_core::protocol::{
 };
 use flatland_core::remap::{RemapError, RemapTable, StreamingRemap};
 use flatland_core::report::FrameReport;
-use static_cell::{ConstStaticCell, StaticCell};
+use static_cell::ConstStaticCell;
 
 use crate::board::{CycleCounter, RowSource, RowSourceError};
 
@@ -34,14 +34,16 @@ pub const MAX_CAMERA_WIDTH: usize = 640;
 /// Camera rows the streaming remap may keep: 8 rows of the widest camera.
 /// The bundled rigs need 2; steep tilts and strong distortion need more.
 pub const RING_CAPACITY: usize = 8 * MAX_CAMERA_WIDTH;
-/// Keyframe memory (`Gpa::keyframe_bytes`). 72 KiB holds the QVGA rig's
-/// 221x256 grid (70,720 B) and the 256x256 rigs' 161x253 grid (51,037 B);
-/// a full 256x256 grid (81,920 B) does not fit next to the rest in 128 KB.
-pub const KEYFRAME_CAPACITY: usize = 72 * 1024;
+/// Keyframe memory (`Gpa::keyframe_bytes`: grid plus 48 spare rows). 48 KiB
+/// holds every bundled rig's default grid (256x256 camera: 141x255, 42,723 B;
+/// QVGA: 179x220, 47,972 B) and the 256x256 rig at 5 mm/px (161x256,
+/// 48,944 B). Grids near the 40,000 px cap with a wide AOI need up to ~53 KB
+/// and are refused (`grid_too_large`): RAM is for GTI (README, Performance).
+pub const KEYFRAME_CAPACITY: usize = 48 * 1024;
 
 static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
 static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
-static DETECTOR: StaticCell<Result<Gpa<'static>, flatland_core::gpa::GpaError>> = StaticCell::new();
+static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY);
 static KEYFRAME: ConstStaticCell<[u8; KEYFRAME_CAPACITY]> = ConstStaticCell::new([0; KEYFRAME_CAPACITY]);
 
 /// Why a rig was refused at start-up. Each is logged and sent as `$FLERR`.
@@ -107,9 +109,13 @@ pub struct Board<S, A, C, R> {
     pub frames: R,
 }
 
-/// Emits benchmark figures as `bench: key: value` log lines when true.
 pub struct Options {
+    /// Emits benchmark figures as `bench: key: value` log lines.
     pub bench: bool,
+    /// Fixed KG resolution (benchmarks); None: chosen from the rig, as the host does.
+    pub mm_per_px: Option<f64>,
+    /// Per-stage profile of the detector (`Gpa::set_clock`), with `bench`.
+    pub clock: Option<fn() -> u32>,
 }
 
 struct Link<S> {
@@ -199,12 +205,13 @@ fn rig_from_record(record: &RigRecord) -> Result<Rig, flatland_core::geometry::R
 }
 
 /// Validates the rig, checks it fits the target's memory, builds the table.
-fn set_up(record: &RigRecord, table: &mut RemapTable) -> Result<(Rig, KgGrid), SetupError> {
+fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Result<(Rig, KgGrid), SetupError> {
     let rig = rig_from_record(record).map_err(SetupError::Rig)?;
     if usize::from(record.width) > MAX_CAMERA_WIDTH {
         return Err(SetupError::CameraTooWide { width: usize::from(record.width) });
     }
-    let grid = KgGrid::for_rig(&rig, &GridConfig::default()).map_err(SetupError::Grid)?;
+    let grid_config = GridConfig { mm_per_px: options.mm_per_px, ..GridConfig::default() };
+    let grid = KgGrid::for_rig(&rig, &grid_config).map_err(SetupError::Grid)?;
     let needed = Gpa::keyframe_bytes(&grid);
     if needed > KEYFRAME_CAPACITY {
         return Err(SetupError::KeyframeTooLarge { needed });
@@ -234,7 +241,7 @@ fn configure<S: Read + Write, C: CycleCounter>(
             }
         };
         let started = counter.now();
-        let (rig, grid) = match set_up(&record, table) {
+        let (rig, grid) = match set_up(&record, table, options) {
             Ok(built) => built,
             Err(error) => {
                 defmt::error!("rig refused: {}", defmt::Debug2Format(&error));
@@ -257,6 +264,7 @@ fn configure<S: Read + Write, C: CycleCounter>(
         );
         if options.bench {
             defmt::println!("bench: table_build: {=u32}", build_instructions);
+            defmt::println!("bench: grid: {=usize}x{=usize}", grid.width(), grid.height());
         }
         link.send(&Message::Hello(record));
         return Some((rig, grid));
@@ -374,16 +382,6 @@ fn log_report(report: &FrameReport) {
     }
 }
 
-#[inline(never)]
-fn build_detector(
-    rig: &Rig,
-    grid: &KgGrid,
-    table: &'static RemapTable,
-    keyframe: &'static mut [u8],
-) -> &'static mut Result<Gpa<'static>, flatland_core::gpa::GpaError> {
-    DETECTOR.init_with(|| Gpa::new(rig, grid, table, GpaConfig::default(), keyframe))
-}
-
 /// Runs until the host sends `$FLEND`; returns the final counters.
 pub fn run<S, A, C, R>(board: Board<S, A, C, R>, options: &Options) -> LinkStats
 where
@@ -397,6 +395,7 @@ where
     let table: &'static mut RemapTable = TABLE.take();
     let ring: &'static mut [u8; RING_CAPACITY] = RING.take();
     let keyframe: &'static mut [u8; KEYFRAME_CAPACITY] = KEYFRAME.take();
+    let gpa: &'static mut Gpa<'static> = DETECTOR.take();
     let _ = alarm.set_low();
 
     // Bytes that arrive before the USART is enabled are lost: say when we listen.
@@ -416,12 +415,11 @@ where
             return link.finish();
         }
     };
-    // The detector (~15 KB) lives in a static, built in place: on the stack
-    // LLVM keeps a temporary and the moved copy, ~30 KB.
-    let gpa = match build_detector(&rig, &grid, table, &mut keyframe[..]) {
-        Ok(gpa) => gpa,
+    // The detector (~17 KB) lives in a static, initialised in place: by value
+    // LLVM keeps stack temporaries of it.
+    match gpa.init(&rig, &grid, table, GpaConfig::default(), &mut keyframe[..]) {
+        Ok(()) => gpa.set_clock(if options.bench { options.clock } else { None }),
         Err(error) => {
-            let error = *error;
             defmt::error!("detector refused: {}", defmt::Debug2Format(&error));
             link.fault(SetupError::Detector(error).fault_code(), 0);
             return link.finish();
@@ -499,7 +497,13 @@ where
             defmt::println!("bench: frame: {=u32}", frame);
             defmt::println!("bench: read_rows: {=u32}", timing.read);
             defmt::println!("bench: remap: {=u32}", timing.remap);
-            defmt::println!("bench: shift_search: {=u32}", timing.shift_search);
+            defmt::println!("bench: detector_rows: {=u32}", timing.shift_search);
+            let profile = stages.gpa.profile();
+            defmt::println!("bench: gpa_warp: {=u32}", profile.warp);
+            defmt::println!("bench: gpa_residue: {=u32}", profile.residue);
+            defmt::println!("bench: gpa_parallax: {=u32}", profile.parallax);
+            defmt::println!("bench: gpa_shift_search: {=u32}", profile.shift_search);
+            defmt::println!("bench: gpa_keyframe_update: {=u32}", profile.keyframe_update);
             defmt::println!("bench: decision: {=u32}", timing.decision);
             defmt::println!("bench: instructions_per_cycle: {=u32}", timing.cycle);
         }

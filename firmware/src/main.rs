@@ -3,7 +3,7 @@
 //! and reports each frame on USART1 (see PROTOCOL.md).
 //!
 //! Semihosting command line (QEMU `-append`): `bench` adds instruction
-//! counts to the log.
+//! counts to the log; `mm_per_px=X` fixes the KG resolution (benchmarks).
 #![no_std]
 #![no_main]
 #![deny(clippy::unwrap_used, clippy::expect_used)]
@@ -18,11 +18,18 @@ fn main() -> ! {
     paint_stack();
     defmt::info!("flatland firmware {=str}", env!("CARGO_PKG_VERSION"));
     let mut buf = [0u8; 512];
-    let bench = command_line(&mut buf).split(|&b| b == b' ').any(|word| word == b"bench");
+    let line = command_line(&mut buf);
+    let bench = line.split(|&b| b == b' ').any(|word| word == b"bench");
+    let mm_per_px = line
+        .split(|&b| b == b' ')
+        .find_map(|word| word.strip_prefix(b"mm_per_px="))
+        .and_then(|value| core::str::from_utf8(value).ok())
+        .and_then(|value| value.parse::<f64>().ok());
 
     let parts = EmulatedBoard::take();
     let board = Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames };
-    let stats = frame_loop::run(board, &Options { bench });
+    let options = Options { bench, mm_per_px, clock: Some(flatland_firmware::board::emulated::instructions_now) };
+    let stats = frame_loop::run(board, &options);
 
     defmt::info!(
         "done: {=u32} frames; serial garbage {=u32} B, truncated {=u32}, too long {=u32}, bad checksum {=u32}, unknown {=u32}, bad field {=u32}, out of order {=u32}, frame gaps {=u32}, aborted {=u32}",
@@ -42,6 +49,10 @@ fn main() -> ! {
     if bench {
         defmt::println!("bench: stack_high_water_bytes: {=usize}", used);
         defmt::println!("bench: stack_region_bytes: {=usize}", size);
+        // After the stack measurement: the kernels' buffers are not the pipeline's.
+        let (sad, seed) = kernel_bench();
+        defmt::println!("bench: sad_instructions_per_4_differences_x100: {=u32}", sad);
+        defmt::println!("bench: seed_instructions_per_4_differences_x100: {=u32}", seed);
     }
     // No guard page below the stack: a stack that reached the statics may
     // have corrupted them, so the run is not trusted.
@@ -50,4 +61,26 @@ fn main() -> ! {
         exit(Exit::Failure)
     }
     exit(Exit::Success)
+}
+
+/// Instructions per 4 pixel differences (x100) of the SAD kernel and of the
+/// SAD + seed statistics kernel, on 1024-byte blocks (call overhead included).
+#[inline(never)]
+fn kernel_bench() -> (u32, u32) {
+    use flatland_firmware::board::emulated::instructions_now;
+    const N: usize = 1024;
+    let mut a = [0u8; N];
+    let mut b = [0u8; N];
+    for (n, (x, y)) in a.iter_mut().zip(b.iter_mut()).enumerate() {
+        *x = (n * 37 % 251) as u8;
+        *y = (n * 91 % 241) as u8;
+    }
+    let start = instructions_now();
+    core::hint::black_box(flatland_core::sad::sad(core::hint::black_box(&a), core::hint::black_box(&b)));
+    let sad = instructions_now().wrapping_sub(start);
+    let start = instructions_now();
+    core::hint::black_box(flatland_core::sad::seed_sums(core::hint::black_box(&a), core::hint::black_box(&b)));
+    let seed = instructions_now().wrapping_sub(start);
+    let per_4 = |instructions: u32| instructions * 100 * 4 / N as u32;
+    (per_4(sad), per_4(seed))
 }

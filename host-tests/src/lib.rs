@@ -2,6 +2,7 @@
 //! glue the `flatland` CLI and the tests share. All detection work is done
 //! by `flatland_core`, the same code the firmware runs.
 
+pub mod bench;
 pub mod detect;
 pub mod evaluate;
 pub mod heights;

@@ -68,6 +68,16 @@ enum Command {
         #[arg(long)]
         png: Option<PathBuf>,
     },
+    /// Time one detection cycle per stage (remap, GPA rows, decision): medians in us.
+    Bench {
+        recording: PathBuf,
+        /// KG resolution in mm of ground per pixel (default: chosen from the rig).
+        #[arg(long)]
+        mm_per_px: Option<f64>,
+        /// Search radius S: (2S+1)^2 shifts.
+        #[arg(long, default_value_t = 2)]
+        search: usize,
+    },
     /// Serial tools for the firmware's USART1 byte stream.
     #[command(subcommand)]
     Serial(SerialCommand),
@@ -316,6 +326,19 @@ fn main() -> ExitCode {
         Command::Kg { recording, frames, out, mm_per_px } => run_kg(&recording, frames, &out, mm_per_px),
         Command::Detect { recording, format, png, truth, perturb, verbose } => {
             run_detect(&recording, format, png.as_deref(), truth, perturb, verbose)
+        }
+        Command::Bench { recording, mm_per_px, search } => {
+            let recording = match Recording::open(&recording) {
+                Ok(r) => r,
+                Err(e) => return fatal(e),
+            };
+            match flatland_host::bench::run_bench(&recording, mm_per_px, search) {
+                Ok(text) => {
+                    print!("{text}");
+                    ExitCode::SUCCESS
+                }
+                Err(e) => fatal(e),
+            }
         }
         Command::Serial(SerialCommand::Decode { file }) => run_serial_decode(file.as_deref()),
         Command::Heights { recording, format: HeightsFormat::Csv, png } => {

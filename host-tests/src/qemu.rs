@@ -319,8 +319,10 @@ pub struct RunRequest<'a> {
     pub dir: &'a Path,
     /// Bytes sent on USART1 after `$FLRDY`.
     pub script: Vec<u8>,
-    /// `-icount shift=0` and the `bench` command line.
+    /// `-icount shift=0` and the `bench` command line; `Some(x)` also fixes
+    /// the KG resolution (`mm_per_px=x`).
     pub bench: bool,
+    pub bench_mm_per_px: Option<f64>,
     /// Print the defmt log live.
     pub echo_log: bool,
     pub timeout: Duration,
@@ -339,12 +341,12 @@ pub struct RunOutcome {
 pub fn run_firmware(request: RunRequest, on_message: &mut dyn FnMut(&Message)) -> Result<RunOutcome> {
     let listener = TcpListener::bind("127.0.0.1:0").map_err(|e| format!("serial socket: {e}"))?;
     let port = listener.local_addr().map_err(|e| e.to_string())?.port();
-    let mut qemu = qemu_command(
-        request.elf,
-        &format!("tcp:127.0.0.1:{port}"),
-        if request.bench { "bench" } else { "" },
-        request.bench,
-    );
+    let append = match (request.bench, request.bench_mm_per_px) {
+        (false, _) => String::new(),
+        (true, None) => "bench".to_string(),
+        (true, Some(mm)) => format!("bench mm_per_px={mm}"),
+    };
+    let mut qemu = qemu_command(request.elf, &format!("tcp:127.0.0.1:{port}"), &append, request.bench);
     qemu.current_dir(request.dir);
     let deadline = Instant::now() + request.timeout;
     let emulator = Emulator::start(qemu, request.elf, request.echo_log)?;

@@ -37,12 +37,14 @@ struct Args {
     mode: Mode,
     recording: PathBuf,
     timeout: Duration,
+    mm_per_px: Option<f64>,
 }
 
 fn parse_args() -> Result<Args> {
     let mut mode = Mode::Run;
     let mut recording = None;
     let mut timeout = Duration::from_secs(300);
+    let mut mm_per_px = None;
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         match arg.as_str() {
@@ -53,8 +55,11 @@ fn parse_args() -> Result<Args> {
                 let secs = args.next().and_then(|s| s.parse().ok()).ok_or("--timeout needs seconds")?;
                 timeout = Duration::from_secs(secs);
             }
+            "--mm-per-px" => {
+                mm_per_px = Some(args.next().and_then(|s| s.parse().ok()).ok_or("--mm-per-px needs a number")?);
+            }
             "-h" | "--help" => {
-                println!("usage: cargo fw [RECORDING] [--csv] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING]");
+                println!("usage: cargo fw [RECORDING] [--csv] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X]");
                 std::process::exit(0);
             }
             other if other.starts_with('-') => return Err(format!("unknown option {other}")),
@@ -63,7 +68,7 @@ fn parse_args() -> Result<Args> {
     }
     let recording = recording.unwrap_or_else(|| qemu::workspace_root().join(DEFAULT_RECORDING));
     let recording = recording.canonicalize().map_err(|e| format!("recording {}: {e}", recording.display()))?;
-    Ok(Args { mode, recording, timeout })
+    Ok(Args { mode, recording, timeout, mm_per_px })
 }
 
 fn describe(message: &Message) -> Option<String> {
@@ -104,6 +109,7 @@ fn run_recording(args: &Args, release_dir: &Path) -> Result<String> {
         dir: &args.recording,
         script: qemu::host_script(&recording)?,
         bench: args.mode == Mode::Bench,
+        bench_mm_per_px: args.mm_per_px,
         echo_log: human,
         timeout: args.timeout,
     };
@@ -161,7 +167,7 @@ fn run_bench(args: &Args, release_dir: &Path) -> Result<()> {
         let Some((key, value)) = rest.split_once(": ") else { continue };
         match key {
             "frame" => {}
-            "table_build" | "stack_high_water_bytes" | "stack_region_bytes" => once.push((key.to_string(), value.to_string())),
+            "table_build" | "stack_high_water_bytes" | "stack_region_bytes" | "grid" | "sad_instructions_per_4_differences_x100" | "seed_instructions_per_4_differences_x100" => once.push((key.to_string(), value.to_string())),
             _ => per_frame.entry(key.to_string()).or_default().extend(value.parse::<u64>().ok()),
         }
     }

@@ -1,0 +1,215 @@
+//! `flatland bench`: wall-clock figures of one detection cycle per stage,
+//! single-threaded, with warm-up and medians (a small harness in the spirit
+//! of criterion: the cycle is a few tens of microseconds, so each sample
+//! times a whole cycle and the median drops scheduler noise).
+//!
+//! A detection cycle is what the firmware does per frame: the previous frame
+//! is the keyframe; the frame's camera rows stream through the remap into
+//! the GPA, then the decision. Each sample re-makes the keyframe from the
+//! previous frame (untimed) so every sample does the same work.
+
+use crate::recording::Recording;
+use flatland_core::gpa::{Gpa, GpaConfig, GpaProfile};
+use flatland_core::grid::{GridConfig, KgGrid};
+use flatland_core::motion::Motion;
+use flatland_core::remap::{RemapTable, StreamingRemap};
+use flatland_core::sad;
+use std::fmt::Write as _;
+use std::hint::black_box;
+use std::sync::OnceLock;
+use std::time::Instant;
+
+/// Samples per figure after the warm-up.
+const SAMPLES: usize = 300;
+const WARM_UP: usize = 30;
+
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values[values.len() / 2]
+}
+
+/// Nanoseconds since first use, wrapping: the GPA's profile clock.
+fn nanos() -> u32 {
+    static START: OnceLock<Instant> = OnceLock::new();
+    START.get_or_init(Instant::now).elapsed().as_nanos() as u32
+}
+
+/// Times `f` WARM_UP + SAMPLES times (each call gets the sample number); median in us.
+fn time_us(mut f: impl FnMut(usize)) -> f64 {
+    for n in 0..WARM_UP {
+        f(n);
+    }
+    let mut samples = Vec::with_capacity(SAMPLES);
+    for n in 0..SAMPLES {
+        let start = Instant::now();
+        f(n);
+        samples.push(start.elapsed().as_secs_f64() * 1e6);
+    }
+    median(samples)
+}
+
+/// Runs the benchmark; returns the `key: value` lines.
+pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize) -> Result<String, String> {
+    let grid = KgGrid::for_rig(&recording.rig, &GridConfig { mm_per_px, ..GridConfig::default() })
+        .map_err(|e| format!("KG grid: {e}"))?;
+    let mut table = Box::new(RemapTable::EMPTY);
+    table.build(&recording.rig, &grid).map_err(|e| format!("remap table: {e:?}"))?;
+    let config = GpaConfig { search_radius: search, ..GpaConfig::default() };
+    // Frames and odometry of every consecutive pair.
+    let mut pairs = Vec::new();
+    for window in recording.frames.windows(2) {
+        let (a, b) = (window[0], window[1]);
+        let (Some(pa), Some(pb)) = (recording.pose(a), recording.pose(b)) else { continue };
+        if b != a + 1 {
+            continue;
+        }
+        let frames = (recording.load_frame(a).map_err(|e| e.to_string())?, recording.load_frame(b).map_err(|e| e.to_string())?);
+        pairs.push((a, b, frames, Motion::between(&pa.pose, &pb.pose)));
+    }
+    if pairs.is_empty() {
+        return Err("no consecutive frames with poses".into());
+    }
+    let camera_width = usize::from(recording.rig.camera().width);
+    let mut ring = vec![0u8; table.ring_bytes()];
+    let mut keyframe = vec![0u8; Gpa::keyframe_bytes(&grid)];
+    let mut gpa = Box::new(Gpa::new(&recording.rig, &grid, &table, config, &mut keyframe).map_err(|e| format!("detector: {e:?}"))?);
+    let mut stream = StreamingRemap::new(&table, &mut ring).map_err(|e| e.to_string())?;
+    let width = grid.width();
+    let mut kg_previous = vec![0u8; grid.len()];
+    let mut kg_current = vec![0u8; grid.len()];
+
+    // Makes frame `a` the keyframe (untimed), then `b` is the timed cycle.
+    macro_rules! keyframe_from {
+        ($a:expr, $frame:expr) => {{
+            gpa.reset_keyframe();
+            gpa.begin_frame($a, None);
+            for row in $frame.pixels.chunks_exact(camera_width) {
+                stream.push_row(row, |j, kg| gpa.on_kg_row(j, kg)).map_err(|e| e.to_string())?;
+            }
+            gpa.end_frame();
+        }};
+    }
+    let mut out = String::new();
+    let aoi = grid.aoi_pixels(&recording.rig);
+    let _ = writeln!(out, "recording: {}", recording.dir.display());
+    let _ = writeln!(out, "grid: {}x{}", grid.width(), grid.height());
+    let _ = writeln!(out, "mm_per_px: {}", grid.mm_per_px);
+    let _ = writeln!(out, "search: {search} ({} shifts)", (2 * search + 1).pow(2));
+    let _ = writeln!(out, "aoi_pixels: {}", aoi.area());
+    let _ = writeln!(out, "pairs: {}", pairs.len());
+    let _ = writeln!(out, "samples: {SAMPLES} after {WARM_UP} warm-up, median, one thread");
+
+    // Remap alone.
+    let remap_us = time_us(|n| {
+        let (_, _, (_, frame), _) = &pairs[n % pairs.len()];
+        for row in frame.pixels.chunks_exact(camera_width) {
+            let _ = stream.push_row(row, |j, kg| kg_current[j * width..][..width].copy_from_slice(kg));
+        }
+        black_box(&kg_current);
+    });
+
+    // The whole cycle: remap + GPA rows + decision. Keyframe set-up untimed.
+    let mut cycle = Vec::with_capacity(SAMPLES);
+    let mut decision = Vec::with_capacity(SAMPLES);
+    for n in 0..WARM_UP + SAMPLES {
+        let (a, b, (frame_a, frame_b), motion) = &pairs[n % pairs.len()];
+        keyframe_from!(*a, frame_a);
+        let start = Instant::now();
+        gpa.begin_frame(*b, Some(*motion));
+        for row in frame_b.pixels.chunks_exact(camera_width) {
+            stream.push_row(row, |j, kg| gpa.on_kg_row(j, kg)).map_err(|e| e.to_string())?;
+        }
+        let rows_done = Instant::now();
+        black_box(gpa.end_frame());
+        let end = Instant::now();
+        if n >= WARM_UP {
+            cycle.push((end - start).as_secs_f64() * 1e6);
+            decision.push((end - rows_done).as_secs_f64() * 1e6);
+        }
+    }
+    let cycle_us = median(cycle);
+    let decision_us = median(decision);
+
+    // Per-stage profile of the GPA rows (its clock reads add a little).
+    gpa.set_clock(Some(nanos));
+    let mut profiles: Vec<GpaProfile> = Vec::with_capacity(SAMPLES);
+    for n in 0..WARM_UP + SAMPLES {
+        let (a, b, (frame_a, frame_b), motion) = &pairs[n % pairs.len()];
+        keyframe_from!(*a, frame_a);
+        gpa.begin_frame(*b, Some(*motion));
+        for row in frame_b.pixels.chunks_exact(camera_width) {
+            stream.push_row(row, |j, kg| gpa.on_kg_row(j, kg)).map_err(|e| e.to_string())?;
+        }
+        if n >= WARM_UP {
+            profiles.push(gpa.profile());
+        }
+        gpa.end_frame();
+    }
+    gpa.set_clock(None);
+    let stage = |f: fn(&GpaProfile) -> u32| median(profiles.iter().map(|p| f64::from(f(p)) / 1000.0).collect());
+
+    // The OpenCV anchor's cycle on the same grid and shifts: remap, |diff|
+    // over the (2S+1)^2 shifts with the seed's statistics, histogram. The
+    // keyframe KG image is the previous frame, compared at the predicted
+    // integer shift (pure translation), with the same kernels the GPA uses.
+    let shifts = 2 * search + 1;
+    let seed_us = {
+        let mut hist = [0u32; 256];
+        time_us(|n| {
+            let (_, _, (frame_a, frame_b), motion) = &pairs[n % pairs.len()];
+            if n < pairs.len() || n % pairs.len() == 0 {
+                for row in frame_a.pixels.chunks_exact(camera_width) {
+                    let _ = stream.push_row(row, |j, kg| kg_previous[j * width..][..width].copy_from_slice(kg));
+                }
+            }
+            let (di, dj) = ((motion.tx_mm / grid.mm_per_px).round() as isize, (-motion.tz_mm / grid.mm_per_px).round() as isize);
+            let mut sums = vec![sad::SeedSums::default(); shifts * shifts];
+            hist = [0; 256];
+            for row in frame_b.pixels.chunks_exact(camera_width) {
+                let _ = stream.push_row(row, |j, kg| {
+                    if j < aoi.top || j >= aoi.bottom {
+                        return;
+                    }
+                    let current = &kg[aoi.left..aoi.right];
+                    for dg in 0..shifts {
+                        let r = j as isize + dj + dg as isize - search as isize;
+                        if r < 0 || r >= grid.height() as isize {
+                            continue;
+                        }
+                        let reference = &kg_previous[r as usize * width..][..width];
+                        for dk in 0..shifts {
+                            let start = aoi.left as isize + di + dk as isize - search as isize;
+                            if start < 0 || start as usize + current.len() > width {
+                                continue;
+                            }
+                            let s = sad::seed_sums(current, &reference[start as usize..][..current.len()]);
+                            let slot = &mut sums[dg * shifts + dk];
+                            slot.sad += s.sad;
+                            slot.sum_above += s.sum_above;
+                            slot.count_above += s.count_above;
+                            if dg == search && dk == search {
+                                for (&x, &y) in current.iter().zip(&reference[start as usize..]) {
+                                    hist[usize::from(x.abs_diff(y))] += 1;
+                                }
+                            }
+                        }
+                    }
+                });
+            }
+            black_box((&sums, &hist));
+        })
+    };
+
+    let gpa_rows_us = cycle_us - remap_us - decision_us;
+    let _ = writeln!(out, "remap_us_median: {remap_us:.1}");
+    let _ = writeln!(out, "gpa_rows_us_median: {gpa_rows_us:.1} (cycle - remap - decision)");
+    let _ = writeln!(out, "gpa_warp_us_median: {:.1}", stage(|p| p.warp));
+    let _ = writeln!(out, "gpa_residue_us_median: {:.1}", stage(|p| p.residue));
+    let _ = writeln!(out, "gpa_parallax_us_median: {:.1}", stage(|p| p.parallax));
+    let _ = writeln!(out, "gpa_shift_search_us_median: {:.1} (with the histogram)", stage(|p| p.shift_search));
+    let _ = writeln!(out, "gpa_keyframe_update_us_median: {:.1}", stage(|p| p.keyframe_update));
+    let _ = writeln!(out, "decision_us_median: {decision_us:.1}");
+    let _ = writeln!(out, "seed_cycle_us_median: {seed_us:.1} (remap + {}-shift |diff| stats + histogram, the OpenCV anchor's work)", shifts * shifts);
+    let _ = writeln!(out, "cycle_us_median: {cycle_us:.1}");
+    Ok(out)
+}
