@@ -443,6 +443,15 @@ where
         let pose = Pose { x_mm, z_mm, yaw_deg };
         // As detect.rs: motion only from the frame just before, and only forward in time.
         let follows = previous.filter(|p| p.frame.checked_add(1) == Some(frame));
+        if previous.is_some_and(|p| p.frame != frame && t_s <= p.t_s) {
+            // As detect.rs: time went backwards, so this pose cannot be
+            // trusted; the frame is skipped and the next one restarts.
+            defmt::warn!("frame {=u32}: time goes backwards; frame skipped", frame);
+            stages.gpa.reset_keyframe();
+            let _ = alarm.set_low();
+            previous = None;
+            continue;
+        }
         let motion = match follows {
             Some(p) if t_s > p.t_s => Some(Motion::between(&p.pose, &pose)),
             _ => None,

@@ -102,7 +102,7 @@ fn gaps_in_frames_poses_or_time_reset_the_keyframe() {
     let codes: Vec<(FaultCode, u32)> = faults(&outcome).iter().map(|f| (f.code, f.frame)).collect();
     assert_eq!(codes, [(FaultCode::FrameMissing, 10)]);
     let stats = summary.stats.expect("$FLSTA");
-    assert_eq!(stats.frame_gaps, 3, "frames 11, 21 and 30 restart the keyframe: {stats:?}");
+    assert_eq!(stats.frame_gaps, 3, "frames 11, 21 and 31 restart the keyframe (30 is skipped): {stats:?}");
     let rows = row_frames(&csv);
     for restarted in [10, 11, 20, 21, 30] {
         assert!(!rows.contains(&restarted), "frame {restarted} has no keyframe to compare with: {csv}");
