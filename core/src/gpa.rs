@@ -86,6 +86,9 @@ pub struct GpaConfig {
     /// frame (the part of the motion the shift search has not refined yet):
     /// height hypotheses whose displacement stays within it count as ground.
     pub odometry_error_fraction: f64,
+    /// Heading error to tolerate over that step, degrees: it moves ground at
+    /// distance z sideways by z * error.
+    pub odometry_yaw_error_deg: f64,
 }
 
 impl Default for GpaConfig {
@@ -104,6 +107,7 @@ impl Default for GpaConfig {
             parallax_min_gain: 3.0,
             min_obstacle_height_mm: 20.0,
             odometry_error_fraction: 0.05,
+            odometry_yaw_error_deg: 0.1,
         }
     }
 }
@@ -131,6 +135,19 @@ pub struct Blob {
     pub pixels: u32,
     /// Highest residue percentage of any of its cells.
     pub peak_percent: u8,
+}
+
+/// Which evidence raised (or held) the last frame's alarm.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum AlarmSource {
+    #[default]
+    None,
+    /// Cells whose parallax says they stand above the ground.
+    Parallax,
+    /// Residue that no height explains (moving or deforming things).
+    Residue,
+    /// Too short a baseline to decide: the last obstacle, held.
+    Held,
 }
 
 /// Where the keyframe comes from for this frame.
@@ -203,6 +220,8 @@ pub struct Gpa<'b> {
     warp_row: (f64, f64),
     band: [[u8; MAX_GRID_SIDE + 2 * MAX_SEARCH_RADIUS]; MAX_WINDOW],
     sad: [[u32; MAX_WINDOW]; MAX_WINDOW],
+    /// The part of `sad` from the far half of the AOI rows.
+    sad_far: [[u32; MAX_WINDOW]; MAX_WINDOW],
     seed_sum: [[u32; MAX_WINDOW]; MAX_WINDOW],
     seed_count: [[u32; MAX_WINDOW]; MAX_WINDOW],
     compared_pixels: u32,
@@ -241,6 +260,7 @@ pub struct Gpa<'b> {
     step: Motion,
     /// Parallax height of the obstacle found this frame (mm).
     obstacle_height_mm: Option<i32>,
+    alarm_source: AlarmSource,
     blobs: heapless::Vec<Blob, MAX_BLOBS>,
 }
 
@@ -266,6 +286,7 @@ impl<'b> Gpa<'b> {
             config.parallax_min_gain,
             config.min_obstacle_height_mm,
             config.odometry_error_fraction,
+            config.odometry_yaw_error_deg,
         ];
         if config.search_radius == 0
             || config.search_radius > MAX_SEARCH_RADIUS
@@ -334,6 +355,7 @@ impl<'b> Gpa<'b> {
             warp_row: (0.0, 0.0),
             band: [[0; MAX_GRID_SIDE + 2 * MAX_SEARCH_RADIUS]; MAX_WINDOW],
             sad: [[0; MAX_WINDOW]; MAX_WINDOW],
+            sad_far: [[0; MAX_WINDOW]; MAX_WINDOW],
             seed_sum: [[0; MAX_WINDOW]; MAX_WINDOW],
             seed_count: [[0; MAX_WINDOW]; MAX_WINDOW],
             compared_pixels: 0,
@@ -355,6 +377,7 @@ impl<'b> Gpa<'b> {
             previous_obstacle: None,
             step: Motion::default(),
             obstacle_height_mm: None,
+            alarm_source: AlarmSource::None,
             blobs: heapless::Vec::new(),
         })
     }
@@ -446,6 +469,7 @@ impl<'b> Gpa<'b> {
         self.warp_row = (down.0 - origin.0, down.1 - origin.1);
 
         self.sad = [[0; MAX_WINDOW]; MAX_WINDOW];
+        self.sad_far = [[0; MAX_WINDOW]; MAX_WINDOW];
         self.seed_sum = [[0; MAX_WINDOW]; MAX_WINDOW];
         self.seed_count = [[0; MAX_WINDOW]; MAX_WINDOW];
         self.compared_pixels = 0;
@@ -560,6 +584,12 @@ impl<'b> Gpa<'b> {
             }
         }
         let in_aoi_row = j >= self.aoi.top && j < self.aoi.bottom;
+        // A heading error moves far ground sideways by more than half a pixel.
+        let (_, row_z) = self.grid.pixel_to_ground(0.0, j as f64);
+        let yaw_blur = row_z * self.config.odometry_yaw_error_deg.to_radians() > 0.5 * self.grid.mm_per_px;
+        // The far half of the AOI gets its own SADs: a yaw error shifts far
+        // rows sideways more than near ones, which is how it is measured.
+        let far_half = j < (self.aoi.top + self.aoi.bottom) / 2;
         let threshold = self.residue_threshold;
         for c in cur_lo..cur_hi {
             if !usable[c] {
@@ -570,34 +600,34 @@ impl<'b> Gpa<'b> {
             // Tolerant residue (Birchfield-Tomasi style): the current value
             // against the range the warped keyframe spans within half a pixel
             // of the prediction, along K and along G.
-            // Along an axis where the odometry may be a pixel off, the range
-            // reaches the full neighbour instead of the half-way value.
+            // Two tolerant residues (Birchfield-Tomasi style): the current
+            // value against the range the warped keyframe spans around the
+            // prediction. For the parallax test's ground hypothesis the range
+            // reaches half a pixel (a full pixel along an axis where the
+            // odometry may be that far off); the residue that flags anything
+            // unexplained always reaches the full neighbours, so a shift
+            // search that lands a pixel away cannot light up ground edges.
             let here = self.band[s][centre];
-            let reach = |other: u8, full: bool| {
-                if full {
-                    other
-                } else {
-                    ((u16::from(here) + u16::from(other) + 1) >> 1) as u8
-                }
-            };
-            let (full_k, full_g) = self.full_tolerance;
-            let neighbours = [
-                reach(self.band[s][centre - 1], full_k),
-                reach(self.band[s][centre + 1], full_k),
-                reach(self.band[s - 1][centre], full_g),
-                reach(self.band[s + 1][centre], full_g),
-            ];
+            let sideways = [self.band[s][centre - 1], self.band[s][centre + 1]];
+            let along = [self.band[s - 1][centre], self.band[s + 1][centre]];
+            let half = |other: u8| ((u16::from(here) + u16::from(other) + 1) >> 1) as u8;
+            let (full_k, full_g) = (self.full_tolerance.0 || yaw_blur, self.full_tolerance.1);
             let (mut low, mut high) = (here, here);
-            for v in neighbours {
-                low = low.min(v);
-                high = high.max(v);
+            let (mut wide_low, mut wide_high) = (here, here);
+            for (v, full) in [(sideways[0], full_k), (sideways[1], full_k), (along[0], full_g), (along[1], full_g)] {
+                let reached = if full { v } else { half(v) };
+                low = low.min(reached);
+                high = high.max(reached);
+                wide_low = wide_low.min(v);
+                wide_high = wide_high.max(v);
             }
             let residue = value.saturating_sub(high).max(low.saturating_sub(value));
+            let unexplained = value.saturating_sub(wide_high).max(wide_low.saturating_sub(value));
             let cell_column = c / self.cell_px;
             if cell_row < self.cells_high && cell_column < self.cells_wide {
                 let cell = cell_row * MAX_CELLS_SIDE + cell_column;
                 self.cell_valid[cell] = self.cell_valid[cell].saturating_add(1);
-                if residue > threshold {
+                if unexplained > threshold {
                     self.cell_residue[cell] = self.cell_residue[cell].saturating_add(1);
                     self.row_residue[j] = self.row_residue[j].saturating_add(1);
                 }
@@ -620,6 +650,9 @@ impl<'b> Gpa<'b> {
                         let reference = self.band[dg][centre + dk - s];
                         let diff = value.abs_diff(reference);
                         self.sad[dg][dk] += u32::from(diff);
+                        if far_half {
+                            self.sad_far[dg][dk] += u32::from(diff);
+                        }
                         if diff > SEED_SUM_LEVEL {
                             self.seed_sum[dg][dk] += u32::from(diff);
                         }
@@ -787,11 +820,15 @@ impl<'b> Gpa<'b> {
         let shift_g = best_g as f64 - s as f64 + sub_g;
         // The keyframe matched at +shift: the current pixel lies that much
         // farther along K (x) and back along G (-z) in the keyframe.
-        let refined = Motion {
+        let mut refined = Motion {
             tx_mm: self.predicted.tx_mm + shift_k * self.grid.mm_per_px,
             tz_mm: self.predicted.tz_mm - shift_g * self.grid.mm_per_px,
             dyaw_deg: self.predicted.dyaw_deg,
         };
+        if let Some((yaw_deg, tx_mm)) = self.yaw_refinement(best_g, parabola) {
+            refined.dyaw_deg += yaw_deg;
+            refined.tx_mm = tx_mm;
+        }
         // A minimum on the window's edge is not a measurement: keep odometry.
         self.motion_to_last = if interior_k && interior_g { refined } else { self.predicted };
 
@@ -801,6 +838,11 @@ impl<'b> Gpa<'b> {
         let parallax = self.find_parallax_obstacle();
         let residue = self.find_blobs().map(|blob| self.locate(&blob));
         let evidence = parallax.map(|(near, left, right, _)| (near, left, right)).or(residue);
+        self.alarm_source = match (parallax, residue) {
+            (Some(_), _) => AlarmSource::Parallax,
+            (None, Some(_)) => AlarmSource::Residue,
+            (None, None) => AlarmSource::None,
+        };
         self.obstacle_height_mm = parallax.map(|(_, _, _, height)| height);
         // Too short a baseline shows too little parallax to clear an alarm:
         // hold the last obstacle, moved by the odometry, until a frame with
@@ -809,6 +851,7 @@ impl<'b> Gpa<'b> {
         let obstacle = match (evidence, self.previous_obstacle) {
             (Some(found), _) => Some(found),
             (None, Some((near, left, right))) if short_baseline => {
+                self.alarm_source = AlarmSource::Held;
                 let (dx, dz) = (self.step.tx_mm, self.step.tz_mm);
                 let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
                 Some((moved(near, dz), moved(left, dx), moved(right, dx)))
@@ -836,6 +879,34 @@ impl<'b> Gpa<'b> {
             tz: libm::round(self.motion_to_last.tz_mm * f64::from(MOTION_SCALE)) as i32,
             obstacle_h_mm: if alarm { self.obstacle_height_mm } else { None },
         }
+    }
+
+    /// Yaw error from the K shift of the far and the near half of the AOI:
+    /// an extra turn e moves the keyframe match by -e*z sideways, so the two
+    /// halves disagree by -e*(z_far - z_near). Returns (extra yaw in degrees,
+    /// corrected tx) or None when either half has no clear minimum.
+    fn yaw_refinement(&self, best_g: usize, parabola: impl Fn(u32, u32, u32) -> f64) -> Option<(f64, f64)> {
+        let s = self.config.search_radius;
+        let row_of = |half: &dyn Fn(usize) -> u32| -> Option<f64> {
+            let best = (0..=2 * s).min_by_key(|&k| half(k))?;
+            if best == 0 || best == 2 * s {
+                return None;
+            }
+            Some(best as f64 - s as f64 + parabola(half(best - 1), half(best), half(best + 1)))
+        };
+        let far = row_of(&|k| self.sad_far[best_g][k])?;
+        let near = row_of(&|k| self.sad[best_g][k] - self.sad_far[best_g][k])?;
+        let middle = (self.aoi.top + self.aoi.bottom) / 2;
+        let (_, z_far) = self.grid.pixel_to_ground(0.0, (self.aoi.top + middle) as f64 / 2.0);
+        let (_, z_near) = self.grid.pixel_to_ground(0.0, (middle + self.aoi.bottom) as f64 / 2.0);
+        let mm = self.grid.mm_per_px;
+        let extra_yaw = -(far - near) * mm / (z_far - z_near);
+        // Beyond a couple of degrees this is not an odometry error but a bad match.
+        if libm::fabs(extra_yaw) > 2f64.to_radians() {
+            return None;
+        }
+        let tx_mm = self.predicted.tx_mm + near * mm + extra_yaw * z_near;
+        Some((extra_yaw.to_degrees(), tx_mm))
     }
 
     /// Noise level from this frame's |diff| at the predicted shift, for the
@@ -1088,6 +1159,10 @@ impl<'b> Gpa<'b> {
     }
     pub fn residue_threshold(&self) -> u8 {
         self.residue_threshold
+    }
+    /// Which evidence raised the last frame's alarm.
+    pub fn alarm_source(&self) -> AlarmSource {
+        self.alarm_source
     }
     pub fn predicted(&self) -> Motion {
         self.predicted

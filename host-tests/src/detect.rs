@@ -67,9 +67,10 @@ impl Pipeline {
             .map_err(|e| format!("detector: {e:?}"))?;
         let mut stream = StreamingRemap::new(&self.table, &mut self.ring).map_err(|e| e.to_string())?;
         let grid_width = self.grid.width();
+        let first = recording.frames.first().copied().unwrap_or(0);
         let last = recording.frames.last().copied().unwrap_or(0);
         let mut previous: Option<(u32, f64, flatland_core::motion::Pose)> = None;
-        for index in 0..=last {
+        for index in first..=last {
             let frame = match recording.load_frame(index) {
                 Ok(mut frame) => {
                     alter(index, &mut frame);
@@ -85,19 +86,28 @@ impl Pipeline {
                 }
             };
             let pose = recording.pose(index).copied();
-            let odometry = match (previous, pose) {
-                (Some((before, t_before, from)), Some(row)) if before + 1 == index && row.t_s > t_before => {
-                    Some(Motion::between(&from, &row.pose))
+            if let (Some((before, t_before, _)), Some(row)) = (previous, pose) {
+                if row.t_s <= t_before {
+                    // Time went backwards: this row's pose cannot be trusted,
+                    // so neither can the motion to or from it.
+                    gpa.reset_keyframe();
+                    previous = None;
+                    let error = RecordingError::Csv {
+                        path: recording.dir.join("poses.csv"),
+                        line: row.line,
+                        message: format!("frame {index} at t = {} s is not after frame {before} at t = {t_before} s", row.t_s),
+                    };
+                    on_frame(FrameOutcome::Skipped { frame: index, error }, &gpa);
+                    continue;
                 }
+            }
+            let odometry = match (previous, pose) {
+                (Some((before, _, from)), Some(row)) if before + 1 == index => Some(Motion::between(&from, &row.pose)),
                 _ => None,
             };
             if pose.is_none() {
+                eprintln!("flatland: frame {index}: no row in poses.csv; restarting the keyframe");
                 gpa.reset_keyframe();
-            }
-            if let (Some((_, t_before, _)), Some(row)) = (previous, pose) {
-                if row.t_s <= t_before {
-                    eprintln!("flatland: frame {index}: time goes backwards; restarting the keyframe");
-                }
             }
             gpa.begin_frame(index, odometry);
             let mut kg = vec![0u8; self.grid.len()];

@@ -27,7 +27,7 @@ impl Confusion {
 pub fn is_grace(truth: &Truth, frame: u32) -> bool {
     let Some(this) = truth.pair(frame) else { return false };
     let differs = |other: Option<u32>| other.and_then(|f| truth.pair(f)).is_some_and(|p| p.alarm != this.alarm);
-    differs(frame.checked_sub(1)) || differs(Some(frame + 1))
+    differs(frame.checked_sub(1)) || differs(frame.checked_add(1))
 }
 
 /// Scores reports (one per frame at most) against the truth.

@@ -200,6 +200,7 @@ fn run_detect(path: &Path, format: Format, png: Option<&Path>, truth: bool) -> E
         let _ = writeln!(out, "{CSV_HEADER}");
     }
     let mut picture_error = None;
+    let verbose = std::env::var_os("FLATLAND_VERBOSE").is_some();
     let result = pipeline.run_with(&recording, &config, |index, frame| if let Some(p) = perturbation { p.frame(index, frame) }, |outcome, gpa| match outcome {
         FrameOutcome::Report { report, kg } => {
             let line = match format {
@@ -211,6 +212,9 @@ fn run_detect(path: &Path, format: Format, png: Option<&Path>, truth: bool) -> E
                 Format::Json => json_row(&report),
             };
             let _ = writeln!(out, "{line}");
+            if verbose {
+                eprintln!("frame {}: {:?}", report.frame, gpa.alarm_source());
+            }
             if let (Some(dir), Some(reference)) = (png, previous_kg.as_ref()) {
                 let path = dir.join(format!("{:06}.png", report.frame));
                 if let Err(e) = detect_picture(&recording.rig, &grid, reference, &kg, &report, gpa).save(&path) {

@@ -150,8 +150,9 @@ pub fn parse_rig(path: &Path, text: &str) -> Result<Rig, RecordingError> {
         // For NaN/inf, point at the first offending key when we can find it.
         let line = if error == RigError::NotFinite {
             text.lines().position(|l| {
-                let v = l.split('=').nth(1).unwrap_or("").trim().to_ascii_lowercase();
-                v.starts_with("nan") || v.contains("inf")
+                // The value without its comment (rig.toml has no strings).
+                let v = l.split('#').next().unwrap_or("").split('=').nth(1).unwrap_or("").to_ascii_lowercase();
+                v.contains("nan") || v.contains("inf")
             })
             .map(|n| n + 1)
         } else {
@@ -165,6 +166,8 @@ pub fn parse_rig(path: &Path, text: &str) -> Result<Rig, RecordingError> {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseRow {
     pub frame: u32,
+    /// 1-based line in poses.csv, for messages about this row.
+    pub line: usize,
     pub t_s: f64,
     pub pose: Pose,
 }
@@ -204,6 +207,7 @@ pub fn parse_poses(path: &Path, text: &str) -> Result<Vec<PoseRow>, RecordingErr
         }
         rows.push(PoseRow {
             frame,
+            line: line_number,
             t_s: numbers[0],
             pose: Pose { x_mm: numbers[1], z_mm: numbers[2], yaw_deg: numbers[3] },
         });
