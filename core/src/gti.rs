@@ -631,6 +631,22 @@ impl Gti {
         Some((&samples.values[..self.grid.height().min(MAX_LINE_SAMPLES)], samples.valid()))
     }
 
+    /// Drops the current frame's rows (a frame abandoned mid-way): the next
+    /// row starts a new frame.
+    pub fn abort_frame(&mut self) {
+        self.frame_started = false;
+    }
+
+    /// Forgets every track and map point (the odometry has a gap, so the
+    /// loci cannot be continued); the current frame's rows and the learned
+    /// odometry scale (a property of the wheels) are kept.
+    pub fn restart(&mut self) {
+        for slot in self.tracks.iter_mut() {
+            *slot = None;
+        }
+        self.map.clear();
+    }
+
     /// Ends the frame: `motion` is the odometry from the previous frame to
     /// this one (in the previous robot frame; zero for the first frame).
     pub fn end_frame(&mut self, motion: &Motion) {
