@@ -44,17 +44,27 @@ pub struct GtiStage {
 
 impl GtiStage {
     pub fn new(rig: &Rig, grid: &KgGrid) -> Result<GtiStage, GtiError> {
+        let mut stage = GtiStage::UNCONFIGURED;
+        stage.configure(rig, grid)?;
+        Ok(stage)
+    }
+
+    /// For a `static`, set up in place by [`GtiStage::configure`].
+    pub const UNCONFIGURED: GtiStage =
+        GtiStage { gti: Gti::UNCONFIGURED, aoi: RegionMm { x_min: 0.0, x_max: 0.0, z_min: 0.0, z_max: 0.0 }, row_fault: false };
+
+    /// Sets the stage up for a rig (default GTI configuration), in place.
+    pub fn configure(&mut self, rig: &Rig, grid: &KgGrid) -> Result<(), GtiError> {
+        self.gti.configure(rig, grid, GtiConfig::default())?;
         let aoi = rig.aoi();
-        Ok(GtiStage {
-            gti: Gti::new(rig, grid, GtiConfig::default())?,
-            aoi: RegionMm {
-                x_min: -aoi.half_width_mm as f32,
-                x_max: aoi.half_width_mm as f32,
-                z_min: aoi.near_mm as f32,
-                z_max: aoi.far_mm as f32,
-            },
-            row_fault: false,
-        })
+        self.aoi = RegionMm {
+            x_min: -aoi.half_width_mm as f32,
+            x_max: aoi.half_width_mm as f32,
+            z_min: aoi.near_mm as f32,
+            z_max: aoi.far_mm as f32,
+        };
+        self.row_fault = false;
+        Ok(())
     }
 
     pub fn gti(&self) -> &Gti {

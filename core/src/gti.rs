@@ -45,8 +45,9 @@ use core::ops::Range;
 use heapless::Deque;
 use libm::{atan2f, cosf, fabsf, floorf, roundf, sinf, sqrtf};
 
-/// Most GT lines across the AOI.
-pub const MAX_LINES: usize = 16;
+/// Most GT lines across the AOI (the default uses all of them: each line's
+/// samples cost a KG column of RAM).
+pub const MAX_LINES: usize = 8;
 /// Most tracks alive at once, over all lines.
 pub const MAX_TRACKS: usize = 128;
 /// Observations kept per track (a sliding window over the latest frames).
@@ -483,6 +484,56 @@ pub const MIN_SUPPORT: usize = 3;
 impl Gti {
     /// A GTI stage for a rig and the KG grid its remap fills.
     pub fn new(rig: &Rig, grid: &KgGrid, config: GtiConfig) -> Result<Gti, GtiError> {
+        let mut gti = Gti::UNCONFIGURED;
+        gti.configure(rig, grid, config)?;
+        Ok(gti)
+    }
+
+    /// A stage with no rig yet, for a `static` ([`Gti::configure`] sets it
+    /// up in place: a ~20 KB value must not pass through a small stack).
+    pub const UNCONFIGURED: Gti = {
+        const NO_TRACK: Option<Track> = None;
+        const LINE: GtLine = GtLine { direction: [0.0, 1.0], normal: [1.0, 0.0], offset_mm: 0.0 };
+        Gti {
+            config: GtiConfig {
+                lines: 1,
+                line_width_px: 1,
+                edge_threshold_sigma: 1.0,
+                min_edge_contrast: 0.0,
+                max_misses: 0,
+                max_initial_slope: 2.0,
+                min_patch_correlation: 1.0,
+                gate_px: 1.0,
+                min_observations: 3,
+                good_quality: 100,
+                min_point_quality: 100,
+                min_obstacle_mm: 0.0,
+                odometry_sigma: 1.0,
+                max_line_angle_deg: 0.0,
+            },
+            grid: KgGrid { mm_per_px: 1.0, x_left_mm: 0.0, z_far_mm: 0.0, width: 0, height: 0 },
+            mount_height_mm: 1.0,
+            aoi_half_width_mm: 0.0,
+            aoi_mid_z_mm: 0.0,
+            lines: [LINE; MAX_LINES],
+            samples: [LineSamples::EMPTY; MAX_LINES],
+            next_row: 0,
+            frame_started: false,
+            next_line_angle: None,
+            tracks: [NO_TRACK; MAX_TRACKS],
+            map: Deque::new(),
+            next_id: 0,
+            position: [0.0; 2],
+            yaw_rad: 0.0,
+            travel_sums: [0.0; 2],
+            frames: 0,
+        }
+    };
+
+    /// Sets the stage up for a rig and the KG grid its remap fills, in
+    /// place; everything from an earlier rig is forgotten. On error the
+    /// stage is left unchanged.
+    pub fn configure(&mut self, rig: &Rig, grid: &KgGrid, config: GtiConfig) -> Result<(), GtiError> {
         let c = &config;
         let config_ok = (1..=MAX_LINES).contains(&c.lines)
             && (1..=MAX_LINE_WIDTH_PX).contains(&c.line_width_px)
@@ -506,29 +557,28 @@ impl Gti {
         if grid.height() > MAX_LINE_SAMPLES {
             return Err(GtiError::GridTooLarge);
         }
-        const NO_TRACK: Option<Track> = None;
         let aoi = rig.aoi();
-        let mut gti = Gti {
-            config,
-            grid: *grid,
-            mount_height_mm: rig.height_mm() as f32,
-            aoi_half_width_mm: aoi.half_width_mm as f32,
-            aoi_mid_z_mm: (0.5 * (aoi.near_mm + aoi.far_mm)) as f32,
-            lines: [GtLine { direction: [0.0, 1.0], normal: [1.0, 0.0], offset_mm: 0.0 }; MAX_LINES],
-            samples: [LineSamples::EMPTY; MAX_LINES],
-            next_row: 0,
-            frame_started: false,
-            next_line_angle: None,
-            tracks: [NO_TRACK; MAX_TRACKS],
-            map: Deque::new(),
-            next_id: 0,
-            position: [0.0; 2],
-            yaw_rad: 0.0,
-            travel_sums: [0.0; 2],
-            frames: 0,
-        };
-        gti.place_lines(0.0);
-        Ok(gti)
+        self.config = config;
+        self.grid = *grid;
+        self.mount_height_mm = rig.height_mm() as f32;
+        self.aoi_half_width_mm = aoi.half_width_mm as f32;
+        self.aoi_mid_z_mm = (0.5 * (aoi.near_mm + aoi.far_mm)) as f32;
+        for samples in self.samples.iter_mut() {
+            samples.start = 0;
+            samples.end = 0;
+            samples.closed = false;
+        }
+        self.next_row = 0;
+        self.frame_started = false;
+        self.next_line_angle = None;
+        self.restart();
+        self.next_id = 0;
+        self.position = [0.0; 2];
+        self.yaw_rad = 0.0;
+        self.travel_sums = [0.0; 2];
+        self.frames = 0;
+        self.place_lines(0.0);
+        Ok(())
     }
 
     pub fn config(&self) -> &GtiConfig {
