@@ -145,7 +145,7 @@ fn odometry_out_of_sequence_on_the_wire_resets_the_keyframe() {
 fn rig_that_does_not_fit_the_target_is_refused_with_a_typed_fault() {
     // Widen the QVGA rig's AOI until its KG grid needs more keyframe memory
     // than the firmware has (72 KiB); a valid rig, so only the capacity refuses it.
-    const KEYFRAME_CAPACITY: usize = 72 * 1024;
+    const KEYFRAME_CAPACITY: usize = 48 * 1024; // firmware/src/frame_loop.rs
     let base = Recording::open(data("qvga_curb")).unwrap();
     let mut record = qemu::rig_record(&base.rig);
     let too_large = (200..1000).step_by(10).find_map(|half_width| {
@@ -159,7 +159,7 @@ fn rig_that_does_not_fit_the_target_is_refused_with_a_typed_fault() {
         let grid = KgGrid::for_rig(&rig, &GridConfig::default()).ok()?;
         (Gpa::keyframe_bytes(&grid) > KEYFRAME_CAPACITY).then_some(record)
     });
-    let too_large = too_large.expect("some valid QVGA rig needs more than 72 KiB of keyframe");
+    let too_large = too_large.expect("some valid QVGA rig needs more than 48 KiB of keyframe");
     let mut too_wide = qemu::rig_record(&base.rig);
     too_wide.width = 800;
     too_wide.cx = 399.5;
