@@ -385,12 +385,13 @@ fn log_report(report: &FrameReport) {
     if report.alarm {
         // Human-readable alarm line; absent distances print as -1.
         defmt::warn!(
-            "ALARM frame {=u32} (vs {=u32}): obstacle at {=i32} mm, x {=i32}..{=i32} mm",
+            "ALARM frame {=u32} (vs {=u32}): obstacle at {=i32} mm, x {=i32}..{=i32} mm, height {=i32} mm",
             report.frame,
             report.ref_frame,
             report.nearest_mm.unwrap_or(-1),
             report.left_mm.unwrap_or(-1),
-            report.right_mm.unwrap_or(-1)
+            report.right_mm.unwrap_or(-1),
+            report.obstacle_h_mm.unwrap_or(-1)
         );
     } else {
         defmt::info!(
