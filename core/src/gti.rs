@@ -31,9 +31,9 @@
 //! kept as points of a small map so the points seen so far stay reported.
 //!
 //! Memory: everything is fixed capacity (see the `MAX_*` constants); the
-//! whole state is one [`Gti`] value, `size_of::<Gti>()` bytes (22.8 KB on
-//! the host, a little less on the Cortex-M4F; a test holds it to 24 KB), plus under 4 KB of stack in
-//! [`Gti::end_frame`] and [`Gti::height_in_region`].
+//! whole state is one [`Gti`] value: 23.4 KB on the host (a test holds it
+//! to 24 KB), 19.6 KB on the Cortex-M4F. [`Gti::UNCONFIGURED`] and
+//! [`Gti::configure`] set it up in place in a static.
 
 // `!(x > 0.0)` is deliberate, as in geometry.rs: it also refuses NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -45,8 +45,9 @@ use core::ops::Range;
 use heapless::Deque;
 use libm::{atan2f, cosf, fabsf, floorf, roundf, sinf, sqrtf};
 
-/// Most GT lines across the AOI.
-pub const MAX_LINES: usize = 16;
+/// Most GT lines across the AOI (the default uses all of them: each line's
+/// samples cost a KG column of RAM).
+pub const MAX_LINES: usize = 8;
 /// Most tracks alive at once, over all lines.
 pub const MAX_TRACKS: usize = 128;
 /// Observations kept per track (a sliding window over the latest frames).
@@ -102,6 +103,9 @@ pub struct GtiConfig {
     pub min_point_quality: u8,
     /// GTI alone never raises an alarm below this height, mm.
     pub min_obstacle_mm: f32,
+    /// Odometry's step length error (sigma, fraction of the step): weighs
+    /// odometry against the floor's measurement of each step.
+    pub odometry_sigma: f32,
     /// Turns the lines follow at most this far from the G axis, degrees
     /// (one sample per KG row needs the line to be steeper than 45 degrees).
     pub max_line_angle_deg: f32,
@@ -122,6 +126,7 @@ impl Default for GtiConfig {
             good_quality: 30,
             min_point_quality: 10,
             min_obstacle_mm: 20.0,
+            odometry_sigma: 0.03,
             max_line_angle_deg: 40.0,
         }
     }
@@ -450,6 +455,8 @@ pub struct Gti {
     /// Odometry world pose of the current frame.
     position: [f64; 2],
     yaw_rad: f64,
+    /// Step lengths the floor measured, and odometry's for the same steps.
+    travel_sums: [f64; 2],
     frames: u32,
 }
 
@@ -461,12 +468,72 @@ pub const QUALITY_SIGMA_MM: f32 = 3.0;
 /// [`Gti::height_in_region`].
 const SUPPORT_TOLERANCE_MM: f32 = 6.0;
 const SUPPORT_TOLERANCE_FRACTION: f32 = 0.06;
+/// Travel (mm) measured by the floor before its scale is applied to odometry.
+const SCALE_MIN_TRAVEL_MM: f64 = 100.0;
+/// Largest odometry scale error corrected (a factor): beyond it, the floor
+/// measurement is more likely wrong than the wheels.
+const MAX_SCALE_ERROR: f32 = 1.2;
+/// Floor tracks the travel correction needs in a frame.
+const MIN_FLOOR_TRACKS: usize = 6;
+/// Fitted slopes within this of 1 count as floor for the travel correction
+/// (wide enough for a few % of odometry scale error before correction).
+const FLOOR_SLOPE_BAND: f32 = 0.08;
 /// Good points [`Gti::height_in_region`] needs at one height.
 pub const MIN_SUPPORT: usize = 3;
 
 impl Gti {
     /// A GTI stage for a rig and the KG grid its remap fills.
     pub fn new(rig: &Rig, grid: &KgGrid, config: GtiConfig) -> Result<Gti, GtiError> {
+        let mut gti = Gti::UNCONFIGURED;
+        gti.configure(rig, grid, config)?;
+        Ok(gti)
+    }
+
+    /// A stage with no rig yet, for a `static` ([`Gti::configure`] sets it
+    /// up in place: a ~20 KB value must not pass through a small stack).
+    pub const UNCONFIGURED: Gti = {
+        const NO_TRACK: Option<Track> = None;
+        const LINE: GtLine = GtLine { direction: [0.0, 1.0], normal: [1.0, 0.0], offset_mm: 0.0 };
+        Gti {
+            config: GtiConfig {
+                lines: 1,
+                line_width_px: 1,
+                edge_threshold_sigma: 1.0,
+                min_edge_contrast: 0.0,
+                max_misses: 0,
+                max_initial_slope: 2.0,
+                min_patch_correlation: 1.0,
+                gate_px: 1.0,
+                min_observations: 3,
+                good_quality: 100,
+                min_point_quality: 100,
+                min_obstacle_mm: 0.0,
+                odometry_sigma: 1.0,
+                max_line_angle_deg: 0.0,
+            },
+            grid: KgGrid { mm_per_px: 1.0, x_left_mm: 0.0, z_far_mm: 0.0, width: 0, height: 0 },
+            mount_height_mm: 1.0,
+            aoi_half_width_mm: 0.0,
+            aoi_mid_z_mm: 0.0,
+            lines: [LINE; MAX_LINES],
+            samples: [LineSamples::EMPTY; MAX_LINES],
+            next_row: 0,
+            frame_started: false,
+            next_line_angle: None,
+            tracks: [NO_TRACK; MAX_TRACKS],
+            map: Deque::new(),
+            next_id: 0,
+            position: [0.0; 2],
+            yaw_rad: 0.0,
+            travel_sums: [0.0; 2],
+            frames: 0,
+        }
+    };
+
+    /// Sets the stage up for a rig and the KG grid its remap fills, in
+    /// place; everything from an earlier rig is forgotten. On error the
+    /// stage is left unchanged.
+    pub fn configure(&mut self, rig: &Rig, grid: &KgGrid, config: GtiConfig) -> Result<(), GtiError> {
         let c = &config;
         let config_ok = (1..=MAX_LINES).contains(&c.lines)
             && (1..=MAX_LINE_WIDTH_PX).contains(&c.line_width_px)
@@ -480,6 +547,8 @@ impl Gti {
             && c.good_quality <= 100
             && c.min_point_quality <= c.good_quality
             && c.min_obstacle_mm.is_finite()
+            && c.odometry_sigma > 0.0
+            && c.odometry_sigma.is_finite()
             && c.max_line_angle_deg >= 0.0
             && c.max_line_angle_deg <= 45.0;
         if !config_ok {
@@ -488,28 +557,28 @@ impl Gti {
         if grid.height() > MAX_LINE_SAMPLES {
             return Err(GtiError::GridTooLarge);
         }
-        const NO_TRACK: Option<Track> = None;
         let aoi = rig.aoi();
-        let mut gti = Gti {
-            config,
-            grid: *grid,
-            mount_height_mm: rig.height_mm() as f32,
-            aoi_half_width_mm: aoi.half_width_mm as f32,
-            aoi_mid_z_mm: (0.5 * (aoi.near_mm + aoi.far_mm)) as f32,
-            lines: [GtLine { direction: [0.0, 1.0], normal: [1.0, 0.0], offset_mm: 0.0 }; MAX_LINES],
-            samples: [LineSamples::EMPTY; MAX_LINES],
-            next_row: 0,
-            frame_started: false,
-            next_line_angle: None,
-            tracks: [NO_TRACK; MAX_TRACKS],
-            map: Deque::new(),
-            next_id: 0,
-            position: [0.0; 2],
-            yaw_rad: 0.0,
-            frames: 0,
-        };
-        gti.place_lines(0.0);
-        Ok(gti)
+        self.config = config;
+        self.grid = *grid;
+        self.mount_height_mm = rig.height_mm() as f32;
+        self.aoi_half_width_mm = aoi.half_width_mm as f32;
+        self.aoi_mid_z_mm = (0.5 * (aoi.near_mm + aoi.far_mm)) as f32;
+        for samples in self.samples.iter_mut() {
+            samples.start = 0;
+            samples.end = 0;
+            samples.closed = false;
+        }
+        self.next_row = 0;
+        self.frame_started = false;
+        self.next_line_angle = None;
+        self.restart();
+        self.next_id = 0;
+        self.position = [0.0; 2];
+        self.yaw_rad = 0.0;
+        self.travel_sums = [0.0; 2];
+        self.frames = 0;
+        self.place_lines(0.0);
+        Ok(())
     }
 
     pub fn config(&self) -> &GtiConfig {
@@ -612,6 +681,22 @@ impl Gti {
         Some((&samples.values[..self.grid.height().min(MAX_LINE_SAMPLES)], samples.valid()))
     }
 
+    /// Drops the current frame's rows (a frame abandoned mid-way): the next
+    /// row starts a new frame.
+    pub fn abort_frame(&mut self) {
+        self.frame_started = false;
+    }
+
+    /// Forgets every track and map point (the odometry has a gap, so the
+    /// loci cannot be continued); the current frame's rows and the learned
+    /// odometry scale (a property of the wheels) are kept.
+    pub fn restart(&mut self) {
+        for slot in self.tracks.iter_mut() {
+            *slot = None;
+        }
+        self.map.clear();
+    }
+
     /// Ends the frame: `motion` is the odometry from the previous frame to
     /// this one (in the previous robot frame; zero for the first frame).
     pub fn end_frame(&mut self, motion: &Motion) {
@@ -619,7 +704,15 @@ impl Gti {
             self.clear_samples(); // no rows arrived: nothing to see this frame
         }
         self.frame_started = false;
-        self.advance_pose(motion);
+        let before = self.position;
+        let scale = f64::from(self.odometry_scale());
+        let scaled = Motion { tx_mm: motion.tx_mm * scale, tz_mm: motion.tz_mm * scale, dyaw_deg: motion.dyaw_deg };
+        self.advance_pose(&scaled);
+        let step = [self.position[0] - before[0], self.position[1] - before[1]];
+        if let Some(measured) = self.correct_travel(step) {
+            self.travel_sums[0] += f64::from(measured);
+            self.travel_sums[1] += motion.distance_mm();
+        }
         for track in self.tracks.iter_mut().flatten() {
             track.matched_row = None;
         }
@@ -649,6 +742,121 @@ impl Gti {
         self.position[0] += motion.tx_mm * cos - motion.tz_mm * sin;
         self.position[1] += motion.tx_mm * sin + motion.tz_mm * cos;
         self.yaw_rad += motion.dyaw_deg.to_radians();
+    }
+
+    /// Corrects this frame's odometry step (`step`, world, mm) along its
+    /// direction with the floor: a floor feature's apparent position moves by
+    /// exactly the travel (slope 1), so the floor tracks' displacements
+    /// measure the true step. Odometry scale errors (wheel wear, slip) would
+    /// otherwise scale every slope: +2 % of travel reads the floor at
+    /// -H/50 = -8 mm on a 400 mm mount. The visual step is the median over
+    /// floor tracks matched in the previous frame, blended with odometry by
+    /// their variances (`odometry_sigma` against the tracks' spread), so a
+    /// bare floor or a scene filled by one obstacle falls back on odometry.
+    /// Returns the corrected step length when the floor measured it.
+    fn correct_travel(&mut self, step: [f64; 2]) -> Option<f32> {
+        let length = libm::hypot(step[0], step[1]) as f32;
+        if !(length > 1.0) {
+            return None;
+        }
+        let d = [step[0] as f32 / length, step[1] as f32 / length];
+        let mm_per_px = self.grid.mm_per_px as f32;
+        let mut deltas: heapless::Vec<f32, MAX_TRACKS> = heapless::Vec::new();
+        for l in 0..self.config.lines {
+            let Some(line) = self.lines.get(l).copied() else { continue };
+            let mut edges: heapless::Vec<Edge, MAX_EDGES_PER_LINE> = heapless::Vec::new();
+            if let Some(samples) = self.samples.get(l) {
+                find_edges(samples, &self.config, 1.0, &mut edges);
+            }
+            for track in self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l) {
+                if let Some(delta) = self.floor_displacement(track, &line, &edges, d, length, mm_per_px) {
+                    let _ = deltas.push(delta);
+                }
+            }
+        }
+        if deltas.len() < MIN_FLOOR_TRACKS {
+            return None;
+        }
+        let visual = median(&mut deltas)?;
+        let mut spread: heapless::Vec<f32, MAX_TRACKS> = deltas.iter().map(|v| fabsf(v - visual)).collect();
+        let per_track = (1.4826 * median(&mut spread).unwrap_or(0.0)).max(0.1 * mm_per_px);
+        // Median of n: ~1.25 sigma / sqrt(n).
+        let visual_var = {
+            let s = 1.25 * per_track / sqrtf(deltas.len() as f32);
+            s * s
+        };
+        let odometry_var = {
+            let s = self.config.odometry_sigma * length;
+            s * s
+        };
+        let correction = visual * odometry_var / (odometry_var + visual_var);
+        self.position[0] += f64::from(correction * d[0]);
+        self.position[1] += f64::from(correction * d[1]);
+        Some(length + correction)
+    }
+
+    /// Odometry's scale as the floor measured it so far (1 until it has):
+    /// a constant error (wheel diameter) is then gone from the steps before
+    /// the floor corrects them, and from steps where it cannot.
+    pub fn odometry_scale(&self) -> f32 {
+        let [measured, odometry] = self.travel_sums;
+        if !(odometry > SCALE_MIN_TRAVEL_MM) {
+            return 1.0;
+        }
+        ((measured / odometry) as f32).clamp(1.0 / MAX_SCALE_ERROR, MAX_SCALE_ERROR)
+    }
+
+    /// For a floor track (matched last frame, slope near 1): the
+    /// travel (mm, along `d`) beyond the odometry step that its edge in this
+    /// frame implies, if it finds one.
+    fn floor_displacement(
+        &self,
+        track: &Track,
+        line: &GtLine,
+        edges: &[Edge],
+        d: [f32; 2],
+        length: f32,
+        mm_per_px: f32,
+    ) -> Option<f32> {
+        // Three observations give a slope to tell floor from obstacle; waiting
+        // for more would leave the first steps' error in every track.
+        if track.misses != 0 || track.observations.len() < 3 {
+            return None;
+        }
+        let along = d[0] * track.axis[0] + d[1] * track.axis[1];
+        if along < 0.7 {
+            return None; // the track's axis is not the travel's: its y says little
+        }
+        let fit = Self::fit(track)?;
+        if fabsf(-fit.slope - 1.0) > FLOOR_SLOPE_BAND {
+            return None;
+        }
+        // Where it is with slope 1 and the odometry step.
+        let predicted = self.predict_apparent(track, 1.0, None)?;
+        let (row, lateral) = line.row_of(&self.grid, predicted);
+        if fabsf(lateral) > 2.0 * mm_per_px {
+            return None;
+        }
+        let window = self.config.gate_px + 3.0 * self.config.odometry_sigma * length / mm_per_px;
+        let mut best: Option<(f32, f32)> = None;
+        for edge in edges.iter().filter(|e| e.rising == track.rising && fabsf(e.row - row) <= window) {
+            if zncc(&track.patch, &edge.patch) < self.config.min_patch_correlation {
+                continue;
+            }
+            let distance = fabsf(edge.row - row);
+            if best.is_none_or(|(_, b)| distance < b) {
+                best = Some((edge.row, distance));
+            }
+        }
+        let (observed_row, _) = best?;
+        let u = track.axis;
+        let y_of = |p: [f32; 2]| {
+            let q = self.to_world_rotation(p);
+            q[0] * u[0] + q[1] * u[1]
+        };
+        let y_predicted = y_of(line.point_at_row(&self.grid, row));
+        let y_observed = y_of(line.point_at_row(&self.grid, observed_row));
+        Some((y_predicted - y_observed) / along)
     }
 
     /// Robot frame -> world-rotated (not translated) vector, and back.

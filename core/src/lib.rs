@@ -15,11 +15,13 @@
 //!   row-by-row remap (the PIPE-like front end).
 //! - [`motion`]: poses and odometry (Tx, Tz, yaw) between frames.
 //! - [`gti`]: heights from motion on GT-images (the seed's §3.2), row-fed.
+//! - [`fusion`]: GPA's alarm with GTI's heights (the seed's §3.3).
 //! - [`pgm`]: checked view of binary PGM (P5) headers.
 //! - [`report`]: the per-frame result, shared by the CLI and the serial protocol.
 #![cfg_attr(not(test), no_std)]
 #![deny(clippy::unwrap_used, clippy::expect_used)]
 
+pub mod fusion;
 pub mod geometry;
 pub mod gpa;
 pub mod grid;

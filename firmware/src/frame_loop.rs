@@ -1,6 +1,7 @@
 //! The frame loop: rig in, remap table and detector built, then per frame:
-//! pose in, rows streamed through the KG remap into the GPA detector, one
-//! report out.
+//! pose in, rows streamed through the KG remap into the GPA detector and the
+//! GTI stage, one report out (GPA's alarm with GTI's heights,
+//! `flatland_core::fusion`).
 //!
 //! It sees the board only through the board layer's traits, so the same loop
 //! runs on the emulated and on a real board. Per frame it does exactly what
@@ -17,6 +18,7 @@ use embedded_hal::digital::OutputPin;
 use embedded_io::{Read, Write};
 
 use flatland_core::geometry::{Aoi, Distortion, Intrinsics, Mount, Rig};
+use flatland_core::fusion::GtiStage;
 use flatland_core::gpa::{Gpa, GpaConfig};
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::motion::{Motion, Pose};
@@ -44,6 +46,8 @@ pub const KEYFRAME_CAPACITY: usize = 48 * 1024;
 static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
 static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
 static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY);
+/// The GTI stage (`size_of::<GtiStage>()`, 19.6 KB), configured in place.
+static GTI: ConstStaticCell<GtiStage> = ConstStaticCell::new(GtiStage::UNCONFIGURED);
 static KEYFRAME: ConstStaticCell<[u8; KEYFRAME_CAPACITY]> = ConstStaticCell::new([0; KEYFRAME_CAPACITY]);
 
 /// Why a rig was refused at start-up. Each is logged and sent as `$FLERR`.
@@ -59,13 +63,16 @@ pub enum SetupError {
     /// The grid needs more than [`KEYFRAME_CAPACITY`] bytes of keyframe.
     KeyframeTooLarge { needed: usize },
     Detector(flatland_core::gpa::GpaError),
+    Gti(flatland_core::gti::GtiError),
 }
 
 impl SetupError {
     fn fault_code(self) -> FaultCode {
         match self {
             SetupError::Rig(_) => FaultCode::RigRejected,
-            SetupError::Grid(_) | SetupError::Table(_) | SetupError::Detector(_) => FaultCode::TableRejected,
+            SetupError::Grid(_) | SetupError::Table(_) | SetupError::Detector(_) | SetupError::Gti(_) => {
+                FaultCode::TableRejected
+            }
             SetupError::CameraTooWide { .. } | SetupError::RingTooSmall { .. } => FaultCode::CameraTooLarge,
             SetupError::KeyframeTooLarge { .. } => FaultCode::GridTooLarge,
         }
@@ -83,6 +90,11 @@ pub struct FrameTiming {
     pub shift_search: u32,
     /// `Gpa::end_frame`: best shift, noise, blobs, decision.
     pub decision: u32,
+    /// GTI's per-row sampling (`GtiStage::on_kg_row`).
+    pub gti_rows: u32,
+    /// GTI's per-frame work: edges, tracking, fits, and the combination
+    /// with GPA's report (`GtiStage::end_frame`, `GtiStage::enrich`).
+    pub gti_frame: u32,
     /// The whole cycle, odometry received to report sent.
     pub cycle: u32,
 }
@@ -290,6 +302,8 @@ struct FrameFailure {
 struct Stages<'a, 't, 'r, 'b> {
     remap: StreamingRemap<'t, 'r>,
     gpa: &'a mut Gpa<'b>,
+    gti: &'a mut GtiStage,
+    table: &'t RemapTable,
     /// Camera (width, height) of the rig.
     camera: (usize, usize),
     grid_height: usize,
@@ -305,7 +319,7 @@ fn process_frame<R: RowSource, C: CycleCounter>(
     odometry: Option<Motion>,
     timing: &mut FrameTiming,
 ) -> Result<Option<FrameReport>, FrameFailure> {
-    let Stages { remap, gpa, camera, grid_height } = stages;
+    let Stages { remap, gpa, gti, table, camera, grid_height } = stages;
     let (camera, grid_height) = (*camera, *grid_height);
     let early = |code| FrameFailure { code, mid_frame: false };
     let size = frames.begin_frame(index).map_err(|error| {
@@ -331,12 +345,17 @@ fn process_frame<R: RowSource, C: CycleCounter>(
         frames.read_row(row).map_err(|_| mid(FaultCode::FrameRead))?;
         let remap_start = counter.now();
         let mut detector = 0u32;
+        let mut gti_rows = 0u32;
         remap
             .push_row(row, |j, kg_row| {
                 let start = counter.now();
                 kg_rows += 1;
                 gpa.on_kg_row(j, kg_row);
-                detector = detector.wrapping_add(counter.now().wrapping_sub(start));
+                let gti_start = counter.now();
+                gti.on_kg_row(j, kg_row, table.valid_columns(j));
+                let end = counter.now();
+                detector = detector.wrapping_add(gti_start.wrapping_sub(start));
+                gti_rows = gti_rows.wrapping_add(end.wrapping_sub(gti_start));
             })
             .map_err(|error| {
                 mid(match error {
@@ -346,8 +365,10 @@ fn process_frame<R: RowSource, C: CycleCounter>(
             })?;
         let end = counter.now();
         timing.read = timing.read.wrapping_add(remap_start.wrapping_sub(read_start));
-        timing.remap = timing.remap.wrapping_add(end.wrapping_sub(remap_start).wrapping_sub(detector));
+        timing.remap =
+            timing.remap.wrapping_add(end.wrapping_sub(remap_start).wrapping_sub(detector).wrapping_sub(gti_rows));
         timing.shift_search = timing.shift_search.wrapping_add(detector);
+        timing.gti_rows = timing.gti_rows.wrapping_add(gti_rows);
     }
     frames.end_frame();
     // The remap re-arms itself after the last camera row; every KG row must have come out.
@@ -355,8 +376,14 @@ fn process_frame<R: RowSource, C: CycleCounter>(
         return Err(mid(FaultCode::RemapFailed));
     }
     let start = counter.now();
-    let report = gpa.end_frame();
-    timing.decision = counter.now().wrapping_sub(start);
+    let mut report = gpa.end_frame();
+    let gti_start = counter.now();
+    timing.decision = gti_start.wrapping_sub(start);
+    gti.end_frame(odometry);
+    if let Some(report) = report.as_mut() {
+        gti.enrich(report);
+    }
+    timing.gti_frame = counter.now().wrapping_sub(gti_start);
     Ok(report)
 }
 
@@ -364,12 +391,13 @@ fn log_report(report: &FrameReport) {
     if report.alarm {
         // Human-readable alarm line; absent distances print as -1.
         defmt::warn!(
-            "ALARM frame {=u32} (vs {=u32}): obstacle at {=i32} mm, x {=i32}..{=i32} mm",
+            "ALARM frame {=u32} (vs {=u32}): obstacle at {=i32} mm, x {=i32}..{=i32} mm, height {=i32} mm",
             report.frame,
             report.ref_frame,
             report.nearest_mm.unwrap_or(-1),
             report.left_mm.unwrap_or(-1),
-            report.right_mm.unwrap_or(-1)
+            report.right_mm.unwrap_or(-1),
+            report.obstacle_h_mm.unwrap_or(-1)
         );
     } else {
         defmt::info!(
@@ -426,7 +454,15 @@ where
         }
     };
 
-    let mut stages = Stages { remap, gpa, camera, grid_height: grid.height() };
+    // GTI (19.6 KB) is configured in place in its static, for the same reason.
+    let gti: &'static mut GtiStage = GTI.take();
+    if let Err(error) = gti.configure(&rig, &grid) {
+        defmt::error!("GTI refused: {}", defmt::Debug2Format(&error));
+        link.fault(SetupError::Gti(error).fault_code(), 0);
+        return link.finish();
+    }
+
+    let mut stages = Stages { remap, gpa, gti, table, camera, grid_height: grid.height() };
     let mut previous: Option<Previous> = None;
     let mut started = false;
     loop {
@@ -490,6 +526,7 @@ where
                 frames.end_frame();
                 if failure.mid_frame {
                     stages.gpa.abort_frame();
+                    stages.gti.abort_frame();
                     bump(&mut link.counters.aborted);
                 }
                 // As detect.rs for a skipped frame: the next one restarts the keyframe.
@@ -514,6 +551,9 @@ where
             defmt::println!("bench: gpa_shift_search: {=u32}", profile.shift_search);
             defmt::println!("bench: gpa_keyframe_update: {=u32}", profile.keyframe_update);
             defmt::println!("bench: decision: {=u32}", timing.decision);
+            defmt::println!("bench: gti_rows: {=u32}", timing.gti_rows);
+            defmt::println!("bench: gti_frame: {=u32}", timing.gti_frame);
+            defmt::println!("bench: gti: {=u32}", timing.gti_rows.wrapping_add(timing.gti_frame));
             defmt::println!("bench: instructions_per_cycle: {=u32}", timing.cycle);
         }
     }

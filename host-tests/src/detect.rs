@@ -1,7 +1,9 @@
-//! `flatland detect`: the streaming pipeline (remap -> GPA) over a recording,
-//! fed row by row exactly as the firmware feeds it.
+//! `flatland detect`: the streaming pipeline (remap -> GPA and GTI, combined
+//! by `flatland_core::fusion`) over a recording, fed row by row exactly as
+//! the firmware feeds it.
 
 use crate::recording::{Recording, RecordingError};
+use flatland_core::fusion::GtiStage;
 use flatland_core::gpa::{Gpa, GpaConfig};
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::motion::Motion;
@@ -65,6 +67,7 @@ impl Pipeline {
     ) -> Result<(), String> {
         let mut gpa = Gpa::new(&recording.rig, &self.grid, &self.table, config.gpa, &mut self.keyframe)
             .map_err(|e| format!("detector: {e:?}"))?;
+        let mut gti = Box::new(GtiStage::new(&recording.rig, &self.grid).map_err(|e| format!("GTI: {e}"))?);
         let mut stream = StreamingRemap::new(&self.table, &mut self.ring).map_err(|e| e.to_string())?;
         let grid_width = self.grid.width();
         let first = recording.frames.first().copied().unwrap_or(0);
@@ -111,16 +114,23 @@ impl Pipeline {
             }
             gpa.begin_frame(index, odometry);
             let mut kg = vec![0u8; self.grid.len()];
+            let table = &self.table;
             for camera_row in frame.pixels.chunks_exact(frame.width) {
                 stream
                     .push_row(camera_row, |j, kg_row| {
                         gpa.on_kg_row(j, kg_row);
+                        gti.on_kg_row(j, kg_row, table.valid_columns(j));
                         kg[j * grid_width..][..grid_width].copy_from_slice(kg_row);
                     })
                     .map_err(|e| format!("frame {index}: {e}"))?;
             }
-            let outcome = match gpa.end_frame() {
-                Some(report) => FrameOutcome::Report { report, kg },
+            let report = gpa.end_frame();
+            gti.end_frame(odometry);
+            let outcome = match report {
+                Some(mut report) => {
+                    gti.enrich(&mut report);
+                    FrameOutcome::Report { report, kg }
+                }
                 None => FrameOutcome::Keyframe { frame: index, kg },
             };
             on_frame(outcome, &gpa);

@@ -189,7 +189,6 @@ fn run_bench(args: &Args, release_dir: &Path) -> Result<()> {
     // The |diff| histogram is accumulated inside the shift search and its
     // median taken in the decision; it has no instructions of its own.
     println!("histogram: in_shift_search_and_decision");
-    println!("gti: not_implemented");
     let (flash, ram) = qemu::memory_use(&release_dir.join("flatland-firmware"))?;
     println!("flash_bytes: {flash}");
     println!("static_ram_bytes: {ram}");
