@@ -404,7 +404,7 @@ impl KeyframeView<'_> {
                 let wy = ((line.j_start >> 8) & 0xFF) as u32;
                 let upper = &self.row(j0)[start..=start + (hi - lo)];
                 let lower = &self.row(j0 + 1)[start..=start + (hi - lo)];
-                bilinear_line(upper, lower, wx, wy, &mut out[lo..hi]);
+                sad::bilinear_line(upper, lower, wx, wy, &mut out[lo..hi]);
             }
             return lo..hi;
         }
@@ -425,18 +425,6 @@ impl KeyframeView<'_> {
         } else {
             first..end
         }
-    }
-}
-
-/// One line of bilinear samples with constant weights: `out[n]` from
-/// `upper[n..=n + 1]` and `lower[n..=n + 1]`, rounded as [`KeyframeView::sample`].
-#[inline]
-fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
-    let (ax, ay) = (256 - wx, 256 - wy);
-    for ((pixel, u), l) in out.iter_mut().zip(upper.windows(2)).zip(lower.windows(2)) {
-        let top = u32::from(u[0]) * ax + u32::from(u[1]) * wx;
-        let bottom = u32::from(l[0]) * ax + u32::from(l[1]) * wx;
-        *pixel = ((top * ay + bottom * wy + (1 << 15)) >> 16) as u8;
     }
 }
 
