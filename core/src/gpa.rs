@@ -264,6 +264,8 @@ pub struct Gpa<'b> {
     warp_column: (f64, f64),
     warp_row: (f64, f64),
     band: [[u8; BAND_WIDTH]; MAX_WINDOW],
+    /// Row, warp and columns the band was last sampled for (this frame).
+    band_source: Option<(usize, RowWarp, Range<usize>)>,
     sad: [[u32; MAX_WINDOW]; MAX_WINDOW],
     /// The part of `sad` from the far half of the AOI rows.
     sad_far: [[u32; MAX_WINDOW]; MAX_WINDOW],
@@ -507,6 +509,7 @@ impl<'b> Gpa<'b> {
         warp_column: (0.0, 0.0),
         warp_row: (0.0, 0.0),
         band: [[0; BAND_WIDTH]; MAX_WINDOW],
+        band_source: None,
         sad: [[0; MAX_WINDOW]; MAX_WINDOW],
         sad_far: [[0; MAX_WINDOW]; MAX_WINDOW],
         seed_sum: [[0; MAX_WINDOW]; MAX_WINDOW],
@@ -701,6 +704,7 @@ impl<'b> Gpa<'b> {
     /// frame (None if unknown: the keyframe is reset).
     pub fn begin_frame(&mut self, frame: u32, odometry: Option<Motion>) {
         self.profile = GpaProfile::default();
+        self.band_source = None;
         self.frame = frame;
         self.frame_active = true;
         self.rows_seen = 0;
@@ -917,10 +921,31 @@ impl<'b> Gpa<'b> {
             base: self.keyframe_base,
         };
         let band_columns = cur_lo.saturating_sub(s)..(cur_hi + s).min(width);
-        for dg in 0..=2 * s {
+        // On translation rows the next row's warp is usually this one moved down
+        // exactly one keyframe row: then its band row dg is this row's dg + 1
+        // (a sample depends only on the line and the column), so the band
+        // rolls up and only the last row is sampled. Copying just
+        // `band_columns` leaves the other bytes as fresh sampling would.
+        let rolls = matches!(&self.band_source, Some((previous_j, previous, columns))
+            if *previous_j + 1 == j
+                && RowWarp { j_start: previous.j_start.wrapping_add(1 << FRAC), ..*previous } == warp
+                && columns.start <= band_columns.start
+                && band_columns.end <= columns.end);
+        let first_sampled = if rolls {
+            let span = band_columns.start + MAX_SEARCH_RADIUS..band_columns.end + MAX_SEARCH_RADIUS;
+            for dg in 0..2 * s {
+                let (upper, lower) = self.band.split_at_mut(dg + 1);
+                upper[dg][span.clone()].copy_from_slice(&lower[0][span.clone()]);
+            }
+            2 * s
+        } else {
+            0
+        };
+        for dg in first_sampled..=2 * s {
             let line = RowWarp { j_start: warp.j_start + ((dg as i32 - s as i32) << FRAC), ..warp };
             view.sample_line(line, band_columns.clone(), &mut self.band[dg][MAX_SEARCH_RADIUS..]);
         }
+        self.band_source = Some((j, warp, band_columns.clone()));
         let t_warp = self.tick();
         self.profile.warp = self.profile.warp.wrapping_add(t_warp.wrapping_sub(t_start));
 
