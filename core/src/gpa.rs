@@ -954,16 +954,19 @@ impl<'b> Gpa<'b> {
         let in_cells = cell_row < self.cells_high;
         let cells_end = (self.cells_wide * cell_px).min(width);
         let clip = |(a, b): (u16, u16), lo: usize, hi: usize| usize::from(a).max(lo)..usize::from(b).min(hi);
-        // Calls `f(cell_column, columns)` for the cell segments of `columns`.
-        let segments = |columns: Range<usize>, f: &mut dyn FnMut(usize, Range<usize>)| {
+        // Calls `f(cell_column, columns)` for the cell segments of `columns`
+        // (generic so `f` inlines; one division per run, not per segment).
+        #[inline(always)]
+        fn segments(columns: Range<usize>, cell_px: usize, mut f: impl FnMut(usize, Range<usize>)) {
             let mut c = columns.start;
+            let mut cell_column = c / cell_px;
             while c < columns.end {
-                let cell_column = c / cell_px;
                 let end = ((cell_column + 1) * cell_px).min(columns.end);
                 f(cell_column, c..end);
                 c = end;
+                cell_column += 1;
             }
-        };
+        }
         if in_cells {
             // Two tolerant residues (see compare_row_reference): the ground
             // hypothesis's (half a pixel, or a full one along an axis the
@@ -994,7 +997,7 @@ impl<'b> Gpa<'b> {
                     residue_line::<true, true>(row, &self.band, s, columns.clone(), &mut unexplained);
                 }
                 let mut row_residue = 0u32;
-                segments(columns, &mut |cell_column, columns| {
+                segments(columns, cell_px, |cell_column, columns| {
                     let cell = cell_base + cell_column;
                     let n = columns.len();
                     let (mut hot, mut sum) = (0u32, 0u32);
@@ -1041,7 +1044,7 @@ impl<'b> Gpa<'b> {
                     for (d, &value) in samples[columns.clone()].iter_mut().zip(&row[columns.clone()]) {
                         *d = d.abs_diff(value);
                     }
-                    segments(columns, &mut |cell_column, columns| {
+                    segments(columns, cell_px, |cell_column, columns| {
                         self.cell_row_pixels[k][cell_column] += columns.len() as u16;
                         #[cfg(flatland_dsp)]
                         let sum = sad::sad(&row[columns.clone()], &samples[columns]);
