@@ -212,7 +212,7 @@ pub mod sse2 {
             let zero = _mm_setzero_si128();
             let ax = _mm_set1_epi16((256 - wx) as i16);
             let wxv = _mm_set1_epi16(wx as i16);
-            let weights = _mm_set1_epi32((((wy as i32) << 16) | (256 - wy) as i32) as i32);
+            let weights = _mm_set1_epi32(((wy as i32) << 16) | (256 - wy) as i32);
             let bias = _mm_set1_epi32((1 << 23) + (1 << 15));
             let flip = _mm_set1_epi16(i16::MIN);
             let (pu, pl, po) = (upper.as_ptr(), lower.as_ptr(), out.as_mut_ptr());
