@@ -264,6 +264,8 @@ pub struct Gpa<'b> {
     warp_column: (f64, f64),
     warp_row: (f64, f64),
     band: [[u8; BAND_WIDTH]; MAX_WINDOW],
+    /// Row, warp and columns the band was last sampled for (this frame).
+    band_source: Option<(usize, RowWarp, Range<usize>)>,
     sad: [[u32; MAX_WINDOW]; MAX_WINDOW],
     /// The part of `sad` from the far half of the AOI rows.
     sad_far: [[u32; MAX_WINDOW]; MAX_WINDOW],
@@ -404,7 +406,7 @@ impl KeyframeView<'_> {
                 let wy = ((line.j_start >> 8) & 0xFF) as u32;
                 let upper = &self.row(j0)[start..=start + (hi - lo)];
                 let lower = &self.row(j0 + 1)[start..=start + (hi - lo)];
-                bilinear_line(upper, lower, wx, wy, &mut out[lo..hi]);
+                sad::bilinear_line(upper, lower, wx, wy, &mut out[lo..hi]);
             }
             return lo..hi;
         }
@@ -425,18 +427,6 @@ impl KeyframeView<'_> {
         } else {
             first..end
         }
-    }
-}
-
-/// One line of bilinear samples with constant weights: `out[n]` from
-/// `upper[n..=n + 1]` and `lower[n..=n + 1]`, rounded as [`KeyframeView::sample`].
-#[inline]
-fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
-    let (ax, ay) = (256 - wx, 256 - wy);
-    for ((pixel, u), l) in out.iter_mut().zip(upper.windows(2)).zip(lower.windows(2)) {
-        let top = u32::from(u[0]) * ax + u32::from(u[1]) * wx;
-        let bottom = u32::from(l[0]) * ax + u32::from(l[1]) * wx;
-        *pixel = ((top * ay + bottom * wy + (1 << 15)) >> 16) as u8;
     }
 }
 
@@ -519,6 +509,7 @@ impl<'b> Gpa<'b> {
         warp_column: (0.0, 0.0),
         warp_row: (0.0, 0.0),
         band: [[0; BAND_WIDTH]; MAX_WINDOW],
+        band_source: None,
         sad: [[0; MAX_WINDOW]; MAX_WINDOW],
         sad_far: [[0; MAX_WINDOW]; MAX_WINDOW],
         seed_sum: [[0; MAX_WINDOW]; MAX_WINDOW],
@@ -713,6 +704,7 @@ impl<'b> Gpa<'b> {
     /// frame (None if unknown: the keyframe is reset).
     pub fn begin_frame(&mut self, frame: u32, odometry: Option<Motion>) {
         self.profile = GpaProfile::default();
+        self.band_source = None;
         self.frame = frame;
         self.frame_active = true;
         self.rows_seen = 0;
@@ -929,10 +921,31 @@ impl<'b> Gpa<'b> {
             base: self.keyframe_base,
         };
         let band_columns = cur_lo.saturating_sub(s)..(cur_hi + s).min(width);
-        for dg in 0..=2 * s {
+        // On translation rows the next row's warp is usually this one moved down
+        // exactly one keyframe row: then its band row dg is this row's dg + 1
+        // (a sample depends only on the line and the column), so the band
+        // rolls up and only the last row is sampled. Copying just
+        // `band_columns` leaves the other bytes as fresh sampling would.
+        let rolls = matches!(&self.band_source, Some((previous_j, previous, columns))
+            if *previous_j + 1 == j
+                && RowWarp { j_start: previous.j_start.wrapping_add(1 << FRAC), ..*previous } == warp
+                && columns.start <= band_columns.start
+                && band_columns.end <= columns.end);
+        let first_sampled = if rolls {
+            let span = band_columns.start + MAX_SEARCH_RADIUS..band_columns.end + MAX_SEARCH_RADIUS;
+            for dg in 0..2 * s {
+                let (upper, lower) = self.band.split_at_mut(dg + 1);
+                upper[dg][span.clone()].copy_from_slice(&lower[0][span.clone()]);
+            }
+            2 * s
+        } else {
+            0
+        };
+        for dg in first_sampled..=2 * s {
             let line = RowWarp { j_start: warp.j_start + ((dg as i32 - s as i32) << FRAC), ..warp };
             view.sample_line(line, band_columns.clone(), &mut self.band[dg][MAX_SEARCH_RADIUS..]);
         }
+        self.band_source = Some((j, warp, band_columns.clone()));
         let t_warp = self.tick();
         self.profile.warp = self.profile.warp.wrapping_add(t_warp.wrapping_sub(t_start));
 
@@ -941,16 +954,19 @@ impl<'b> Gpa<'b> {
         let in_cells = cell_row < self.cells_high;
         let cells_end = (self.cells_wide * cell_px).min(width);
         let clip = |(a, b): (u16, u16), lo: usize, hi: usize| usize::from(a).max(lo)..usize::from(b).min(hi);
-        // Calls `f(cell_column, columns)` for the cell segments of `columns`.
-        let segments = |columns: Range<usize>, f: &mut dyn FnMut(usize, Range<usize>)| {
+        // Calls `f(cell_column, columns)` for the cell segments of `columns`
+        // (generic so `f` inlines; one division per run, not per segment).
+        #[inline(always)]
+        fn segments(columns: Range<usize>, cell_px: usize, mut f: impl FnMut(usize, Range<usize>)) {
             let mut c = columns.start;
+            let mut cell_column = c / cell_px;
             while c < columns.end {
-                let cell_column = c / cell_px;
                 let end = ((cell_column + 1) * cell_px).min(columns.end);
                 f(cell_column, c..end);
                 c = end;
+                cell_column += 1;
             }
-        };
+        }
         if in_cells {
             // Two tolerant residues (see compare_row_reference): the ground
             // hypothesis's (half a pixel, or a full one along an axis the
@@ -981,7 +997,7 @@ impl<'b> Gpa<'b> {
                     residue_line::<true, true>(row, &self.band, s, columns.clone(), &mut unexplained);
                 }
                 let mut row_residue = 0u32;
-                segments(columns, &mut |cell_column, columns| {
+                segments(columns, cell_px, |cell_column, columns| {
                     let cell = cell_base + cell_column;
                     let n = columns.len();
                     let (mut hot, mut sum) = (0u32, 0u32);
@@ -1017,9 +1033,24 @@ impl<'b> Gpa<'b> {
                 let seen = view.sample_line(line, cur_lo..cur_hi, &mut samples);
                 for &run in runs {
                     let columns = clip(run, seen.start, seen.end.min(cells_end));
-                    segments(columns, &mut |cell_column, columns| {
+                    if columns.is_empty() {
+                        continue;
+                    }
+                    // Cell segments are 5-15 px. On the M4 `usada8` sums them
+                    // in place; elsewhere a per-segment kernel call costs more
+                    // than the work, so |diff| is taken over the whole line
+                    // (vectorised) and the segments sum bytes.
+                    #[cfg(not(flatland_dsp))]
+                    for (d, &value) in samples[columns.clone()].iter_mut().zip(&row[columns.clone()]) {
+                        *d = d.abs_diff(value);
+                    }
+                    segments(columns, cell_px, |cell_column, columns| {
                         self.cell_row_pixels[k][cell_column] += columns.len() as u16;
-                        self.cell_row_sad[k][cell_column] += sad::sad(&row[columns.clone()], &samples[columns]);
+                        #[cfg(flatland_dsp)]
+                        let sum = sad::sad(&row[columns.clone()], &samples[columns]);
+                        #[cfg(not(flatland_dsp))]
+                        let sum: u32 = samples[columns].iter().map(|&d| u32::from(d)).sum();
+                        self.cell_row_sad[k][cell_column] += sum;
                     });
                 }
             }

@@ -3,8 +3,10 @@
 //! On Cortex-M4/M7 (`thumbv7em`, cfg `flatland_dsp` from build.rs) they use
 //! the DSP extension through `asm!` (LLVM never emits these): `usada8` adds
 //! four absolute differences in one instruction, `usub8` + `sel` compare and
-//! select four bytes. Elsewhere the portable versions run, written so the
-//! host compiler vectorises them. Both give identical results; the
+//! select four bytes. On x86_64 they use SSE2 (baseline there, so no runtime
+//! detection, which `no_std` could not do anyway): `psadbw` for sums of 16
+//! absolute differences, saturating subtractions for |diff| and the levels.
+//! Elsewhere the portable versions run. All give identical results; the
 //! `checks` below (also on the emulated M4, `cargo fw-test`) compare them.
 
 /// The seed's levels: |diff| above `SUM_LEVEL` is summed, above `COUNT_LEVEL` counted.
@@ -28,7 +30,11 @@ pub fn sad(a: &[u8], b: &[u8]) -> u32 {
     {
         dsp::sad(a, b)
     }
-    #[cfg(not(flatland_dsp))]
+    #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+    {
+        sse2::sad(a, b)
+    }
+    #[cfg(not(any(flatland_dsp, target_arch = "x86_64")))]
     {
         portable::sad(a, b)
     }
@@ -41,9 +47,30 @@ pub fn seed_sums(a: &[u8], b: &[u8]) -> SeedSums {
     {
         dsp::seed_sums(a, b)
     }
-    #[cfg(not(flatland_dsp))]
+    #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+    {
+        sse2::seed_sums(a, b)
+    }
+    #[cfg(not(any(flatland_dsp, target_arch = "x86_64")))]
     {
         portable::seed_sums(a, b)
+    }
+}
+
+/// One line of bilinear samples with constant weights (`wx`, `wy` in 0..=255,
+/// 1/256 units): `out[n]` from `upper[n..=n + 1]` and `lower[n..=n + 1]`,
+/// `((top * (256 - wy) + bottom * wy + 2^15) >> 16)` with
+/// `top = upper[n] * (256 - wx) + upper[n + 1] * wx` (likewise `bottom`).
+/// `upper` and `lower` hold at least `out.len() + 1` bytes.
+#[inline]
+pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        sse2::bilinear_line(upper, lower, wx, wy, out)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        portable::bilinear_line(upper, lower, wx, wy, out)
     }
 }
 
@@ -78,6 +105,144 @@ pub mod portable {
             sums.count_above += u32::from(count);
         }
         sums
+    }
+
+    #[inline]
+    pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
+        let (ax, ay) = (256 - wx, 256 - wy);
+        for ((pixel, u), l) in out.iter_mut().zip(upper.windows(2)).zip(lower.windows(2)) {
+            let top = u32::from(u[0]) * ax + u32::from(u[1]) * wx;
+            let bottom = u32::from(l[0]) * ax + u32::from(l[1]) * wx;
+            *pixel = ((top * ay + bottom * wy + (1 << 15)) >> 16) as u8;
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+pub mod sse2 {
+    use super::{portable, SeedSums, COUNT_LEVEL, SUM_LEVEL};
+    use core::arch::x86_64::*;
+
+    /// Low and high 64-bit lanes of a `psadbw` accumulator, added.
+    #[inline(always)]
+    fn total(v: __m128i) -> u32 {
+        // SAFETY: SSE2 is part of the x86_64 baseline.
+        unsafe { (_mm_cvtsi128_si64(v) + _mm_cvtsi128_si64(_mm_unpackhi_epi64(v, v))) as u32 }
+    }
+
+    #[inline]
+    pub fn sad(a: &[u8], b: &[u8]) -> u32 {
+        let n = a.len().min(b.len());
+        let (a, b) = (&a[..n], &b[..n]);
+        let mut done = 0;
+        // SAFETY: SSE2 is baseline on x86_64; every load reads 16 (or 8)
+        // bytes inside `a[..n]` and `b[..n]` (unaligned loads).
+        let acc = unsafe {
+            let mut acc = _mm_setzero_si128();
+            while done + 16 <= n {
+                let x = _mm_loadu_si128(a.as_ptr().add(done).cast());
+                let y = _mm_loadu_si128(b.as_ptr().add(done).cast());
+                acc = _mm_add_epi64(acc, _mm_sad_epu8(x, y));
+                done += 16;
+            }
+            if done + 8 <= n {
+                let x = _mm_loadl_epi64(a.as_ptr().add(done).cast());
+                let y = _mm_loadl_epi64(b.as_ptr().add(done).cast());
+                acc = _mm_add_epi64(acc, _mm_sad_epu8(x, y));
+                done += 8;
+            }
+            acc
+        };
+        total(acc) + portable::sad(&a[done..], &b[done..])
+    }
+
+    #[inline]
+    pub fn seed_sums(a: &[u8], b: &[u8]) -> SeedSums {
+        let n = a.len().min(b.len());
+        let (a, b) = (&a[..n], &b[..n]);
+        let mut done = 0;
+        // |d| > level  <=>  saturating (|d| - level) != 0; the selected bytes
+        // (|d| itself, or 1 to count) are summed by `psadbw` against zero.
+        #[inline(always)]
+        unsafe fn step(x: __m128i, y: __m128i, acc: &mut [__m128i; 3]) {
+            let zero = _mm_setzero_si128();
+            let d = _mm_or_si128(_mm_subs_epu8(x, y), _mm_subs_epu8(y, x));
+            let low = _mm_cmpeq_epi8(_mm_subs_epu8(d, _mm_set1_epi8(SUM_LEVEL as i8)), zero);
+            let quiet = _mm_cmpeq_epi8(_mm_subs_epu8(d, _mm_set1_epi8(COUNT_LEVEL as i8)), zero);
+            acc[0] = _mm_add_epi64(acc[0], _mm_sad_epu8(d, zero));
+            acc[1] = _mm_add_epi64(acc[1], _mm_sad_epu8(_mm_andnot_si128(low, d), zero));
+            acc[2] = _mm_add_epi64(acc[2], _mm_sad_epu8(_mm_andnot_si128(quiet, _mm_set1_epi8(1)), zero));
+        }
+        // SAFETY: SSE2 is baseline on x86_64; loads stay inside `a[..n]`, `b[..n]`.
+        let acc = unsafe {
+            let mut acc = [_mm_setzero_si128(); 3];
+            while done + 16 <= n {
+                let x = _mm_loadu_si128(a.as_ptr().add(done).cast());
+                let y = _mm_loadu_si128(b.as_ptr().add(done).cast());
+                step(x, y, &mut acc);
+                done += 16;
+            }
+            if done + 8 <= n {
+                // The upper 8 bytes are zero in both: |d| = 0 adds nothing.
+                let x = _mm_loadl_epi64(a.as_ptr().add(done).cast());
+                let y = _mm_loadl_epi64(b.as_ptr().add(done).cast());
+                step(x, y, &mut acc);
+                done += 8;
+            }
+            acc
+        };
+        let tail = portable::seed_sums(&a[done..], &b[done..]);
+        SeedSums {
+            sad: total(acc[0]) + tail.sad,
+            sum_above: total(acc[1]) + tail.sum_above,
+            count_above: total(acc[2]) + tail.count_above,
+        }
+    }
+
+    /// 16 samples per step. `top` (<= 65,280) fits u16 lanes; the vertical
+    /// blend uses `pmaddwd` on (top - 2^15, bottom - 2^15) pairs, which are
+    /// i16, and adds back 2^15 * 256: the same integer as the portable sum.
+    #[inline]
+    pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
+        let n = out.len().min(upper.len().saturating_sub(1)).min(lower.len().saturating_sub(1));
+        let mut done = 0;
+        // SAFETY: SSE2 is baseline on x86_64; loads read upper/lower[done..done + 17]
+        // (< n + 1 <= len) and stores write out[done..done + 16] (<= n).
+        unsafe {
+            let zero = _mm_setzero_si128();
+            let ax = _mm_set1_epi16((256 - wx) as i16);
+            let wxv = _mm_set1_epi16(wx as i16);
+            let weights = _mm_set1_epi32(((wy as i32) << 16) | (256 - wy) as i32);
+            let bias = _mm_set1_epi32((1 << 23) + (1 << 15));
+            let flip = _mm_set1_epi16(i16::MIN);
+            let (pu, pl, po) = (upper.as_ptr(), lower.as_ptr(), out.as_mut_ptr());
+            while done + 16 <= n {
+                let u0 = _mm_loadu_si128(pu.add(done).cast());
+                let u1 = _mm_loadu_si128(pu.add(done + 1).cast());
+                let l0 = _mm_loadu_si128(pl.add(done).cast());
+                let l1 = _mm_loadu_si128(pl.add(done + 1).cast());
+                let horizontal = |p0: __m128i, p1: __m128i, high: bool| {
+                    let (a, b) = if high {
+                        (_mm_unpackhi_epi8(p0, zero), _mm_unpackhi_epi8(p1, zero))
+                    } else {
+                        (_mm_unpacklo_epi8(p0, zero), _mm_unpacklo_epi8(p1, zero))
+                    };
+                    _mm_xor_si128(_mm_add_epi16(_mm_mullo_epi16(a, ax), _mm_mullo_epi16(b, wxv)), flip)
+                };
+                let vertical = |top: __m128i, bottom: __m128i| {
+                    let lo = _mm_madd_epi16(_mm_unpacklo_epi16(top, bottom), weights);
+                    let hi = _mm_madd_epi16(_mm_unpackhi_epi16(top, bottom), weights);
+                    let lo = _mm_srli_epi32(_mm_add_epi32(lo, bias), 16);
+                    let hi = _mm_srli_epi32(_mm_add_epi32(hi, bias), 16);
+                    _mm_packs_epi32(lo, hi)
+                };
+                let first = vertical(horizontal(u0, u1, false), horizontal(l0, l1, false));
+                let second = vertical(horizontal(u0, u1, true), horizontal(l0, l1, true));
+                _mm_storeu_si128(po.add(done).cast(), _mm_packus_epi16(first, second));
+                done += 16;
+            }
+        }
+        portable::bilinear_line(&upper[done..], &lower[done..], wx, wy, &mut out[done..n]);
     }
 }
 
@@ -222,6 +387,46 @@ pub mod checks {
             }
         }
         Ok(())
+    }
+
+    /// The bilinear kernel in use and the portable one equal a per-pixel loop: every length
+    /// 0..=300, unaligned starts, all edge weights and random ones.
+    pub fn bilinear_line_equals_plain() -> Result<(), &'static str> {
+        let mut upper = [0u8; 310];
+        let mut lower = [0u8; 310];
+        let mut out = [0u8; 301];
+        for (round, spread) in [(1u32, 256u32), (2, 3)] {
+            fill(&mut upper, 0x2545_F491 ^ round, spread);
+            fill(&mut lower, 0x6C07_8965 ^ (round * 3), spread);
+            upper[..4].copy_from_slice(&[255, 0, 255, 255]);
+            lower[..4].copy_from_slice(&[255, 255, 0, 255]);
+            for (n, (wx, wy)) in [(0u32, 0u32), (255, 255), (0, 255), (255, 0), (128, 1), (1, 128), (77, 201)].into_iter().enumerate() {
+                for (length, kernel) in (0..=600).map(|k| (k / 2, k % 2)) {
+                    let start = (n + length) % 4;
+                    let (u, l) = (&upper[start..start + length + 1], &lower[start..start + length + 1]);
+                    out.fill(0xA5);
+                    if kernel == 0 {
+                        super::bilinear_line(u, l, wx, wy, &mut out[..length]);
+                    } else {
+                        portable::bilinear_line(u, l, wx, wy, &mut out[..length]);
+                    }
+                    for (c, &got) in out[..length].iter().enumerate() {
+                        let top = u32::from(u[c]) * (256 - wx) + u32::from(u[c + 1]) * wx;
+                        let bottom = u32::from(l[c]) * (256 - wx) + u32::from(l[c + 1]) * wx;
+                        if u32::from(got) != (top * (256 - wy) + bottom * wy + (1 << 15)) >> 16 {
+                            return Err("bilinear_line differs from the per-pixel formula");
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    #[cfg(test)]
+    #[test]
+    fn bilinear_line_equals_plain_host() {
+        assert_eq!(bilinear_line_equals_plain(), Ok(()));
     }
 
     #[cfg(test)]
