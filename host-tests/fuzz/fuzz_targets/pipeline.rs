@@ -110,9 +110,11 @@ fuzz_target!(|input: Input| {
     };
     let grid_config = GridConfig {
         margin_lateral_mm: v[9],
-        margin_far_mm: v[10],
+        // Both the rig-derived far margin and a fuzzed one.
+        margin_far_mm: input.fixed_resolution.then_some(v[10]),
         margin_near_mm: v[11],
         mm_per_px: input.fixed_resolution.then_some(v[12]),
+        ..GridConfig::default()
     };
     let Ok(grid) = KgGrid::for_rig(&rig, &grid_config) else { return };
     assert!(grid.width() >= 1 && grid.height() >= 1);
