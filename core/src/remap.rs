@@ -652,7 +652,7 @@ mod tests {
 
     /// Rigs unlike the samples: other focal lengths, fx != fy, an off-centre
     /// principal point, barrel and pincushion distortion with tangential terms.
-    pub(crate) fn test_rigs() -> [Rig; 5] {
+    pub(crate) fn test_rigs() -> [Rig; 6] {
         let aoi = Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 };
         let mount = Mount { height_mm: 400.0, tilt_deg: 32.0 };
         let camera = Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None };
@@ -674,6 +674,22 @@ mod tests {
             )
             .unwrap(),
             Rig::new_checked(Intrinsics { fx: 260.0, fy: 262.0, distortion: Some(pincushion), ..camera }, mount, aoi).unwrap(),
+            // Small image, strong barrel, KG pixels large against camera
+            // pixels: the old residual mesh missed by ~0.05-0.2 px here.
+            Rig::new_checked(
+                Intrinsics {
+                    width: 160,
+                    height: 120,
+                    fx: 104.0,
+                    fy: 109.0,
+                    cx: 84.0,
+                    cy: 57.0,
+                    distortion: Some(Distortion { k1: -0.25, k2: 0.06, p1: 0.0015, p2: -0.001, k3: 0.0023 }),
+                },
+                Mount { height_mm: 300.0, tilt_deg: 35.0 },
+                Aoi { half_width_mm: 150.0, near_mm: 300.0, far_mm: 900.0 },
+            )
+            .unwrap(),
         ]
     }
 
@@ -701,7 +717,7 @@ mod tests {
     #[test]
     fn source_coordinates_within_a_32nd_of_a_pixel() {
         for (n, rig) in test_rigs().iter().enumerate() {
-            for mm_per_px in [None, Some(5.0)] {
+            for mm_per_px in [None, Some(5.0), Some(9.4)] {
                 let grid = KgGrid::for_rig(rig, &GridConfig { mm_per_px, ..GridConfig::default() }).unwrap();
                 let table = RemapTable::new(rig, &grid).unwrap();
                 let error = max_source_error(rig, &grid, &table);
@@ -716,6 +732,27 @@ mod tests {
                 assert!(error <= bound, "rig {n}: {error} px above its bound {bound} px");
             }
         }
+    }
+
+    #[test]
+    fn lens_beyond_the_fixed_point_range_is_refused() {
+        // A 20,000 px focal length: Q16.16 times the lens output would overflow.
+        let rig = Rig::new_checked(
+            Intrinsics {
+                width: 1024,
+                height: 1024,
+                fx: 20000.0,
+                fy: 20000.0,
+                cx: 511.5,
+                cy: 511.5,
+                distortion: Some(Distortion { k1: -0.1, k2: 0.0, p1: 0.0, p2: 0.0, k3: 0.0 }),
+            },
+            Mount { height_mm: 400.0, tilt_deg: 10.0 },
+            Aoi { half_width_mm: 30.0, near_mm: 2100.0, far_mm: 2450.0 },
+        )
+        .unwrap();
+        let grid = KgGrid::for_rig(&rig, &GridConfig::default()).unwrap();
+        assert_eq!(RemapTable::new(&rig, &grid).unwrap_err(), TableError::LensPrecision);
     }
 
     #[test]
