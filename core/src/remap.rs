@@ -264,6 +264,7 @@ impl RemapTable {
 
     /// Builds the table in place (so a target can fill a `static` without a
     /// stack temporary).
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(a <= b)` also refuses NaN
     pub fn build(&mut self, rig: &Rig, grid: &KgGrid) -> Result<(), TableError> {
         let (width, height) = (grid.width(), grid.height());
         if width > MAX_GRID_SIDE || height > MAX_GRID_SIDE || width == 0 || height == 0 {
