@@ -353,6 +353,23 @@ impl Rig {
         }
     }
 
+    /// Largest undistorted normalised radius² that the lens maps monotonically
+    /// (infinite without distortion). Points beyond it are not seen: the exact
+    /// projection refuses them, and so does the remap table.
+    pub fn max_undistorted_radius_sq(&self) -> f64 {
+        self.max_radius_sq
+    }
+
+    /// A ground point -> normalised undistorted coordinates (x right, y down),
+    /// None if behind the camera.
+    pub fn ground_to_normalised(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+        let (x_cam, y_cam, z_cam) = self.camera_ray(Point3 { x: x_mm, y: 0.0, z: z_mm });
+        if !(z_cam > 1e-9) {
+            return None;
+        }
+        Some((x_cam / z_cam, -y_cam / z_cam))
+    }
+
     /// A ground point -> pixel of an ideal pinhole camera with the same
     /// intrinsics (no distortion). None if behind the camera.
     pub fn ground_to_undistorted_pixel(&self, x_mm: f64, z_mm: f64) -> Option<Pixel> {
