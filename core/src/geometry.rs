@@ -380,25 +380,6 @@ impl Rig {
         Some(Pixel { u: self.camera.fx * x_cam / z_cam + self.camera.cx, v: -self.camera.fy * y_cam / z_cam + self.camera.cy })
     }
 
-    /// Undistorted (pinhole) pixel -> distorted pixel, continued past the
-    /// radius where the lens folds back by scaling radially from that radius.
-    /// The continuation lies outside the image; it only keeps the remap
-    /// table's interpolation mesh smooth at nodes the camera cannot see.
-    pub fn distort_pixel_extended(&self, p: Pixel) -> Pixel {
-        let Some(d) = &self.camera.distortion else { return p };
-        let xn = (p.u - self.camera.cx) / self.camera.fx;
-        let yn = (p.v - self.camera.cy) / self.camera.fy;
-        let r2 = xn * xn + yn * yn;
-        let (xd, yd) = if r2 <= self.max_radius_sq {
-            d.apply(xn, yn)
-        } else {
-            let scale = sqrt(self.max_radius_sq / r2);
-            let (xb, yb) = d.apply(xn * scale, yn * scale);
-            (xb / scale, yb / scale)
-        };
-        Pixel { u: self.camera.fx * xd + self.camera.cx, v: self.camera.fy * yd + self.camera.cy }
-    }
-
     /// Equations (1)+(2): a point in the robot frame -> pixel (None if behind the camera).
     pub fn point_to_pixel(&self, p: Point3) -> Option<Pixel> {
         let (x_cam, y_cam, z_cam) = self.camera_ray(p);
