@@ -149,3 +149,37 @@ fn gti_alarm_covers_gpa_under_odometry_bias() {
     println!("{confusion:?}");
     assert!(confusion.errors() <= 1 && confusion.false_alarm == 0, "{confusion:?}");
 }
+
+/// Something moving on its own (a striped ball rolling across the path,
+/// painted into flat_marks' frames) is no ground: it must raise the alarm,
+/// and the reported extent must follow it across.
+#[test]
+fn moving_object_raises_the_alarm() {
+    let recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join("flat_marks")).unwrap();
+    let config = DetectConfig::default();
+    let mut pipeline = Pipeline::new(&recording, &config).unwrap();
+    let mut reports = Vec::new();
+    let paint_ball = |index: u32, frame: &mut flatland_host::recording::Frame| {
+        let (cx, cy, r) = (60 + 22 * index as i64, 170i64, 14i64);
+        for y in cy - r..=cy + r {
+            for x in cx - r..=cx + r {
+                if (x - cx).pow(2) + (y - cy).pow(2) <= r * r && x >= 0 && (x as usize) < frame.width {
+                    // Stripes that turn as it rolls.
+                    let stripe = (x - cx + 3 * index as i64).rem_euclid(8) < 4;
+                    frame.pixels[y as usize * frame.width + x as usize] = if stripe { 200 } else { 60 };
+                }
+            }
+        }
+    };
+    pipeline
+        .run_with(&recording, &config, paint_ball, |outcome, _| {
+            if let FrameOutcome::Report { report, .. } = outcome {
+                reports.push(report);
+            }
+        })
+        .unwrap();
+    assert!(reports.iter().all(|r| r.alarm), "{reports:?}");
+    let centres: Vec<i32> = reports.iter().map(|r| (r.left_mm.unwrap() + r.right_mm.unwrap()) / 2).collect();
+    println!("ball centre x per frame: {centres:?}");
+    assert!(centres.windows(2).all(|w| w[1] > w[0]), "the extent follows the ball: {centres:?}");
+}
