@@ -45,6 +45,10 @@ const BAND_WIDTH: usize = MAX_GRID_SIDE + 2 * MAX_SEARCH_RADIUS;
 pub const KEYFRAME_SPARE_ROWS: usize = 48;
 /// Coarse cells for blob analysis, per side.
 pub const MAX_CELLS_SIDE: usize = 52;
+/// Coarse cells in all, stored `cells_wide` apart: the 40,000 px default grid
+/// cap at the 30 mm default cell stays within ~1,600; larger grids get
+/// larger cells.
+pub const MAX_CELLS: usize = 1_700;
 /// Height hypotheses for the per-cell parallax test, as fractions of the
 /// camera height H (index 0 is the ground). A point at height h = f*H shows,
 /// beyond the ground prediction, an extra displacement of T * f / (1 - f).
@@ -168,7 +172,7 @@ enum KeyframeState {
 }
 
 /// Visits the cells connected to `start` (neighbours within `radius` cells,
-/// in a grid of `size` = (columns, rows) cells stored MAX_CELLS_SIDE apart)
+/// in a grid of `size` = (columns, rows) cells stored row by row)
 /// for which `member` holds, marking them in `seen`; `visit` gets (cell,
 /// row, column). The work stack is bounded: a full one truncates the growth.
 fn flood_cells(
@@ -185,7 +189,7 @@ fn flood_cells(
     let _ = stack.push(start as u16);
     while let Some(cell) = stack.pop() {
         let cell = usize::from(cell);
-        let (r, c) = (cell / MAX_CELLS_SIDE, cell % MAX_CELLS_SIDE);
+        let (r, c) = (cell / w, cell % w);
         visit(cell, r, c);
         for dr in -radius..=radius {
             for dc in -radius..=radius {
@@ -193,7 +197,7 @@ fn flood_cells(
                 if nr < 0 || nc < 0 || nr as usize >= h || nc as usize >= w {
                     continue;
                 }
-                let neighbour = nr as usize * MAX_CELLS_SIDE + nc as usize;
+                let neighbour = nr as usize * w + nc as usize;
                 if !seen[neighbour] && member(neighbour) {
                     seen[neighbour] = true;
                     let _ = stack.push(neighbour as u16);
@@ -287,9 +291,9 @@ pub struct Gpa<'b> {
     cell_row_sad: [[u32; MAX_CELLS_SIDE]; HYPOTHESES],
     cell_row_pixels: [[u16; MAX_CELLS_SIDE]; HYPOTHESES],
     /// Parallax height (mm, 0 = ground or undecided) per cell, this frame.
-    cell_height: [u8; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
-    cell_residue: [u8; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
-    cell_valid: [u8; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
+    cell_height: [u8; MAX_CELLS],
+    cell_residue: [u8; MAX_CELLS],
+    cell_valid: [u8; MAX_CELLS],
     /// Residue pixels per grid row (for the blob base).
     row_residue: [u16; MAX_GRID_SIDE],
     /// Noise level (gray levels, x16) measured on earlier frames.
@@ -522,9 +526,9 @@ impl<'b> Gpa<'b> {
         full_tolerance: (false, false),
         cell_row_sad: [[0; MAX_CELLS_SIDE]; HYPOTHESES],
         cell_row_pixels: [[0; MAX_CELLS_SIDE]; HYPOTHESES],
-        cell_height: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
-        cell_residue: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
-        cell_valid: [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE],
+        cell_height: [0; MAX_CELLS],
+        cell_residue: [0; MAX_CELLS],
+        cell_valid: [0; MAX_CELLS],
         row_residue: [0; MAX_GRID_SIDE],
         noise_x16: 0,
         noise_floor: 0,
@@ -590,9 +594,15 @@ impl<'b> Gpa<'b> {
             return Err(GpaError::BufferTooSmall { needed });
         }
         let aoi = grid.aoi_pixels(rig);
-        // At least 5 px: a coherent sample for the parallax test, and the cell
-        // arrays stay within MAX_CELLS_SIDE for the largest grid.
-        let cell_px = (libm::round(config.cell_mm / grid.mm_per_px) as usize).clamp(5, 15);
+        // At least 5 px: a coherent sample for the parallax test; and large
+        // enough that the cells fit MAX_CELLS_SIDE per side and MAX_CELLS in all.
+        let mut cell_px = (libm::round(config.cell_mm / grid.mm_per_px) as usize).clamp(5, 15);
+        while grid.width().div_ceil(cell_px) * aoi.bottom.div_ceil(cell_px) > MAX_CELLS
+            || grid.width().div_ceil(cell_px) > MAX_CELLS_SIDE
+            || aoi.bottom.div_ceil(cell_px) > MAX_CELLS_SIDE
+        {
+            cell_px += 1;
+        }
         self.current_valid = [(0, 0); MAX_GRID_SIDE];
         for (j, slot) in self.current_valid.iter_mut().enumerate().take(grid.height()) {
             let range = table.valid_columns(j);
@@ -618,8 +628,8 @@ impl<'b> Gpa<'b> {
         self.aoi = aoi;
         self.analysis_rows = aoi.bottom;
         self.cell_px = cell_px;
-        self.cells_wide = grid.width().div_ceil(cell_px).min(MAX_CELLS_SIDE);
-        self.cells_high = aoi.bottom.div_ceil(cell_px).min(MAX_CELLS_SIDE);
+        self.cells_wide = grid.width().div_ceil(cell_px);
+        self.cells_high = aoi.bottom.div_ceil(cell_px);
         self.keyframe = keyframe;
         self.keyframe_rows = grid.height() + KEYFRAME_SPARE_ROWS;
         self.keyframe_base = 0;
@@ -649,9 +659,9 @@ impl<'b> Gpa<'b> {
         self.full_tolerance = (false, false);
         self.cell_row_sad = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
         self.cell_row_pixels = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
-        self.cell_height = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
-        self.cell_residue = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
-        self.cell_valid = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
+        self.cell_height = [0; MAX_CELLS];
+        self.cell_residue = [0; MAX_CELLS];
+        self.cell_valid = [0; MAX_CELLS];
         self.row_residue = [0; MAX_GRID_SIDE];
         self.noise_x16 = 0;
         self.noise_floor = 0;
@@ -794,10 +804,10 @@ impl<'b> Gpa<'b> {
         self.seed_count = [[0; MAX_WINDOW]; MAX_WINDOW];
         self.compared_pixels = 0;
         self.diff_hist = [0; 256];
-        self.cell_residue = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
-        self.cell_valid = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
+        self.cell_residue = [0; MAX_CELLS];
+        self.cell_valid = [0; MAX_CELLS];
         self.row_residue = [0; MAX_GRID_SIDE];
-        self.cell_height = [0; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
+        self.cell_height = [0; MAX_CELLS];
         self.cell_row_sad = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
         self.cell_row_pixels = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
     }
@@ -979,7 +989,7 @@ impl<'b> Gpa<'b> {
             let mut residues = [0u8; MAX_GRID_SIDE];
             let mut unexplained = [0u8; MAX_GRID_SIDE];
             let threshold = self.residue_threshold;
-            let cell_base = cell_row * MAX_CELLS_SIDE;
+            let cell_base = cell_row * self.cells_wide;
             for &run in runs {
                 let columns = clip(run, 0, cells_end);
                 if columns.is_empty() {
@@ -1196,7 +1206,7 @@ impl<'b> Gpa<'b> {
             let unexplained = value.saturating_sub(wide_high).max(wide_low.saturating_sub(value));
             let cell_column = c / self.cell_px;
             if cell_row < self.cells_high && cell_column < self.cells_wide {
-                let cell = cell_row * MAX_CELLS_SIDE + cell_column;
+                let cell = cell_row * self.cells_wide + cell_column;
                 self.cell_valid[cell] = self.cell_valid[cell].saturating_add(1);
                 if unexplained > threshold {
                     self.cell_residue[cell] = self.cell_residue[cell].saturating_add(1);
@@ -1249,7 +1259,7 @@ impl<'b> Gpa<'b> {
         let min_gain = self.config.parallax_min_gain.max(noise);
         for column in 0..self.cells_wide {
             let pixels = self.cell_row_pixels[0][column];
-            let cell = cell_row * MAX_CELLS_SIDE + column;
+            let cell = cell_row * self.cells_wide + column;
             self.cell_height[cell] = 0;
             if pixels < min_pixels || self.usable_hypotheses < 2 {
                 continue;
@@ -1547,10 +1557,10 @@ impl<'b> Gpa<'b> {
         let min_height = self.config.min_obstacle_height_mm;
         let tall = |cell: usize| f64::from(self.cell_height[cell]) >= min_height;
         let aoi = self.aoi_mm();
-        let mut seen = [false; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
+        let mut seen = [false; MAX_CELLS];
         let mut best: Option<(f64, f64, f64, f64)> = None;
         for start in 0..h * w {
-            let start_cell = (start / w) * MAX_CELLS_SIDE + start % w;
+            let start_cell = start;
             if seen[start_cell] || !tall(start_cell) {
                 continue;
             }
@@ -1616,11 +1626,11 @@ impl<'b> Gpa<'b> {
     fn find_blobs(&mut self) -> Option<Blob> {
         let mut blobs: heapless::Vec<Blob, MAX_BLOBS> = heapless::Vec::new();
         let (w, h) = (self.cells_wide, self.cells_high);
-        let mut label = [false; MAX_CELLS_SIDE * MAX_CELLS_SIDE];
+        let mut label = [false; MAX_CELLS];
         let percent = |cell: usize| self.residue_percent(cell);
         let active = |cell: usize| percent(cell) >= self.config.active_cell_percent;
         for start in 0..h * w {
-            let start_cell = (start / w) * MAX_CELLS_SIDE + start % w;
+            let start_cell = start;
             if label[start_cell] || !active(start_cell) {
                 continue;
             }
@@ -1698,7 +1708,7 @@ impl<'b> Gpa<'b> {
         if row >= self.cells_high || column >= self.cells_wide {
             return (0, 0);
         }
-        let cell = row * MAX_CELLS_SIDE + column;
+        let cell = row * self.cells_wide + column;
         (self.cell_residue[cell], self.cell_valid[cell])
     }
     /// Parallax height (mm) of a cell in the last frame, 0 for ground.
@@ -1706,7 +1716,7 @@ impl<'b> Gpa<'b> {
         if row >= self.cells_high || column >= self.cells_wide {
             return 0;
         }
-        self.cell_height[row * MAX_CELLS_SIDE + column]
+        self.cell_height[row * self.cells_wide + column]
     }
     /// Coherence cells (rows, columns).
     pub fn cells(&self) -> (usize, usize) {

@@ -33,9 +33,10 @@ use crate::board::{CycleCounter, RowSource, RowSourceError};
 
 /// Widest camera row supported (VGA); wider rigs are refused at start-up.
 pub const MAX_CAMERA_WIDTH: usize = 640;
-/// Camera rows the streaming remap may keep: 8 rows of the widest camera.
-/// The bundled rigs need 2; steep tilts and strong distortion need more.
-pub const RING_CAPACITY: usize = 8 * MAX_CAMERA_WIDTH;
+/// Camera rows the streaming remap may keep: 4 rows of the widest camera
+/// (8 of a QVGA one). The bundled rigs need 2; steep tilts and strong
+/// distortion need more, and are refused at start-up if they need too many.
+pub const RING_CAPACITY: usize = 4 * MAX_CAMERA_WIDTH;
 /// Keyframe memory (`Gpa::keyframe_bytes`: grid plus 48 spare rows). 48 KiB
 /// holds every bundled rig's default grid (256x256 camera: 141x255, 42,723 B;
 /// QVGA: 179x220, 47,972 B) and the 256x256 rig at 5 mm/px (161x256,
