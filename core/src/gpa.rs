@@ -874,7 +874,7 @@ impl<'b> Gpa<'b> {
         let (cur_lo, cur_hi) = self.current_valid[j];
         let (cur_lo, cur_hi) = (usize::from(cur_lo), usize::from(cur_hi));
         let cell_row = j / self.cell_px;
-        let last_row_of_cell = (j + 1) % self.cell_px == 0 || j + 1 == self.analysis_rows;
+        let last_row_of_cell = (j + 1).is_multiple_of(self.cell_px) || j + 1 == self.analysis_rows;
         if cur_hi <= cur_lo {
             if last_row_of_cell {
                 self.finish_cell_row(cell_row);
@@ -1110,6 +1110,8 @@ impl<'b> Gpa<'b> {
     /// The plain per-pixel form of [`Self::compare_row`], kept as its
     /// reference: the tests check that both leave identical state.
     #[cfg(test)]
+    // Indexed loops on purpose: the reference is written pixel by pixel.
+    #[allow(clippy::needless_range_loop)]
     fn compare_row_reference(&mut self, j: usize, row: &[u8]) {
         let s = self.config.search_radius;
         let width = self.grid.width();
@@ -1117,7 +1119,7 @@ impl<'b> Gpa<'b> {
         let (cur_lo, cur_hi) = self.current_valid[j];
         let (cur_lo, cur_hi) = (usize::from(cur_lo), usize::from(cur_hi));
         let cell_row = j / self.cell_px;
-        let last_row_of_cell = (j + 1) % self.cell_px == 0 || j + 1 == self.analysis_rows;
+        let last_row_of_cell = (j + 1).is_multiple_of(self.cell_px) || j + 1 == self.analysis_rows;
         if cur_hi <= cur_lo {
             if last_row_of_cell {
                 self.finish_cell_row(cell_row);
