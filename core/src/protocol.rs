@@ -108,7 +108,8 @@ pub enum FaultCode {
 }
 
 impl FaultCode {
-    const ALL: [FaultCode; 8] = [
+    /// Every code, in wire order.
+    pub const ALL: [FaultCode; 8] = [
         FaultCode::RigRejected,
         FaultCode::TableRejected,
         FaultCode::FrameMissing,

@@ -355,16 +355,7 @@ fn frame_report() -> impl Strategy<Value = FrameReport> {
 }
 
 fn message() -> impl Strategy<Value = Message> {
-    let codes = [
-        FaultCode::RigRejected,
-        FaultCode::TableRejected,
-        FaultCode::FrameMissing,
-        FaultCode::FrameFormat,
-        FaultCode::FrameRead,
-        FaultCode::RemapFailed,
-        FaultCode::GridTooLarge,
-        FaultCode::CameraTooLarge,
-    ];
+    let codes = FaultCode::ALL;
     prop_oneof![
         Just(Message::Ready),
         Just(Message::End),
