@@ -871,16 +871,11 @@ impl<'b> Gpa<'b> {
         let s = self.config.search_radius;
         let width = self.grid.width();
         let warp = self.row_warp(j);
-        let (cur_lo, cur_hi) = self.current_valid[j];
-        let (cur_lo, cur_hi) = (usize::from(cur_lo), usize::from(cur_hi));
-        let cell_row = j / self.cell_px;
-        let last_row_of_cell = (j + 1).is_multiple_of(self.cell_px) || j + 1 == self.analysis_rows;
-        if cur_hi <= cur_lo {
-            if last_row_of_cell {
-                self.finish_cell_row(cell_row);
-            }
+        let Some((cur_lo, cur_hi)) = self.seen_columns(j) else {
+            self.close_cell_row(j);
             return;
-        }
+        };
+        let cell_row = j / self.cell_px;
         let t_start = self.tick();
         // Usable columns (whole search neighbourhood in the keyframe's view),
         // as runs. A translation row has one; a yawed row may have several.
@@ -1101,10 +1096,8 @@ impl<'b> Gpa<'b> {
         }
         let t_shift = self.tick();
         self.profile.shift_search = self.profile.shift_search.wrapping_add(t_shift.wrapping_sub(t_parallax));
-        if last_row_of_cell {
-            self.finish_cell_row(cell_row);
-            self.profile.parallax = self.profile.parallax.wrapping_add(self.tick().wrapping_sub(t_shift));
-        }
+        self.close_cell_row(j);
+        self.profile.parallax = self.profile.parallax.wrapping_add(self.tick().wrapping_sub(t_shift));
     }
 
     /// The plain per-pixel form of [`Self::compare_row`], kept as its
@@ -1116,16 +1109,11 @@ impl<'b> Gpa<'b> {
         let s = self.config.search_radius;
         let width = self.grid.width();
         let warp = self.row_warp(j);
-        let (cur_lo, cur_hi) = self.current_valid[j];
-        let (cur_lo, cur_hi) = (usize::from(cur_lo), usize::from(cur_hi));
-        let cell_row = j / self.cell_px;
-        let last_row_of_cell = (j + 1).is_multiple_of(self.cell_px) || j + 1 == self.analysis_rows;
-        if cur_hi <= cur_lo {
-            if last_row_of_cell {
-                self.finish_cell_row(cell_row);
-            }
+        let Some((cur_lo, cur_hi)) = self.seen_columns(j) else {
+            self.close_cell_row(j);
             return;
-        }
+        };
+        let cell_row = j / self.cell_px;
         let rows_limit = (self.grid.height() as i32 - 1) << FRAC;
         let reference_at = |c: usize| {
             let i = warp.i_start.wrapping_add((c as i32).wrapping_mul(warp.i_step));
@@ -1246,8 +1234,19 @@ impl<'b> Gpa<'b> {
                 }
             }
         }
-        if last_row_of_cell {
-            self.finish_cell_row(cell_row);
+        self.close_cell_row(j);
+    }
+
+    /// Columns `[lo, hi)` of current row `j` that the camera sees, or None.
+    fn seen_columns(&self, j: usize) -> Option<(usize, usize)> {
+        let (lo, hi) = self.current_valid[j];
+        (hi > lo).then_some((usize::from(lo), usize::from(hi)))
+    }
+
+    /// After row `j`: decides its cell row if `j` was that row's last.
+    fn close_cell_row(&mut self, j: usize) {
+        if (j + 1).is_multiple_of(self.cell_px) || j + 1 == self.analysis_rows {
+            self.finish_cell_row(j / self.cell_px);
         }
     }
 
@@ -1726,9 +1725,6 @@ impl<'b> Gpa<'b> {
     }
     pub fn cell_px(&self) -> usize {
         self.cell_px
-    }
-    pub fn residue_threshold(&self) -> u8 {
-        self.residue_threshold
     }
     /// Which evidence raised the last frame's alarm.
     pub fn alarm_source(&self) -> AlarmSource {

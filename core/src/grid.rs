@@ -199,9 +199,6 @@ impl PixelRect {
     pub fn area(&self) -> usize {
         self.width() * self.height()
     }
-    pub fn contains(&self, column: usize, row: usize) -> bool {
-        column >= self.left && column < self.right && row >= self.top && row < self.bottom
-    }
 }
 
 #[cfg(test)]

@@ -682,23 +682,7 @@ pub mod checks {
         }
     }
 
-    fn sample_report() -> FrameReport {
-        FrameReport {
-            frame: 7,
-            ref_frame: 6,
-            alarm: true,
-            nearest_mm: Some(820),
-            left_mm: Some(-120),
-            right_mm: None,
-            sad: 12345,
-            count50: 67,
-            shift_k: -5,
-            shift_g: 125,
-            tx: -3,
-            tz: 1003,
-            obstacle_h_mm: None,
-        }
-    }
+    use crate::report::sample_report;
 
     /// Every decoded message of `bytes`, in order; errors are dropped (and counted).
     fn decode_all(decoder: &mut Decoder, bytes: &[u8]) -> heapless::Vec<Message, 16> {

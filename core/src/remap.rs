@@ -78,8 +78,6 @@ pub enum RemapError {
     TooManyRows,
     /// The ring buffer holds fewer than [`RemapTable::ring_rows`] camera rows.
     RingTooSmall { needed: usize },
-    /// The frame ended before all camera rows arrived.
-    Incomplete { rows_received: u16 },
     /// The output buffer is smaller than the grid.
     OutputTooSmall,
 }
@@ -92,9 +90,6 @@ impl core::fmt::Display for RemapError {
             }
             RemapError::TooManyRows => f.write_str("more camera rows than the image height"),
             RemapError::RingTooSmall { needed } => write!(f, "row ring needs {needed} bytes"),
-            RemapError::Incomplete { rows_received } => {
-                write!(f, "frame ended after {rows_received} rows")
-            }
             RemapError::OutputTooSmall => f.write_str("output buffer smaller than the KG grid"),
         }
     }
@@ -544,11 +539,6 @@ impl<'t, 'r> StreamingRemap<'t, 'r> {
     /// Camera rows received in the current frame.
     pub fn rows_received(&self) -> usize {
         usize::from(self.rows_received)
-    }
-
-    /// True when every KG row of the frame has been emitted.
-    pub fn frame_done(&self) -> bool {
-        usize::from(self.next_kg_row) == self.table.grid_height()
     }
 
     /// Pushes the next camera row; calls `emit(kg_row_index, kg_row)` for every

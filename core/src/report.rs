@@ -79,27 +79,34 @@ impl FrameReport {
     }
 }
 
+/// A report with every kind of field, for the tests here and the protocol's
+/// checks (which also run on the target, hence not only under cfg(test)).
+#[cfg(any(test, feature = "selftest"))]
+pub(crate) fn sample_report() -> FrameReport {
+    FrameReport {
+        frame: 7,
+        ref_frame: 6,
+        alarm: true,
+        nearest_mm: Some(820),
+        left_mm: Some(-120),
+        right_mm: None,
+        sad: 12345,
+        count50: 67,
+        shift_k: -5,
+        shift_g: 125,
+        tx: -3,
+        tz: 1003,
+        obstacle_h_mm: None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn csv_row_has_one_field_per_header_column() {
-        let report = FrameReport {
-            frame: 3,
-            ref_frame: 1,
-            alarm: true,
-            nearest_mm: Some(820),
-            left_mm: Some(-120),
-            right_mm: Some(95),
-            sad: 12345,
-            count50: 67,
-            shift_k: -5,
-            shift_g: 125,
-            tx: -3,
-            tz: 1003,
-            obstacle_h_mm: None,
-        };
+        let report = FrameReport { frame: 3, ref_frame: 1, right_mm: Some(95), ..sample_report() };
         let mut line: heapless::String<160> = heapless::String::new();
         report.write_csv(&mut line).unwrap();
         assert_eq!(line.as_str(), "3,1,1,820,-120,95,12345,67,-0.05,1.25,-0.3,100.3,");
