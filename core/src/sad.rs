@@ -3,7 +3,8 @@
 //! On Cortex-M4/M7 (`thumbv7em`, cfg `flatland_dsp` from build.rs) they use
 //! the DSP extension through `asm!` (LLVM never emits these): `usada8` adds
 //! four absolute differences in one instruction, `usub8` + `sel` compare and
-//! select four bytes. On x86_64 they use SSE2 (baseline there, so no runtime
+//! select four bytes, `smlad` does the bilinear blends two products at a
+//! time. On x86_64 they use SSE2 (baseline there, so no runtime
 //! detection, which `no_std` could not do anyway): `psadbw` for sums of 16
 //! absolute differences, saturating subtractions for |diff| and the levels.
 //! Elsewhere the portable versions run. All give identical results; the
@@ -64,11 +65,16 @@ pub fn seed_sums(a: &[u8], b: &[u8]) -> SeedSums {
 /// `upper` and `lower` hold at least `out.len() + 1` bytes.
 #[inline]
 pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
-    #[cfg(target_arch = "x86_64")]
+    debug_assert!(wx <= 255 && wy <= 255);
+    #[cfg(flatland_dsp)]
+    {
+        dsp::bilinear_line(upper, lower, wx, wy, out)
+    }
+    #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
     {
         sse2::bilinear_line(upper, lower, wx, wy, out)
     }
-    #[cfg(not(target_arch = "x86_64"))]
+    #[cfg(not(any(flatland_dsp, target_arch = "x86_64")))]
     {
         portable::bilinear_line(upper, lower, wx, wy, out)
     }
@@ -324,6 +330,74 @@ mod dsp {
             count_above: count31 / u32::from(SUM_LEVEL + 1) + tail.count_above,
         }
     }
+
+    /// Vertical blend first (exact integers, so the same value as the
+    /// portable horizontal-first order): `V[x] = upper[x] * (256 - wy) +
+    /// lower[x] * wy` (<= 65,280), then `out[n] = (V[n] * (256 - wx) +
+    /// V[n + 1] * wx + 2^15) >> 16`. Both steps are `smlad`s with one
+    /// accumulator constant `K = 2^23 + 2^15`:
+    /// - vertical: `smlad((u, l), (256 - wy, wy), K)` = `V + K`, whose low
+    ///   halfword is `V + 2^15 mod 2^16`, i.e. `V - 2^15` as an i16 (V < 2^16);
+    /// - horizontal: `smlad((V[n] - 2^15, V[n + 1] - 2^15), (256 - wx, wx), K)`
+    ///   = `V[n] * (256 - wx) + V[n + 1] * wx - 2^15 * 256 + 2^23 + 2^15`,
+    ///   the portable sum before the shift (< 2^24, so bits 24..31 are zero).
+    ///
+    /// 4 samples per iteration, 26 instructions; `V` of the last column is
+    /// carried to the next iteration. The tail (< 4 samples) is portable.
+    #[inline]
+    pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
+        const K: u32 = (1 << 23) + (1 << 15);
+        let n = out.len().min(upper.len().saturating_sub(1)).min(lower.len().saturating_sub(1));
+        let words = n / 4;
+        if words > 0 {
+            let wxs = (256 - wx) | (wx << 16);
+            let wys = (256 - wy) | (wy << 16);
+            let v0 = u32::from(upper[0]) * (256 - wy) + u32::from(lower[0]) * wy + K;
+            // SAFETY: iteration i reads the words upper/lower[4i + 1..4i + 5]
+            // (the last ends at 4 * words + 1 <= n + 1 <= len) and writes the
+            // word out[4i..4i + 4] (<= n <= out.len()); unaligned ldr/str are
+            // fine on the M4. Register arithmetic only otherwise.
+            unsafe {
+                core::arch::asm!(
+                    "2:",
+                    "ldr {u}, [{pu}], #4",            // bytes u1 u2 u3 u4
+                    "ldr {l}, [{pl}], #4",
+                    "pkhbt {a}, {u}, {l}, lsl #16",   // bytes u1 u2 l1 l2
+                    "pkhtb {b}, {l}, {u}, asr #16",   // bytes u3 u4 l3 l4
+                    "uxtb16 {u}, {a}",                // (u1, l1)
+                    "smlad {u}, {u}, {wy}, {k}",      // V1 + K
+                    "uxtb16 {a}, {a}, ror #8",        // (u2, l2)
+                    "smlad {a}, {a}, {wy}, {k}",      // V2 + K
+                    "pkhbt {v}, {v}, {u}, lsl #16",   // (V0, V1) - 2^15
+                    "smlad {v}, {v}, {wx}, {k}",      // out0 << 16
+                    "pkhbt {u}, {u}, {a}, lsl #16",   // (V1, V2) - 2^15
+                    "smlad {u}, {u}, {wx}, {k}",      // out1 << 16
+                    "uxtb16 {l}, {b}",                // (u3, l3)
+                    "smlad {l}, {l}, {wy}, {k}",      // V3 + K
+                    "pkhbt {a}, {a}, {l}, lsl #16",   // (V2, V3) - 2^15
+                    "smlad {a}, {a}, {wx}, {k}",      // out2 << 16
+                    "pkhtb {a}, {a}, {v}, asr #16",   // out0 | out2 << 16
+                    "uxtb16 {b}, {b}, ror #8",        // (u4, l4)
+                    "smlad {v}, {b}, {wy}, {k}",      // V4 + K: V0 of the next iteration
+                    "pkhbt {l}, {l}, {v}, lsl #16",   // (V3, V4) - 2^15
+                    "smlad {l}, {l}, {wx}, {k}",      // out3 << 16
+                    "pkhtb {l}, {l}, {u}, asr #16",   // out1 | out3 << 16
+                    "orr {a}, {a}, {l}, lsl #8",
+                    "str {a}, [{po}], #4",
+                    "subs {n}, {n}, #1",
+                    "bne 2b",
+                    pu = inout(reg) upper[1..].as_ptr() => _, pl = inout(reg) lower[1..].as_ptr() => _,
+                    po = inout(reg) out.as_mut_ptr() => _, n = inout(reg) words => _,
+                    v = inout(reg) v0 => _,
+                    u = out(reg) _, l = out(reg) _, a = out(reg) _, b = out(reg) _,
+                    wx = in(reg) wxs, wy = in(reg) wys, k = in(reg) K,
+                    options(nostack)
+                );
+            }
+        }
+        let done = 4 * words;
+        portable::bilinear_line(&upper[done..], &lower[done..], wx, wy, &mut out[done..n]);
+    }
 }
 
 #[cfg(any(test, feature = "selftest"))]
@@ -389,33 +463,77 @@ pub mod checks {
         Ok(())
     }
 
-    /// The bilinear kernel in use and the portable one equal a per-pixel loop: every length
-    /// 0..=300, unaligned starts, all edge weights and random ones.
+    /// The bilinear kernel in use and the portable one equal a per-pixel loop:
+    /// every length 0..=300, unaligned starts of `upper`, `lower` and `out`
+    /// (independently), edge weights (0, 1, 128, 255) and random ones, random
+    /// pixels, pixels near the middle, and all-0 / all-255 / alternating 0-255
+    /// lines (the extremes of the intermediate sums).
     pub fn bilinear_line_equals_plain() -> Result<(), &'static str> {
         let mut upper = [0u8; 310];
         let mut lower = [0u8; 310];
-        let mut out = [0u8; 301];
-        for (round, spread) in [(1u32, 256u32), (2, 3)] {
-            fill(&mut upper, 0x2545_F491 ^ round, spread);
-            fill(&mut lower, 0x6C07_8965 ^ (round * 3), spread);
-            upper[..4].copy_from_slice(&[255, 0, 255, 255]);
-            lower[..4].copy_from_slice(&[255, 255, 0, 255]);
-            for (n, (wx, wy)) in [(0u32, 0u32), (255, 255), (0, 255), (255, 0), (128, 1), (1, 128), (77, 201)].into_iter().enumerate() {
-                for (length, kernel) in (0..=600).map(|k| (k / 2, k % 2)) {
-                    let start = (n + length) % 4;
-                    let (u, l) = (&upper[start..start + length + 1], &lower[start..start + length + 1]);
-                    out.fill(0xA5);
-                    if kernel == 0 {
-                        super::bilinear_line(u, l, wx, wy, &mut out[..length]);
-                    } else {
-                        portable::bilinear_line(u, l, wx, wy, &mut out[..length]);
+        let mut out = [0u8; 310];
+        let mut state = 0x1234_5678u32;
+        let mut random = move || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state
+        };
+        for round in 0..6u32 {
+            match round {
+                0 | 1 => {
+                    fill(&mut upper, 0x2545_F491 ^ round, if round == 0 { 256 } else { 3 });
+                    fill(&mut lower, 0x6C07_8965 ^ (round * 3), if round == 0 { 256 } else { 3 });
+                    upper[..4].copy_from_slice(&[255, 0, 255, 255]);
+                    lower[..4].copy_from_slice(&[255, 255, 0, 255]);
+                }
+                2 => {
+                    upper.fill(255);
+                    lower.fill(255);
+                }
+                3 => {
+                    upper.fill(0);
+                    lower.fill(0);
+                }
+                4 => {
+                    for (n, (u, l)) in upper.iter_mut().zip(lower.iter_mut()).enumerate() {
+                        *u = if n % 2 == 0 { 255 } else { 0 };
+                        *l = if n % 3 == 0 { 0 } else { 255 };
                     }
-                    for (c, &got) in out[..length].iter().enumerate() {
+                }
+                _ => {
+                    for (n, (u, l)) in upper.iter_mut().zip(lower.iter_mut()).enumerate() {
+                        *u = if n % 2 == 0 { 0 } else { 255 };
+                        *l = if n % 2 == 0 { 255 } else { 0 };
+                    }
+                }
+            }
+            let mut weights = [(0u32, 0u32), (255, 255), (0, 255), (255, 0), (128, 1), (1, 128), (128, 128), (1, 1), (77, 201), (0, 0), (0, 0), (0, 0)];
+            for pair in weights[9..].iter_mut() {
+                let r = random();
+                *pair = (r & 0xFF, (r >> 8) & 0xFF);
+            }
+            for (n, &(wx, wy)) in weights.iter().enumerate() {
+                for (length, kernel) in (0..=600).map(|k| (k / 2, k % 2)) {
+                    let r = random() as usize;
+                    let (su, sl, so) = ((n + length) % 4, (r >> 4) % 4, (r >> 8) % 4);
+                    let (u, l) = (&upper[su..su + length + 1], &lower[sl..sl + length + 1]);
+                    out.fill(0xA5);
+                    let target = &mut out[so..so + length];
+                    if kernel == 0 {
+                        super::bilinear_line(u, l, wx, wy, target);
+                    } else {
+                        portable::bilinear_line(u, l, wx, wy, target);
+                    }
+                    for (c, &got) in target.iter().enumerate() {
                         let top = u32::from(u[c]) * (256 - wx) + u32::from(u[c + 1]) * wx;
                         let bottom = u32::from(l[c]) * (256 - wx) + u32::from(l[c + 1]) * wx;
                         if u32::from(got) != (top * (256 - wy) + bottom * wy + (1 << 15)) >> 16 {
                             return Err("bilinear_line differs from the per-pixel formula");
                         }
+                    }
+                    if out[..so].iter().chain(&out[so + length..]).any(|&b| b != 0xA5) {
+                        return Err("bilinear_line wrote outside its output");
                     }
                 }
             }

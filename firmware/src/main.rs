@@ -51,8 +51,10 @@ fn main() -> ! {
         defmt::println!("bench: stack_region_bytes: {=usize}", size);
         // After the stack measurement: the kernels' buffers are not the pipeline's.
         let (sad, seed) = kernel_bench();
+        let bilinear = bilinear_bench();
         defmt::println!("bench: sad_instructions_per_4_differences_x100: {=u32}", sad);
         defmt::println!("bench: seed_instructions_per_4_differences_x100: {=u32}", seed);
+        defmt::println!("bench: bilinear_instructions_per_pixel_x100: {=u32}", bilinear);
     }
     // No guard page below the stack: a stack that reached the statics may
     // have corrupted them, so the run is not trusted.
@@ -83,4 +85,32 @@ fn kernel_bench() -> (u32, u32) {
     let seed = instructions_now().wrapping_sub(start);
     let per_4 = |instructions: u32| instructions * 100 * 4 / N as u32;
     (per_4(sad), per_4(seed))
+}
+
+/// Instructions per output pixel (x100) of the GPA warp's bilinear line
+/// (`sad::bilinear_line`), 1023 samples from two 1024-byte rows (call
+/// overhead included). Separate from `kernel_bench` so its figures keep
+/// their code.
+#[inline(never)]
+fn bilinear_bench() -> u32 {
+    use flatland_firmware::board::emulated::instructions_now;
+    const N: usize = 1024;
+    let mut upper = [0u8; N];
+    let mut lower = [0u8; N];
+    for (n, (x, y)) in upper.iter_mut().zip(lower.iter_mut()).enumerate() {
+        *x = (n * 37 % 251) as u8;
+        *y = (n * 91 % 241) as u8;
+    }
+    let mut line = [0u8; N - 1];
+    let start = instructions_now();
+    flatland_core::sad::bilinear_line(
+        core::hint::black_box(&upper),
+        core::hint::black_box(&lower),
+        core::hint::black_box(77),
+        core::hint::black_box(201),
+        core::hint::black_box(&mut line),
+    );
+    let instructions = instructions_now().wrapping_sub(start);
+    core::hint::black_box(&line);
+    instructions * 100 / (N - 1) as u32
 }
