@@ -270,14 +270,16 @@ pub struct Gpa<'b> {
     band: [[u8; BAND_WIDTH]; MAX_WINDOW],
     /// Row, warp and columns the band was last sampled for (this frame).
     band_source: Option<(usize, RowWarp, Range<usize>)>,
-    sad: [[u32; MAX_WINDOW]; MAX_WINDOW],
-    /// The part of `sad` from the far half of the AOI rows.
+    /// SAD per shift [dg][dk] over the near half of the AOI rows; the far
+    /// half apart: a yaw error shifts far rows sideways more than near ones,
+    /// which is how it is measured.
+    sad_near: [[u32; MAX_WINDOW]; MAX_WINDOW],
+    /// The same over the far half.
     sad_far: [[u32; MAX_WINDOW]; MAX_WINDOW],
-    seed_sum: [[u32; MAX_WINDOW]; MAX_WINDOW],
-    seed_count: [[u32; MAX_WINDOW]; MAX_WINDOW],
     compared_pixels: u32,
-    /// Histogram of the plain |diff| at the predicted shift over the AOI (noise estimate).
-    diff_hist: [u32; 256],
+    /// Histogram of the plain |diff| at the predicted shift over the AOI:
+    /// the seed's statistics and the noise estimate.
+    diff_hist: sad::DiffHistogram,
     /// Extra keyframe offset (KG px, Q16.16) per hypothesis this frame.
     hypothesis_offset: [(i32, i32); HYPOTHESES],
     /// Hypotheses whose samples stay clear of the in-place keyframe update.
@@ -514,12 +516,10 @@ impl<'b> Gpa<'b> {
         warp_row: (0.0, 0.0),
         band: [[0; BAND_WIDTH]; MAX_WINDOW],
         band_source: None,
-        sad: [[0; MAX_WINDOW]; MAX_WINDOW],
+        sad_near: [[0; MAX_WINDOW]; MAX_WINDOW],
         sad_far: [[0; MAX_WINDOW]; MAX_WINDOW],
-        seed_sum: [[0; MAX_WINDOW]; MAX_WINDOW],
-        seed_count: [[0; MAX_WINDOW]; MAX_WINDOW],
         compared_pixels: 0,
-        diff_hist: [0; 256],
+        diff_hist: sad::DiffHistogram::EMPTY,
         hypothesis_offset: [(0, 0); HYPOTHESES],
         usable_hypotheses: 0,
         ground_like: 1,
@@ -647,12 +647,10 @@ impl<'b> Gpa<'b> {
         self.warp_column = (0.0, 0.0);
         self.warp_row = (0.0, 0.0);
         self.band = [[0; BAND_WIDTH]; MAX_WINDOW];
-        self.sad = [[0; MAX_WINDOW]; MAX_WINDOW];
+        self.sad_near = [[0; MAX_WINDOW]; MAX_WINDOW];
         self.sad_far = [[0; MAX_WINDOW]; MAX_WINDOW];
-        self.seed_sum = [[0; MAX_WINDOW]; MAX_WINDOW];
-        self.seed_count = [[0; MAX_WINDOW]; MAX_WINDOW];
         self.compared_pixels = 0;
-        self.diff_hist = [0; 256];
+        self.diff_hist.clear();
         self.hypothesis_offset = [(0, 0); HYPOTHESES];
         self.usable_hypotheses = 0;
         self.ground_like = 1;
@@ -798,12 +796,10 @@ impl<'b> Gpa<'b> {
         self.warp_column = (along.0 - origin.0, along.1 - origin.1);
         self.warp_row = (down.0 - origin.0, down.1 - origin.1);
 
-        self.sad = [[0; MAX_WINDOW]; MAX_WINDOW];
+        self.sad_near = [[0; MAX_WINDOW]; MAX_WINDOW];
         self.sad_far = [[0; MAX_WINDOW]; MAX_WINDOW];
-        self.seed_sum = [[0; MAX_WINDOW]; MAX_WINDOW];
-        self.seed_count = [[0; MAX_WINDOW]; MAX_WINDOW];
         self.compared_pixels = 0;
-        self.diff_hist = [0; 256];
+        self.diff_hist.clear();
         self.cell_residue = [0; MAX_CELLS];
         self.cell_valid = [0; MAX_CELLS];
         self.row_residue = [0; MAX_GRID_SIDE];
@@ -1069,28 +1065,20 @@ impl<'b> Gpa<'b> {
             // far rows sideways more than near ones, which is how it is measured.
             let far_half = j < (self.aoi.top + self.aoi.bottom) / 2;
             let r = MAX_SEARCH_RADIUS;
+            let window = 2 * s + 1;
             for &run in runs {
                 let columns = clip(run, self.aoi.left, self.aoi.right);
                 if columns.is_empty() {
                     continue;
                 }
                 let current = &row[columns.clone()];
-                let centre = &self.band[s][columns.start + r..columns.end + r];
-                for (&value, &here) in current.iter().zip(centre) {
-                    self.diff_hist[usize::from(value.abs_diff(here))] += 1;
-                }
+                self.diff_hist.add(current, &self.band[s][columns.start + r..columns.end + r]);
                 self.compared_pixels += columns.len() as u32;
-                for dg in 0..=2 * s {
-                    for dk in 0..=2 * s {
-                        let start = columns.start + r + dk - s;
-                        let sums = sad::seed_sums(current, &self.band[dg][start..start + current.len()]);
-                        self.sad[dg][dk] += sums.sad;
-                        if far_half {
-                            self.sad_far[dg][dk] += sums.sad;
-                        }
-                        self.seed_sum[dg][dk] += sums.sum_above;
-                        self.seed_count[dg][dk] += sums.count_above;
-                    }
+                // Shift dk of band row dg compares current[c] with band[dg][c + dk - s].
+                let reference = columns.start + r - s..columns.end + r + s;
+                let sums = if far_half { &mut self.sad_far } else { &mut self.sad_near };
+                for (sums, band) in sums.iter_mut().zip(&self.band).take(window) {
+                    sad::sad_shifts(current, &band[reference.clone()], &mut sums[..window]);
                 }
             }
         }
@@ -1214,21 +1202,15 @@ impl<'b> Gpa<'b> {
                 }
             }
             if in_aoi_row && c >= self.aoi.left && c < self.aoi.right {
-                self.diff_hist[usize::from(value.abs_diff(here))] += 1;
+                self.diff_hist.add_one(value.abs_diff(here));
                 self.compared_pixels += 1;
                 for dg in 0..=2 * s {
                     for dk in 0..=2 * s {
-                        let reference = self.band[dg][centre + dk - s];
-                        let diff = value.abs_diff(reference);
-                        self.sad[dg][dk] += u32::from(diff);
+                        let diff = u32::from(value.abs_diff(self.band[dg][centre + dk - s]));
                         if far_half {
-                            self.sad_far[dg][dk] += u32::from(diff);
-                        }
-                        if diff > SEED_SUM_LEVEL {
-                            self.seed_sum[dg][dk] += u32::from(diff);
-                        }
-                        if diff > SEED_COUNT_LEVEL {
-                            self.seed_count[dg][dk] += 1;
+                            self.sad_far[dg][dk] += diff;
+                        } else {
+                            self.sad_near[dg][dk] += diff;
                         }
                     }
                 }
@@ -1367,11 +1349,17 @@ impl<'b> Gpa<'b> {
 
     fn decide(&mut self) -> FrameReport {
         let s = self.config.search_radius;
+        let mut sad = self.sad_near;
+        for (row, far) in sad.iter_mut().zip(&self.sad_far) {
+            for (sum, &far) in row.iter_mut().zip(far) {
+                *sum += far;
+            }
+        }
         // Best integer shift, then a parabola per axis for the sub-pixel part.
         let (mut best_g, mut best_k) = (s, s);
         for dg in 0..=2 * s {
             for dk in 0..=2 * s {
-                if self.sad[dg][dk] < self.sad[best_g][best_k] {
+                if sad[dg][dk] < sad[best_g][best_k] {
                     best_g = dg;
                     best_k = dk;
                 }
@@ -1389,12 +1377,12 @@ impl<'b> Gpa<'b> {
         let interior_k = best_k > 0 && best_k < 2 * s;
         let interior_g = best_g > 0 && best_g < 2 * s;
         let sub_k = if interior_k {
-            parabola(self.sad[best_g][best_k - 1], self.sad[best_g][best_k], self.sad[best_g][best_k + 1])
+            parabola(sad[best_g][best_k - 1], sad[best_g][best_k], sad[best_g][best_k + 1])
         } else {
             0.0
         };
         let sub_g = if interior_g {
-            parabola(self.sad[best_g - 1][best_k], self.sad[best_g][best_k], self.sad[best_g + 1][best_k])
+            parabola(sad[best_g - 1][best_k], sad[best_g][best_k], sad[best_g + 1][best_k])
         } else {
             0.0
         };
@@ -1417,7 +1405,9 @@ impl<'b> Gpa<'b> {
             self.learn_odometry_scale();
         }
 
-        self.update_noise();
+        let histogram = self.diff_hist.counts();
+        let (seed_sum, seed_count) = sad::seed_statistics(&histogram);
+        self.update_noise(&histogram);
         // Parallax first: it measures height and footprint directly. The
         // residue blob catches what has no consistent parallax (moving things).
         let parallax = self.find_parallax_obstacle();
@@ -1456,8 +1446,8 @@ impl<'b> Gpa<'b> {
             nearest_mm,
             left_mm,
             right_mm,
-            sad: self.seed_sum[best_g][best_k],
-            count50: self.seed_count[best_g][best_k],
+            sad: seed_sum,
+            count50: seed_count,
             shift_k: libm::round(shift_k * f64::from(SHIFT_SCALE)) as i32,
             shift_g: libm::round(shift_g * f64::from(SHIFT_SCALE)) as i32,
             tx: libm::round(self.motion_to_last.tx_mm * f64::from(MOTION_SCALE)) as i32,
@@ -1499,7 +1489,7 @@ impl<'b> Gpa<'b> {
             Some(best as f64 - s as f64 + parabola(half(best - 1), half(best), half(best + 1)))
         };
         let far = row_of(&|k| self.sad_far[best_g][k])?;
-        let near = row_of(&|k| self.sad[best_g][k] - self.sad_far[best_g][k])?;
+        let near = row_of(&|k| self.sad_near[best_g][k])?;
         let middle = (self.aoi.top + self.aoi.bottom) / 2;
         let (_, z_far) = self.grid.pixel_to_ground(0.0, (self.aoi.top + middle) as f64 / 2.0);
         let (_, z_near) = self.grid.pixel_to_ground(0.0, (middle + self.aoi.bottom) as f64 / 2.0);
@@ -1517,14 +1507,14 @@ impl<'b> Gpa<'b> {
     /// next frame's residue threshold. The median is robust while obstacles
     /// cover less than half the AOI; for Gaussian noise on both images it is
     /// 0.674 * sqrt(2) * sigma.
-    fn update_noise(&mut self) {
-        let total: u32 = self.diff_hist.iter().sum();
+    fn update_noise(&mut self, histogram: &[u32; 256]) {
+        let total: u32 = histogram.iter().sum();
         if total == 0 {
             return;
         }
         let mut seen = 0;
         let mut median = 0u32;
-        for (level, &count) in self.diff_hist.iter().enumerate() {
+        for (level, &count) in histogram.iter().enumerate() {
             seen += count;
             if seen * 2 >= total {
                 median = level as u32;
@@ -1779,10 +1769,8 @@ mod tests {
 
     fn state(gpa: &Gpa) -> std::vec::Vec<u32> {
         let mut v = std::vec::Vec::new();
-        v.extend(gpa.sad.iter().flatten());
-        v.extend(gpa.seed_sum.iter().flatten());
-        v.extend(gpa.seed_count.iter().flatten());
-        v.extend(gpa.diff_hist.iter());
+        v.extend(gpa.sad_near.iter().flatten());
+        v.extend(gpa.diff_hist.counts().iter());
         v.push(gpa.compared_pixels);
         v.extend(gpa.cell_residue.iter().map(|&x| u32::from(x)));
         v.extend(gpa.cell_valid.iter().map(|&x| u32::from(x)));

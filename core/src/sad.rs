@@ -14,16 +14,6 @@
 pub const SUM_LEVEL: u8 = 30;
 pub const COUNT_LEVEL: u8 = 50;
 
-/// Sums over a block: SAD and the seed's statistics.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct SeedSums {
-    pub sad: u32,
-    /// Sum of |diff| where |diff| > [`SUM_LEVEL`].
-    pub sum_above: u32,
-    /// Count of |diff| > [`COUNT_LEVEL`].
-    pub count_above: u32,
-}
-
 /// Sum of |a - b| over the common length.
 #[inline]
 pub fn sad(a: &[u8], b: &[u8]) -> u32 {
@@ -41,21 +31,98 @@ pub fn sad(a: &[u8], b: &[u8]) -> u32 {
     }
 }
 
-/// SAD plus the seed's statistics over the common length.
+/// The shift search's kernel: `sums[k] += SAD(current, reference[k..k + n])`
+/// for every shift `k` in `0..sums.len()`, n = `current.len()`.
+/// `reference` holds at least `n + sums.len() - 1` bytes (shorter: no-op).
+/// One call does a whole row of shifts so each current word is loaded once.
 #[inline]
-pub fn seed_sums(a: &[u8], b: &[u8]) -> SeedSums {
+pub fn sad_shifts(current: &[u8], reference: &[u8], sums: &mut [u32]) {
+    if sums.is_empty() || reference.len() + 1 < current.len() + sums.len() {
+        return;
+    }
     #[cfg(flatland_dsp)]
     {
-        dsp::seed_sums(a, b)
+        dsp::sad_shifts(current, reference, sums)
     }
     #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
     {
-        sse2::seed_sums(a, b)
+        sse2::sad_shifts(current, reference, sums)
     }
     #[cfg(not(any(flatland_dsp, target_arch = "x86_64")))]
     {
-        portable::seed_sums(a, b)
+        portable::sad_shifts(current, reference, sums)
     }
+}
+
+/// A histogram of |diff|. On x86_64 it counts into four interleaved lanes:
+/// neighbouring pixels of flat ground have equal |diff|, and one lane would
+/// make every increment wait for the previous one's store. The M4 has no
+/// such stall and keeps one lane (1 KB).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DiffHistogram {
+    lanes: [[u32; 256]; HISTOGRAM_LANES],
+}
+
+#[cfg(target_arch = "x86_64")]
+const HISTOGRAM_LANES: usize = 4;
+#[cfg(not(target_arch = "x86_64"))]
+const HISTOGRAM_LANES: usize = 1;
+
+impl DiffHistogram {
+    pub const EMPTY: DiffHistogram = DiffHistogram { lanes: [[0; 256]; HISTOGRAM_LANES] };
+
+    pub fn clear(&mut self) {
+        *self = Self::EMPTY;
+    }
+
+    /// Counts |a[n] - b[n]| over the common length.
+    #[inline]
+    pub fn add(&mut self, a: &[u8], b: &[u8]) {
+        #[cfg(flatland_dsp)]
+        {
+            dsp::diff_histogram(a, b, &mut self.lanes[0])
+        }
+        #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+        {
+            sse2::diff_histogram(a, b, &mut self.lanes)
+        }
+        #[cfg(not(any(flatland_dsp, target_arch = "x86_64")))]
+        {
+            portable::diff_histogram(a, b, &mut self.lanes[0])
+        }
+    }
+
+    /// Adds one |diff| (the per-pixel reference path).
+    pub fn add_one(&mut self, diff: u8) {
+        self.lanes[0][usize::from(diff)] += 1;
+    }
+
+    /// The counts per |diff| level.
+    pub fn counts(&self) -> [u32; 256] {
+        let mut counts = self.lanes[0];
+        for lane in &self.lanes[1..] {
+            for (count, &more) in counts.iter_mut().zip(lane) {
+                *count += more;
+            }
+        }
+        counts
+    }
+}
+
+/// The seed's statistics from a |diff| histogram: the sum of |diff| above
+/// [`SUM_LEVEL`] and the count above [`COUNT_LEVEL`].
+pub fn seed_statistics(histogram: &[u32; 256]) -> (u32, u32) {
+    let mut sum_above = 0u32;
+    let mut count_above = 0u32;
+    for (level, &count) in histogram.iter().enumerate() {
+        if level > usize::from(SUM_LEVEL) {
+            sum_above = sum_above.wrapping_add(count.wrapping_mul(level as u32));
+        }
+        if level > usize::from(COUNT_LEVEL) {
+            count_above = count_above.wrapping_add(count);
+        }
+    }
+    (sum_above, count_above)
 }
 
 /// One line of bilinear samples with constant weights (`wx`, `wy` in 0..=255,
@@ -82,7 +149,6 @@ pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8
 
 /// Plain Rust; the reference for the DSP versions.
 pub mod portable {
-    use super::{SeedSums, COUNT_LEVEL, SUM_LEVEL};
 
     #[inline]
     pub fn sad(a: &[u8], b: &[u8]) -> u32 {
@@ -96,21 +162,17 @@ pub mod portable {
     }
 
     #[inline]
-    pub fn seed_sums(a: &[u8], b: &[u8]) -> SeedSums {
-        let mut sums = SeedSums::default();
-        for (a, b) in a.chunks(256).zip(b.chunks(256)) {
-            let (mut sad, mut above, mut count) = (0u16, 0u16, 0u16);
-            for (&x, &y) in a.iter().zip(b) {
-                let d = x.abs_diff(y);
-                sad = sad.wrapping_add(u16::from(d));
-                above = above.wrapping_add(if d > SUM_LEVEL { u16::from(d) } else { 0 });
-                count = count.wrapping_add(u16::from(d > COUNT_LEVEL));
-            }
-            sums.sad += u32::from(sad);
-            sums.sum_above += u32::from(above);
-            sums.count_above += u32::from(count);
+    pub fn sad_shifts(current: &[u8], reference: &[u8], sums: &mut [u32]) {
+        for (k, sum) in sums.iter_mut().enumerate() {
+            *sum += sad(current, &reference[k..]);
         }
-        sums
+    }
+
+    #[inline]
+    pub fn diff_histogram(a: &[u8], b: &[u8], histogram: &mut [u32; 256]) {
+        for (&x, &y) in a.iter().zip(b) {
+            histogram[usize::from(x.abs_diff(y))] += 1;
+        }
     }
 
     #[inline]
@@ -126,7 +188,7 @@ pub mod portable {
 
 #[cfg(target_arch = "x86_64")]
 pub mod sse2 {
-    use super::{portable, SeedSums, COUNT_LEVEL, SUM_LEVEL};
+    use super::portable;
     use core::arch::x86_64::*;
 
     /// Low and high 64-bit lanes of a `psadbw` accumulator, added.
@@ -163,46 +225,63 @@ pub mod sse2 {
     }
 
     #[inline]
-    pub fn seed_sums(a: &[u8], b: &[u8]) -> SeedSums {
-        let n = a.len().min(b.len());
-        let (a, b) = (&a[..n], &b[..n]);
-        let mut done = 0;
-        // |d| > level  <=>  saturating (|d| - level) != 0; the selected bytes
-        // (|d| itself, or 1 to count) are summed by `psadbw` against zero.
-        #[inline(always)]
-        unsafe fn step(x: __m128i, y: __m128i, acc: &mut [__m128i; 3]) {
-            let zero = _mm_setzero_si128();
-            let d = _mm_or_si128(_mm_subs_epu8(x, y), _mm_subs_epu8(y, x));
-            let low = _mm_cmpeq_epi8(_mm_subs_epu8(d, _mm_set1_epi8(SUM_LEVEL as i8)), zero);
-            let quiet = _mm_cmpeq_epi8(_mm_subs_epu8(d, _mm_set1_epi8(COUNT_LEVEL as i8)), zero);
-            acc[0] = _mm_add_epi64(acc[0], _mm_sad_epu8(d, zero));
-            acc[1] = _mm_add_epi64(acc[1], _mm_sad_epu8(_mm_andnot_si128(low, d), zero));
-            acc[2] = _mm_add_epi64(acc[2], _mm_sad_epu8(_mm_andnot_si128(quiet, _mm_set1_epi8(1)), zero));
+    pub fn sad_shifts(current: &[u8], reference: &[u8], sums: &mut [u32]) {
+        match sums.len() {
+            3 => shifts::<3>(current, reference, sums),
+            5 => shifts::<5>(current, reference, sums),
+            7 => shifts::<7>(current, reference, sums),
+            _ => portable::sad_shifts(current, reference, sums),
         }
-        // SAFETY: SSE2 is baseline on x86_64; loads stay inside `a[..n]`, `b[..n]`.
+    }
+
+    /// Each 16-byte block of `current` is loaded once for all N shifts.
+    #[inline(always)]
+    fn shifts<const N: usize>(current: &[u8], reference: &[u8], sums: &mut [u32]) {
+        let n = current.len();
+        let mut done = 0;
+        // SAFETY: SSE2 is baseline on x86_64; loads read current[done..done + 16]
+        // (<= n) and reference[done + k..done + k + 16] (<= n + N - 1 <= len,
+        // checked by the caller `super::sad_shifts`).
         let acc = unsafe {
-            let mut acc = [_mm_setzero_si128(); 3];
+            let mut acc = [_mm_setzero_si128(); N];
             while done + 16 <= n {
-                let x = _mm_loadu_si128(a.as_ptr().add(done).cast());
-                let y = _mm_loadu_si128(b.as_ptr().add(done).cast());
-                step(x, y, &mut acc);
+                let x = _mm_loadu_si128(current.as_ptr().add(done).cast());
+                for (k, acc) in acc.iter_mut().enumerate() {
+                    let y = _mm_loadu_si128(reference.as_ptr().add(done + k).cast());
+                    *acc = _mm_add_epi64(*acc, _mm_sad_epu8(x, y));
+                }
                 done += 16;
-            }
-            if done + 8 <= n {
-                // The upper 8 bytes are zero in both: |d| = 0 adds nothing.
-                let x = _mm_loadl_epi64(a.as_ptr().add(done).cast());
-                let y = _mm_loadl_epi64(b.as_ptr().add(done).cast());
-                step(x, y, &mut acc);
-                done += 8;
             }
             acc
         };
-        let tail = portable::seed_sums(&a[done..], &b[done..]);
-        SeedSums {
-            sad: total(acc[0]) + tail.sad,
-            sum_above: total(acc[1]) + tail.sum_above,
-            count_above: total(acc[2]) + tail.count_above,
+        for (k, (sum, acc)) in sums.iter_mut().zip(acc).enumerate() {
+            *sum += total(acc) + portable::sad(&current[done..], &reference[done + k..]);
         }
+    }
+
+    /// |diff| of 16 pixels at a time, counted into the four lanes in turn.
+    #[inline]
+    pub fn diff_histogram(a: &[u8], b: &[u8], lanes: &mut [[u32; 256]; 4]) {
+        let n = a.len().min(b.len());
+        let mut done = 0;
+        let mut diffs = [0u8; 16];
+        while done + 16 <= n {
+            // SAFETY: SSE2 is baseline on x86_64; loads read a/b[done..done + 16] (<= n).
+            unsafe {
+                let x = _mm_loadu_si128(a.as_ptr().add(done).cast());
+                let y = _mm_loadu_si128(b.as_ptr().add(done).cast());
+                let d = _mm_or_si128(_mm_subs_epu8(x, y), _mm_subs_epu8(y, x));
+                _mm_storeu_si128(diffs.as_mut_ptr().cast(), d);
+            }
+            for quad in diffs.chunks_exact(4) {
+                lanes[0][usize::from(quad[0])] += 1;
+                lanes[1][usize::from(quad[1])] += 1;
+                lanes[2][usize::from(quad[2])] += 1;
+                lanes[3][usize::from(quad[3])] += 1;
+            }
+            done += 16;
+        }
+        portable::diff_histogram(&a[done..n], &b[done..n], &mut lanes[0]);
     }
 
     /// 16 samples per step. `top` (<= 65,280) fits u16 lanes; the vertical
@@ -254,7 +333,7 @@ pub mod sse2 {
 
 #[cfg(flatland_dsp)]
 mod dsp {
-    use super::{portable, SeedSums, COUNT_LEVEL, SUM_LEVEL};
+    use super::portable;
 
     #[inline]
     pub fn sad(a: &[u8], b: &[u8]) -> u32 {
@@ -282,53 +361,104 @@ mod dsp {
         acc + portable::sad(&a[4 * words..n], &b[4 * words..n])
     }
 
-    /// The word loop is one `asm!` block: the GE flags must survive from
-    /// `usub8` to `sel`, and inlined into the GPA's row code LLVM spilled
-    /// every accumulator (30 instructions per word instead of 12).
+    /// Five shifts (the default ±2 window) per current word: the reference
+    /// word of shift 4 is the next word's shift 0, so 1 + 4 loads feed
+    /// 5 `usada8` (12 instructions per 4 pixels and 5 shifts). Other window
+    /// widths run `sad` per shift.
     #[inline]
-    pub fn seed_sums(a: &[u8], b: &[u8]) -> SeedSums {
+    pub fn sad_shifts(current: &[u8], reference: &[u8], sums: &mut [u32]) {
+        let n = current.len();
+        let words = n / 4;
+        if sums.len() != 5 || words == 0 {
+            for (k, sum) in sums.iter_mut().enumerate() {
+                *sum += sad(current, &reference[k..]);
+            }
+            return;
+        }
+        let mut acc = [0u32; 5];
+        // SAFETY: reads `words` words of `current` (4 * words <= n bytes) and
+        // reference bytes below 4 * words + 4 <= n + 4 <= reference.len()
+        // (checked by `super::sad_shifts`); unaligned ldr is fine on the M4.
+        unsafe {
+            core::arch::asm!(
+                "ldr {r0}, [{pr}]",
+                "2:",
+                "ldr {c}, [{pc}], #4",
+                "usada8 {a0}, {c}, {r0}, {a0}",
+                "ldr {t}, [{pr}, #1]",
+                "usada8 {a1}, {c}, {t}, {a1}",
+                "ldr {t}, [{pr}, #2]",
+                "usada8 {a2}, {c}, {t}, {a2}",
+                "ldr {t}, [{pr}, #3]",
+                "usada8 {a3}, {c}, {t}, {a3}",
+                "ldr {r0}, [{pr}, #4]!",          // shift 4 now, shift 0 next word
+                "usada8 {a4}, {c}, {r0}, {a4}",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                pc = inout(reg) current.as_ptr() => _, pr = inout(reg) reference.as_ptr() => _,
+                n = inout(reg) words => _,
+                c = out(reg) _, t = out(reg) _, r0 = out(reg) _,
+                a0 = inout(reg) acc[0], a1 = inout(reg) acc[1], a2 = inout(reg) acc[2],
+                a3 = inout(reg) acc[3], a4 = inout(reg) acc[4],
+                options(readonly, nostack)
+            );
+        }
+        // At most 3 pixels left: a plain loop (the portable `sad`'s block
+        // set-up would cost more than the pixels).
+        let done = 4 * words;
+        for (n, &value) in current[done..].iter().enumerate() {
+            for (k, acc) in acc.iter_mut().enumerate() {
+                *acc += u32::from(value.abs_diff(reference[done + n + k]));
+            }
+        }
+        for (sum, acc) in sums.iter_mut().zip(acc) {
+            *sum += acc;
+        }
+    }
+
+    /// |diff| of four pixels with `usub8`/`sel` (the GE flags must survive
+    /// from `usub8` to `sel`, hence one `asm!` block), then four increments.
+    #[inline]
+    pub fn diff_histogram(a: &[u8], b: &[u8], histogram: &mut [u32; 256]) {
         let n = a.len().min(b.len());
         let words = n / 4;
-        let (mut sad, mut above, mut count31) = (0u32, 0u32, 0u32);
         if words > 0 {
-            let sum_level = u32::from_ne_bytes([SUM_LEVEL + 1; 4]);
-            let count_level = u32::from_ne_bytes([COUNT_LEVEL + 1; 4]);
-            // SAFETY: reads `words` words from `a` and `b` (at least
-            // 4 * words bytes each); register arithmetic and APSR.GE only.
+            // SAFETY: reads `words` words of `a` and `b` (at least 4 * words
+            // bytes each); every index is a byte (< 256) into `histogram`.
             unsafe {
                 core::arch::asm!(
                     "2:",
                     "ldr {x}, [{pa}], #4",
                     "ldr {y}, [{pb}], #4",
-                    "usada8 {sad}, {x}, {y}, {sad}",
                     "usub8 {t}, {x}, {y}",            // GE[i] = x >= y
                     "usub8 {y}, {y}, {x}",            // GE[i] = y >= x
                     "sel {x}, {y}, {t}",              // x = |x - y| per byte
-                    "usub8 {t}, {x}, {sl}",           // GE[i] = d > SUM_LEVEL
-                    "sel {t}, {x}, {zero}",
-                    "usada8 {above}, {t}, {zero}, {above}",
-                    "usub8 {t}, {x}, {cl}",           // GE[i] = d > COUNT_LEVEL
-                    // Out of registers for a 0x01 constant: count in units of
-                    // SUM_LEVEL + 1 (31) and divide at the end.
-                    "sel {t}, {sl}, {zero}",
-                    "usada8 {count}, {t}, {zero}, {count}",
+                    "uxtb {t}, {x}",
+                    "ldr {y}, [{h}, {t}, lsl #2]",
+                    "add {y}, {y}, #1",
+                    "str {y}, [{h}, {t}, lsl #2]",
+                    "uxtb {t}, {x}, ror #8",
+                    "ldr {y}, [{h}, {t}, lsl #2]",
+                    "add {y}, {y}, #1",
+                    "str {y}, [{h}, {t}, lsl #2]",
+                    "uxtb {t}, {x}, ror #16",
+                    "ldr {y}, [{h}, {t}, lsl #2]",
+                    "add {y}, {y}, #1",
+                    "str {y}, [{h}, {t}, lsl #2]",
+                    "lsr {t}, {x}, #24",
+                    "ldr {y}, [{h}, {t}, lsl #2]",
+                    "add {y}, {y}, #1",
+                    "str {y}, [{h}, {t}, lsl #2]",
                     "subs {n}, {n}, #1",
                     "bne 2b",
                     pa = inout(reg) a.as_ptr() => _, pb = inout(reg) b.as_ptr() => _,
-                    n = inout(reg) words => _,
+                    n = inout(reg) words => _, h = in(reg) histogram.as_mut_ptr(),
                     x = out(reg) _, y = out(reg) _, t = out(reg) _,
-                    sad = inout(reg) sad, above = inout(reg) above, count = inout(reg) count31,
-                    zero = in(reg) 0u32, sl = in(reg) sum_level, cl = in(reg) count_level,
-                    options(readonly, nostack)
+                    options(nostack)
                 );
             }
         }
-        let tail = portable::seed_sums(&a[4 * words..n], &b[4 * words..n]);
-        SeedSums {
-            sad: sad + tail.sad,
-            sum_above: above + tail.sum_above,
-            count_above: count31 / u32::from(SUM_LEVEL + 1) + tail.count_above,
-        }
+        portable::diff_histogram(&a[4 * words..n], &b[4 * words..n], histogram);
     }
 
     /// Vertical blend first (exact integers, so the same value as the
@@ -404,22 +534,7 @@ mod dsp {
 /// Checks (host `#[test]`s and `cargo fw-test` on the emulated M4): the
 /// kernels in use equal the portable ones and a plain per-pixel loop.
 pub mod checks {
-    use super::{portable, SeedSums, COUNT_LEVEL, SUM_LEVEL};
-
-    fn plain(a: &[u8], b: &[u8]) -> SeedSums {
-        let mut s = SeedSums::default();
-        for (&x, &y) in a.iter().zip(b) {
-            let d = u32::from(x.abs_diff(y));
-            s.sad += d;
-            if d > u32::from(SUM_LEVEL) {
-                s.sum_above += d;
-            }
-            if d > u32::from(COUNT_LEVEL) {
-                s.count_above += 1;
-            }
-        }
-        s
-    }
+    use super::portable;
 
     /// xorshift32: deterministic bytes without a dependency.
     fn fill(buffer: &mut [u8], mut state: u32, spread: u32) {
@@ -432,10 +547,10 @@ pub mod checks {
     }
 
     /// Every length 0..=300, unaligned starts, random and edge values
-    /// (0, 255, the levels and their neighbours).
+    /// (0, 255, the seed levels and their neighbours), every window width.
     pub fn dsp_kernels_equal_portable() -> Result<(), &'static str> {
         let mut a = [0u8; 307];
-        let mut b = [0u8; 307];
+        let mut b = [0u8; 314];
         for (round, spread) in [(1u32, 256u32), (2, 60), (3, 30), (4, 3)].into_iter() {
             fill(&mut a, 0x9E37_79B9 ^ round, spread);
             fill(&mut b, 0x85EB_CA6B ^ (round * 7), spread);
@@ -450,15 +565,57 @@ pub mod checks {
             for start in 0..4 {
                 for length in 0..=300 {
                     let (x, y) = (&a[start..start + length], &b[3 - start..3 - start + length]);
-                    let expected = plain(x, y);
-                    if super::seed_sums(x, y) != expected || portable::seed_sums(x, y) != expected {
-                        return Err("seed_sums differs from the per-pixel loop");
-                    }
-                    if super::sad(x, y) != expected.sad || portable::sad(x, y) != expected.sad {
+                    let plain_sad = |y: &[u8]| x.iter().zip(y).map(|(&p, &q)| u32::from(p.abs_diff(q))).sum::<u32>();
+                    if super::sad(x, y) != plain_sad(y) || portable::sad(x, y) != plain_sad(y) {
                         return Err("sad differs from the per-pixel loop");
+                    }
+                    let mut expected = [0u32; 256];
+                    for (&p, &q) in x.iter().zip(y) {
+                        expected[usize::from(p.abs_diff(q))] += 1;
+                    }
+                    let mut histogram = super::DiffHistogram::EMPTY;
+                    histogram.add(x, y);
+                    let mut portable_histogram = [0u32; 256];
+                    portable::diff_histogram(x, y, &mut portable_histogram);
+                    if histogram.counts() != expected || portable_histogram != expected {
+                        return Err("diff_histogram differs from the per-pixel loop");
+                    }
+                    for shifts in 1..=7 {
+                        let reference = &b[3 - start..3 - start + length + shifts - 1];
+                        let mut sums = [7u32; 7];
+                        super::sad_shifts(x, reference, &mut sums[..shifts]);
+                        for (k, &sum) in sums[..shifts].iter().enumerate() {
+                            if sum != 7 + plain_sad(&reference[k..]) {
+                                return Err("sad_shifts differs from the per-pixel loop");
+                            }
+                        }
                     }
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// The seed's statistics from a histogram equal a per-pixel loop.
+    pub fn seed_statistics_equal_plain() -> Result<(), &'static str> {
+        let mut a = [0u8; 1000];
+        let mut b = [0u8; 1000];
+        fill(&mut a, 0x1234_5678, 256);
+        fill(&mut b, 0x0BAD_F00D, 256);
+        let mut histogram = super::DiffHistogram::EMPTY;
+        histogram.add(&a, &b);
+        let (mut sum_above, mut count_above) = (0u32, 0u32);
+        for (&x, &y) in a.iter().zip(&b) {
+            let d = x.abs_diff(y);
+            if d > super::SUM_LEVEL {
+                sum_above += u32::from(d);
+            }
+            if d > super::COUNT_LEVEL {
+                count_above += 1;
+            }
+        }
+        if super::seed_statistics(&histogram.counts()) != (sum_above, count_above) {
+            return Err("seed_statistics differs from the per-pixel loop");
         }
         Ok(())
     }
@@ -545,6 +702,12 @@ pub mod checks {
     #[test]
     fn bilinear_line_equals_plain_host() {
         assert_eq!(bilinear_line_equals_plain(), Ok(()));
+    }
+
+    #[cfg(test)]
+    #[test]
+    fn seed_statistics_equal_plain_host() {
+        assert_eq!(seed_statistics_equal_plain(), Ok(()));
     }
 
     #[cfg(test)]

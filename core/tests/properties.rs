@@ -4,7 +4,7 @@
 //! against a naive SAD, and the serial protocol's encode/decode round trip.
 
 use flatland_core::geometry::{Aoi, Distortion, Intrinsics, Mount, Pixel, Rig};
-use flatland_core::gpa::{Gpa, GpaConfig, MAX_SEARCH_RADIUS, SEED_COUNT_LEVEL};
+use flatland_core::gpa::{Gpa, GpaConfig, MAX_SEARCH_RADIUS, SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::motion::Motion;
 use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, Odometry, RigRecord};
@@ -258,8 +258,9 @@ proptest! {
     /// The GPA shift search on KG images fed directly: the current image is
     /// the keyframe moved by a known integer shift beyond the (zero)
     /// odometry, plus a bright patch. The reported best shift must be the
-    /// naive SAD minimum over the window, and the seed statistics at it
-    /// (sum of |diff| > 30, count of |diff| > 50) must be the patch's.
+    /// naive SAD minimum over the window, and the seed statistics (sum of
+    /// |diff| > 30, count of |diff| > 50) those of the naive |diff| at the
+    /// predicted shift over the AOI.
     #[test]
     fn gpa_shift_search_matches_naive_sad(
         radius in 1usize..=MAX_SEARCH_RADIUS,
@@ -320,11 +321,26 @@ proptest! {
         // Sub-pixel refinement moves less than half a pixel from the best integer shift.
         prop_assert!((i64::from(report.shift_k) - sk * scale).abs() < scale / 2, "shift_k {} for {}", report.shift_k, sk);
         prop_assert!((i64::from(report.shift_g) - sg * scale).abs() < scale / 2, "shift_g {} for {}", report.shift_g, sg);
-        // At the exact shift only the patch differs, by patch.3 (above both seed levels).
+        // The seed statistics at the prediction (zero shift): with no shift
+        // only the patch differs, by patch.3 (above both seed levels).
         prop_assert!(patch.3 > SEED_COUNT_LEVEL);
-        let area = (patch.2 * patch.2) as u32;
-        prop_assert_eq!(report.count50, area);
-        prop_assert_eq!(report.sad, area * u32::from(patch.3));
+        let (mut sum_above, mut count_above) = (0u32, 0u32);
+        for j in aoi.top..aoi.bottom {
+            for i in aoi.left..aoi.right {
+                let diff = current(i, j).abs_diff(key(i as i64, j as i64));
+                if diff > SEED_SUM_LEVEL {
+                    sum_above += u32::from(diff);
+                }
+                if diff > SEED_COUNT_LEVEL {
+                    count_above += 1;
+                }
+            }
+        }
+        if (sk, sg) == (0, 0) {
+            let area = (patch.2 * patch.2) as u32;
+            prop_assert_eq!((count_above, sum_above), (area, area * u32::from(patch.3)));
+        }
+        prop_assert_eq!((report.count50, report.sad), (count_above, sum_above));
     }
 }
 

@@ -50,10 +50,11 @@ fn main() -> ! {
         defmt::println!("bench: stack_high_water_bytes: {=usize}", used);
         defmt::println!("bench: stack_region_bytes: {=usize}", size);
         // After the stack measurement: the kernels' buffers are not the pipeline's.
-        let (sad, seed) = kernel_bench();
+        let (sad, shifts, histogram) = kernel_bench();
         let bilinear = bilinear_bench();
         defmt::println!("bench: sad_instructions_per_4_differences_x100: {=u32}", sad);
-        defmt::println!("bench: seed_instructions_per_4_differences_x100: {=u32}", seed);
+        defmt::println!("bench: shift_search_instructions_per_4_differences_x100: {=u32}", shifts);
+        defmt::println!("bench: histogram_instructions_per_pixel_x100: {=u32}", histogram);
         defmt::println!("bench: bilinear_instructions_per_pixel_x100: {=u32}", bilinear);
     }
     // No guard page below the stack: a stack that reached the statics may
@@ -65,26 +66,38 @@ fn main() -> ! {
     exit(Exit::Success)
 }
 
-/// Instructions per 4 pixel differences (x100) of the SAD kernel and of the
-/// SAD + seed statistics kernel, on 1024-byte blocks (call overhead included).
+/// Kernel figures on 1024-byte blocks (call overhead included), x100:
+/// instructions per 4 pixel differences of `sad` and of `sad_shifts` over
+/// five shifts (the shift search's kernel), and per pixel of the histogram.
 #[inline(never)]
-fn kernel_bench() -> (u32, u32) {
+fn kernel_bench() -> (u32, u32, u32) {
+    use core::hint::black_box;
+    use flatland_core::sad;
     use flatland_firmware::board::emulated::instructions_now;
     const N: usize = 1024;
     let mut a = [0u8; N];
-    let mut b = [0u8; N];
-    for (n, (x, y)) in a.iter_mut().zip(b.iter_mut()).enumerate() {
+    let mut b = [0u8; N + 4];
+    for (n, x) in a.iter_mut().enumerate() {
         *x = (n * 37 % 251) as u8;
+    }
+    for (n, y) in b.iter_mut().enumerate() {
         *y = (n * 91 % 241) as u8;
     }
     let start = instructions_now();
-    core::hint::black_box(flatland_core::sad::sad(core::hint::black_box(&a), core::hint::black_box(&b)));
-    let sad = instructions_now().wrapping_sub(start);
+    black_box(sad::sad(black_box(&a), black_box(&b)));
+    let sad_count = instructions_now().wrapping_sub(start);
+    let mut sums = [0u32; 5];
     let start = instructions_now();
-    core::hint::black_box(flatland_core::sad::seed_sums(core::hint::black_box(&a), core::hint::black_box(&b)));
-    let seed = instructions_now().wrapping_sub(start);
-    let per_4 = |instructions: u32| instructions * 100 * 4 / N as u32;
-    (per_4(sad), per_4(seed))
+    sad::sad_shifts(black_box(&a), black_box(&b), black_box(&mut sums));
+    let shifts_count = instructions_now().wrapping_sub(start);
+    black_box(&sums);
+    let mut histogram = sad::DiffHistogram::EMPTY;
+    let start = instructions_now();
+    black_box(&mut histogram).add(black_box(&a), black_box(&b));
+    let histogram_count = instructions_now().wrapping_sub(start);
+    black_box(&histogram);
+    let per_4 = |instructions: u32, blocks: u32| instructions * 100 * 4 / (blocks * N as u32);
+    (per_4(sad_count, 1), per_4(shifts_count, 5), histogram_count * 100 / N as u32)
 }
 
 /// Instructions per output pixel (x100) of the GPA warp's bilinear line
