@@ -319,3 +319,31 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
     let _ = writeln!(out, "cycle_us_median: {cycle_us:.1}");
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::qemu::workspace_root;
+
+    fn rig(name: &str) -> Rig {
+        Recording::open(workspace_root().join("host-tests/data").join(name)).expect("recording").rig
+    }
+
+    #[test]
+    fn full_frame_is_256_square_all_aoi_in_view() {
+        for (name, mm) in [("flat_marks", None), ("flat_marks", Some(5.0)), ("qvga_curb", None)] {
+            let full = FullFrame::for_rig(&rig(name), mm).expect("full frame");
+            let grid = KgGrid::for_rig(&full.rig, &full.grid_config()).expect("grid");
+            assert_eq!((grid.width(), grid.height()), (MAX_GRID_SIDE, MAX_GRID_SIDE), "{name}");
+            assert_eq!(grid.aoi_pixels(&full.rig).area(), MAX_GRID_SIDE * MAX_GRID_SIDE, "{name}");
+            let table = RemapTable::new(&full.rig, &grid).expect("table");
+            let valid: usize = (0..grid.height()).map(|j| table.valid_columns(j).len()).sum();
+            assert_eq!(valid, grid.len(), "{name}: every KG pixel seen");
+        }
+    }
+
+    #[test]
+    fn full_frame_refuses_a_square_out_of_view() {
+        assert!(FullFrame::for_rig(&rig("flat_marks"), Some(40.0)).is_err());
+    }
+}
