@@ -18,8 +18,13 @@ use embedded_hal::digital::OutputPin;
 use embedded_io::{Read, Write};
 
 use flatland_core::geometry::{Aoi, Distortion, Intrinsics, Mount, Rig};
+#[cfg(not(feature = "full-frame"))]
 use flatland_core::fusion::GtiStage;
 use flatland_core::gpa::{Gpa, GpaConfig};
+#[cfg(feature = "full-frame")]
+use flatland_core::gpa::KEYFRAME_SPARE_ROWS;
+#[cfg(feature = "full-frame")]
+use flatland_core::grid::MAX_GRID_SIDE;
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::motion::{Motion, Pose};
 use flatland_core::protocol::{
@@ -42,13 +47,35 @@ pub const RING_CAPACITY: usize = 4 * MAX_CAMERA_WIDTH;
 /// QVGA: 179x220, 47,972 B) and the 256x256 rig at 5 mm/px (161x256,
 /// 48,944 B). Grids near the 40,000 px cap with a wide AOI need up to ~53 KB
 /// and are refused (`grid_too_large`): RAM is for GTI (README, Performance).
+#[cfg(not(feature = "full-frame"))]
 pub const KEYFRAME_CAPACITY: usize = 48 * 1024;
+/// With the `full-frame` feature (the worst-case benchmark, `cargo fw-bench
+/// --full-frame`): the 256x256 grid's keyframe, 77,824 B. It fits in 128 KB
+/// only without the GTI stage, which that build leaves out.
+#[cfg(feature = "full-frame")]
+pub const KEYFRAME_CAPACITY: usize = MAX_GRID_SIDE * (MAX_GRID_SIDE + KEYFRAME_SPARE_ROWS);
 
 static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
 static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
 static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY);
 /// The GTI stage (`size_of::<GtiStage>()`, 19.6 KB), configured in place.
 static GTI: ConstStaticCell<GtiStage> = ConstStaticCell::new(GtiStage::UNCONFIGURED);
+/// The `full-frame` build's stand-in for the GTI stage: no heights, no RAM.
+#[cfg(feature = "full-frame")]
+struct GtiStage;
+
+#[cfg(feature = "full-frame")]
+impl GtiStage {
+    const UNCONFIGURED: GtiStage = GtiStage;
+    fn configure(&mut self, _: &Rig, _: &KgGrid) -> Result<(), flatland_core::gti::GtiError> {
+        Ok(())
+    }
+    fn on_kg_row(&mut self, _: usize, _: &[u8], _: core::ops::Range<usize>) {}
+    fn abort_frame(&mut self) {}
+    fn end_frame(&mut self, _: Option<Motion>) {}
+    fn enrich(&self, _: &mut FrameReport) {}
+}
+
 static KEYFRAME: ConstStaticCell<[u8; KEYFRAME_CAPACITY]> = ConstStaticCell::new([0; KEYFRAME_CAPACITY]);
 
 /// Why a rig was refused at start-up. Each is logged and sent as `$FLERR`.
@@ -127,6 +154,9 @@ pub struct Options {
     pub bench: bool,
     /// Fixed KG resolution (benchmarks); None: chosen from the rig, as the host does.
     pub mm_per_px: Option<f64>,
+    /// A grid without margins, the AOI all of it (`GridConfig::without_margins`;
+    /// the full-frame benchmark, which sends a square AOI).
+    pub no_margins: bool,
     /// Per-stage profile of the detector (`Gpa::set_clock`), with `bench`.
     pub clock: Option<fn() -> u32>,
 }
@@ -223,7 +253,11 @@ fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Resu
     if usize::from(record.width) > MAX_CAMERA_WIDTH {
         return Err(SetupError::CameraTooWide { width: usize::from(record.width) });
     }
-    let grid_config = GridConfig { mm_per_px: options.mm_per_px, ..GridConfig::default() };
+    let grid_config = if options.no_margins {
+        GridConfig::without_margins(options.mm_per_px)
+    } else {
+        GridConfig { mm_per_px: options.mm_per_px, ..GridConfig::default() }
+    };
     let grid = KgGrid::for_rig(&rig, &grid_config).map_err(SetupError::Grid)?;
     let needed = Gpa::keyframe_bytes(&grid);
     if needed > KEYFRAME_CAPACITY {
@@ -552,9 +586,13 @@ where
             defmt::println!("bench: gpa_shift_search: {=u32}", profile.shift_search);
             defmt::println!("bench: gpa_keyframe_update: {=u32}", profile.keyframe_update);
             defmt::println!("bench: decision: {=u32}", timing.decision);
-            defmt::println!("bench: gti_rows: {=u32}", timing.gti_rows);
-            defmt::println!("bench: gti_frame: {=u32}", timing.gti_frame);
-            defmt::println!("bench: gti: {=u32}", timing.gti_rows.wrapping_add(timing.gti_frame));
+            // The full-frame build has no GTI stage to measure.
+            #[cfg(not(feature = "full-frame"))]
+            {
+                defmt::println!("bench: gti_rows: {=u32}", timing.gti_rows);
+                defmt::println!("bench: gti_frame: {=u32}", timing.gti_frame);
+                defmt::println!("bench: gti: {=u32}", timing.gti_rows.wrapping_add(timing.gti_frame));
+            }
             defmt::println!("bench: instructions_per_cycle: {=u32}", timing.cycle);
         }
     }

@@ -3,7 +3,8 @@
 //! and reports each frame on USART1 (see PROTOCOL.md).
 //!
 //! Semihosting command line (QEMU `-append`): `bench` adds instruction
-//! counts to the log; `mm_per_px=X` fixes the KG resolution (benchmarks).
+//! counts to the log; `mm_per_px=X` fixes the KG resolution (benchmarks);
+//! `no_margins` makes the grid the AOI alone (`cargo fw-bench --full-frame`).
 #![no_std]
 #![no_main]
 #![deny(clippy::unwrap_used, clippy::expect_used)]
@@ -20,6 +21,7 @@ fn main() -> ! {
     let mut buf = [0u8; 512];
     let line = command_line(&mut buf);
     let bench = line.split(|&b| b == b' ').any(|word| word == b"bench");
+    let no_margins = line.split(|&b| b == b' ').any(|word| word == b"no_margins");
     let mm_per_px = line
         .split(|&b| b == b' ')
         .find_map(|word| word.strip_prefix(b"mm_per_px="))
@@ -28,7 +30,7 @@ fn main() -> ! {
 
     let parts = EmulatedBoard::take();
     let board = Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames };
-    let options = Options { bench, mm_per_px, clock: Some(flatland_firmware::board::emulated::instructions_now) };
+    let options = Options { bench, mm_per_px, no_margins, clock: Some(flatland_firmware::board::emulated::instructions_now) };
     let stats = frame_loop::run(board, &options);
 
     defmt::info!(

@@ -9,8 +9,9 @@
 //! previous frame (untimed) so every sample does the same work.
 
 use crate::recording::Recording;
+use flatland_core::geometry::{Aoi, Pixel, Rig};
 use flatland_core::gpa::{Gpa, GpaConfig, GpaProfile};
-use flatland_core::grid::{GridConfig, KgGrid};
+use flatland_core::grid::{GridConfig, KgGrid, MAX_GRID_SIDE};
 use flatland_core::motion::Motion;
 use flatland_core::remap::{RemapTable, StreamingRemap};
 use std::fmt::Write as _;
@@ -67,12 +68,129 @@ fn time_us(mut f: impl FnMut(usize)) -> f64 {
     median(samples)
 }
 
-/// Runs the benchmark; returns the `key: value` lines.
-pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize) -> Result<String, String> {
-    let grid = KgGrid::for_rig(&recording.rig, &GridConfig { mm_per_px, ..GridConfig::default() })
-        .map_err(|e| format!("KG grid: {e}"))?;
+/// The full-frame worst case (`--full-frame` of `flatland bench` and
+/// `cargo fw-bench`): the rig with its AOI replaced by a square of 255 x 255
+/// steps of `mm_per_px`, and a grid without margins, so the KG grid is
+/// exactly 256x256 and the AOI is all of it.
+#[derive(Clone, Copy, Debug)]
+pub struct FullFrame {
+    pub rig: Rig,
+    pub mm_per_px: f64,
+}
+
+/// Resolution steps when choosing: a multiple of this (mm), as `KgGrid::for_rig` rounds.
+const FULL_FRAME_QUANTUM_MM: f64 = 1.0 / 16.0;
+
+impl FullFrame {
+    /// `mm_per_px`: the given one, else the rig's own KG resolution
+    /// (`KgGrid::for_rig` with the default config), or the largest multiple
+    /// of 1/16 mm below it at which the square fits in the camera's view
+    /// (a smaller square fits wherever a larger one does). The square's near
+    /// edge is the rig's AOI near edge, moved the least needed to be in view.
+    /// Errors when no square at that resolution is in view.
+    pub fn for_rig(rig: &Rig, mm_per_px: Option<f64>) -> Result<FullFrame, String> {
+        let mm_per_px = match mm_per_px {
+            Some(mm) if mm.is_finite() && mm > 0.0 => mm,
+            Some(mm) => return Err(format!("--mm-per-px {mm}: must be > 0")),
+            None => {
+                let own = KgGrid::for_rig(rig, &GridConfig::default()).map_err(|e| format!("KG grid: {e}"))?.mm_per_px;
+                let quanta = (own / FULL_FRAME_QUANTUM_MM).floor() as u32;
+                if near_edges(rig, own).is_some() {
+                    own
+                } else {
+                    // Largest k in 1..quanta whose square fits (fitting is monotonic in k).
+                    let (mut fits, mut fails) = (0u32, quanta);
+                    while fails - fits > 1 {
+                        let k = (fits + fails) / 2;
+                        if near_edges(rig, f64::from(k) * FULL_FRAME_QUANTUM_MM).is_some() {
+                            fits = k;
+                        } else {
+                            fails = k;
+                        }
+                    }
+                    if fits == 0 {
+                        return Err("no 256x256 square AOI is in the camera's view".into());
+                    }
+                    f64::from(fits) * FULL_FRAME_QUANTUM_MM
+                }
+            }
+        };
+        let (first, last) = near_edges(rig, mm_per_px).ok_or_else(|| {
+            format!("a 256x256 square AOI at {mm_per_px} mm/px ({:.0} mm) does not fit in the camera's view", side_mm(mm_per_px))
+        })?;
+        let near_mm = rig.aoi().near_mm.clamp(first, last);
+        let rig = square_rig(rig, mm_per_px, near_mm).map_err(|e| format!("full-frame rig: {e:?}"))?;
+        let full = FullFrame { rig, mm_per_px };
+        // Rounding of an inexact resolution can add a row or lose an AOI column.
+        let grid = KgGrid::for_rig(&rig, &full.grid_config()).map_err(|e| format!("full-frame grid at {mm_per_px} mm/px: {e}"))?;
+        let side = MAX_GRID_SIDE;
+        if (grid.width(), grid.height(), grid.aoi_pixels(&rig).area()) != (side, side, side * side) {
+            return Err(format!(
+                "at {mm_per_px} mm/px the full-frame grid is {}x{}, not {side}x{side} all AOI (use a multiple of 1/16 mm)",
+                grid.width(),
+                grid.height()
+            ));
+        }
+        Ok(full)
+    }
+
+    /// The grid configuration: no margins, the fixed resolution.
+    pub fn grid_config(&self) -> GridConfig {
+        GridConfig::without_margins(Some(self.mm_per_px))
+    }
+}
+
+/// The square's side: 255 pixel steps, so 256 pixel centres.
+fn side_mm(mm_per_px: f64) -> f64 {
+    (MAX_GRID_SIDE - 1) as f64 * mm_per_px
+}
+
+/// `rig` with the square AOI at `mm_per_px` whose near edge is `near_mm`;
+/// `Rig::new_checked` refuses an AOI that is not in view.
+fn square_rig(rig: &Rig, mm_per_px: f64, near_mm: f64) -> Result<Rig, flatland_core::geometry::RigError> {
+    let side = side_mm(mm_per_px);
+    Rig::new_checked(*rig.camera(), *rig.mount(), Aoi { half_width_mm: side / 2.0, near_mm, far_mm: near_mm + side })
+}
+
+/// The nearest and farthest near edges (mm, on a quarter-pixel step) at
+/// which the square at `mm_per_px` is in view; None if nowhere. Scans from
+/// the ground seen by the bottom image row to the top row's (or 50 camera
+/// heights when the top row is above the horizon).
+fn near_edges(rig: &Rig, mm_per_px: f64) -> Option<(f64, f64)> {
+    let camera = rig.camera();
+    let ground_z = |v: f64| rig.pixel_to_ground(Pixel { u: camera.cx, v }).map(|(_, z)| z);
+    // Near edges on multiples of 1/16 mm, so the AOI's extents stay exact
+    // in binary floating point and the grid comes out exactly 256 wide and high.
+    let quantum = FULL_FRAME_QUANTUM_MM;
+    let start = (ground_z(f64::from(camera.height) - 1.0)?.max(quantum) / quantum).ceil() * quantum;
+    let end = ground_z(0.0).unwrap_or(start + 50.0 * rig.height_mm()) - side_mm(mm_per_px);
+    let step = (mm_per_px / 4.0 / quantum).ceil() * quantum;
+    let mut found: Option<(f64, f64)> = None;
+    let mut near = start;
+    while near <= end {
+        match (square_rig(rig, mm_per_px, near).is_ok(), found) {
+            (true, None) => found = Some((near, near)),
+            (true, Some((first, _))) => found = Some((first, near)),
+            (false, Some(_)) => break,
+            (false, None) => {}
+        }
+        near += step;
+    }
+    found
+}
+
+/// Runs the benchmark; returns the `key: value` lines. `full_frame`: the
+/// worst case of [`FullFrame`] instead of the rig's AOI and margins.
+pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, full_frame: bool) -> Result<String, String> {
+    let (rig, grid_config) = if full_frame {
+        let full = FullFrame::for_rig(&recording.rig, mm_per_px)?;
+        (full.rig, full.grid_config())
+    } else {
+        (recording.rig, GridConfig { mm_per_px, ..GridConfig::default() })
+    };
+    let grid = KgGrid::for_rig(&rig, &grid_config).map_err(|e| format!("KG grid: {e}"))?;
     let mut table = Box::new(RemapTable::EMPTY);
-    table.build(&recording.rig, &grid).map_err(|e| format!("remap table: {e:?}"))?;
+    table.build(&rig, &grid).map_err(|e| format!("remap table: {e:?}"))?;
     let config = GpaConfig { search_radius: search, ..GpaConfig::default() };
     // Frames and odometry of every consecutive pair.
     let mut pairs = Vec::new();
@@ -88,10 +206,10 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize) -
     if pairs.is_empty() {
         return Err("no consecutive frames with poses".into());
     }
-    let camera_width = usize::from(recording.rig.camera().width);
+    let camera_width = usize::from(rig.camera().width);
     let mut ring = vec![0u8; table.ring_bytes()];
     let mut keyframe = vec![0u8; Gpa::keyframe_bytes(&grid)];
-    let mut gpa = Box::new(Gpa::new(&recording.rig, &grid, &table, config, &mut keyframe).map_err(|e| format!("detector: {e:?}"))?);
+    let mut gpa = Box::new(Gpa::new(&rig, &grid, &table, config, &mut keyframe).map_err(|e| format!("detector: {e:?}"))?);
     let mut stream = StreamingRemap::new(&table, &mut ring).map_err(|e| e.to_string())?;
     let width = grid.width();
     let mut kg_current = vec![0u8; grid.len()];
@@ -108,12 +226,22 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize) -
         }};
     }
     let mut out = String::new();
-    let aoi = grid.aoi_pixels(&recording.rig);
+    let aoi = grid.aoi_pixels(&rig);
+    let valid: usize = (0..grid.height()).map(|j| table.valid_columns(j).len()).sum();
     let _ = writeln!(out, "recording: {}", recording.dir.display());
+    if full_frame {
+        let a = rig.aoi();
+        let _ = writeln!(
+            out,
+            "full_frame: AOI x +-{} mm, z {}..{} mm, no margins",
+            a.half_width_mm, a.near_mm, a.far_mm
+        );
+    }
     let _ = writeln!(out, "grid: {}x{}", grid.width(), grid.height());
     let _ = writeln!(out, "mm_per_px: {}", grid.mm_per_px);
     let _ = writeln!(out, "search: {search} ({} shifts)", (2 * search + 1).pow(2));
     let _ = writeln!(out, "aoi_pixels: {}", aoi.area());
+    let _ = writeln!(out, "valid_kg_pixels: {valid} of {} ({:.1} %, seen by the camera)", grid.len(), 100.0 * valid as f64 / grid.len() as f64);
     let _ = writeln!(out, "pairs: {}", pairs.len());
     let _ = writeln!(out, "samples: {SAMPLES} after {WARM_UP} warm-up, median, one thread");
 
@@ -190,4 +318,32 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize) -
     );
     let _ = writeln!(out, "cycle_us_median: {cycle_us:.1}");
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::qemu::workspace_root;
+
+    fn rig(name: &str) -> Rig {
+        Recording::open(workspace_root().join("host-tests/data").join(name)).expect("recording").rig
+    }
+
+    #[test]
+    fn full_frame_is_256_square_all_aoi_in_view() {
+        for (name, mm) in [("flat_marks", None), ("flat_marks", Some(5.0)), ("qvga_curb", None)] {
+            let full = FullFrame::for_rig(&rig(name), mm).expect("full frame");
+            let grid = KgGrid::for_rig(&full.rig, &full.grid_config()).expect("grid");
+            assert_eq!((grid.width(), grid.height()), (MAX_GRID_SIDE, MAX_GRID_SIDE), "{name}");
+            assert_eq!(grid.aoi_pixels(&full.rig).area(), MAX_GRID_SIDE * MAX_GRID_SIDE, "{name}");
+            let table = RemapTable::new(&full.rig, &grid).expect("table");
+            let valid: usize = (0..grid.height()).map(|j| table.valid_columns(j).len()).sum();
+            assert_eq!(valid, grid.len(), "{name}: every KG pixel seen");
+        }
+    }
+
+    #[test]
+    fn full_frame_refuses_a_square_out_of_view() {
+        assert!(FullFrame::for_rig(&rig("flat_marks"), Some(40.0)).is_err());
+    }
 }

@@ -77,6 +77,11 @@ enum Command {
         /// Search radius S: (2S+1)^2 shifts.
         #[arg(long, default_value_t = 2)]
         search: usize,
+        /// The worst case: the AOI replaced by a square that makes the KG
+        /// grid exactly 256x256 without margins (resolution: `--mm-per-px`,
+        /// else the rig's, made finer if the square would leave the view).
+        #[arg(long)]
+        full_frame: bool,
     },
     /// Serial tools for the firmware's USART1 byte stream.
     #[command(subcommand)]
@@ -327,12 +332,12 @@ fn main() -> ExitCode {
         Command::Detect { recording, format, png, truth, perturb, verbose } => {
             run_detect(&recording, format, png.as_deref(), truth, perturb, verbose)
         }
-        Command::Bench { recording, mm_per_px, search } => {
+        Command::Bench { recording, mm_per_px, search, full_frame } => {
             let recording = match Recording::open(&recording) {
                 Ok(r) => r,
                 Err(e) => return fatal(e),
             };
-            match flatland_host::bench::run_bench(&recording, mm_per_px, search) {
+            match flatland_host::bench::run_bench(&recording, mm_per_px, search, full_frame) {
                 Ok(text) => {
                     print!("{text}");
                     ExitCode::SUCCESS

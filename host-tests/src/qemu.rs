@@ -96,16 +96,32 @@ pub fn require_tools() -> Result<()> {
     }
 }
 
-/// Release build of the firmware; returns the directory of its ELF files.
-pub fn build_firmware() -> Result<PathBuf> {
+/// Release build of the firmware with `features`; returns the directory of its ELF files.
+fn cargo_build_firmware(features: &[&str]) -> Result<PathBuf> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    run_checked(
-        Command::new(cargo)
-            .current_dir(workspace_root())
-            .args(["build", "--quiet", "--release", "-p", "flatland-firmware", "--target", TARGET]),
-    )?;
+    let mut command = Command::new(cargo);
+    command.current_dir(workspace_root()).args(["build", "--quiet", "--release", "-p", "flatland-firmware", "--target", TARGET]);
+    if !features.is_empty() {
+        command.arg("--features").arg(features.join(","));
+    }
+    run_checked(&mut command)?;
     let target_dir = std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or_else(|| workspace_root().join("target"));
     Ok(target_dir.join(TARGET).join("release"))
+}
+
+/// Release build of the firmware; returns the directory of its ELF files.
+pub fn build_firmware() -> Result<PathBuf> {
+    cargo_build_firmware(&[])
+}
+
+/// Release build of the `full-frame` firmware (256x256 keyframe, no GTI);
+/// returns its ELF, copied to `flatland-firmware-full-frame` beside the
+/// default one (cargo puts both builds at the same path).
+pub fn build_full_frame_firmware() -> Result<PathBuf> {
+    let release = cargo_build_firmware(&["full-frame"])?;
+    let elf = release.join("flatland-firmware-full-frame");
+    fs::copy(release.join("flatland-firmware"), &elf).map_err(|e| format!("{}: {e}", elf.display()))?;
+    Ok(elf)
 }
 
 // ------------------------------------------------------------------ what is sent
@@ -320,9 +336,11 @@ pub struct RunRequest<'a> {
     /// Bytes sent on USART1 after `$FLRDY`.
     pub script: Vec<u8>,
     /// `-icount shift=0` and the `bench` command line; `Some(x)` also fixes
-    /// the KG resolution (`mm_per_px=x`).
+    /// the KG resolution (`mm_per_px=x`), `bench_no_margins` makes the grid
+    /// the AOI alone (`no_margins`, the full-frame benchmark).
     pub bench: bool,
     pub bench_mm_per_px: Option<f64>,
+    pub bench_no_margins: bool,
     /// Print the defmt log live.
     pub echo_log: bool,
     pub timeout: Duration,
@@ -341,11 +359,14 @@ pub struct RunOutcome {
 pub fn run_firmware(request: RunRequest, on_message: &mut dyn FnMut(&Message)) -> Result<RunOutcome> {
     let listener = TcpListener::bind("127.0.0.1:0").map_err(|e| format!("serial socket: {e}"))?;
     let port = listener.local_addr().map_err(|e| e.to_string())?.port();
-    let append = match (request.bench, request.bench_mm_per_px) {
+    let mut append = match (request.bench, request.bench_mm_per_px) {
         (false, _) => String::new(),
         (true, None) => "bench".to_string(),
         (true, Some(mm)) => format!("bench mm_per_px={mm}"),
     };
+    if request.bench && request.bench_no_margins {
+        append.push_str(" no_margins");
+    }
     let mut qemu = qemu_command(request.elf, &format!("tcp:127.0.0.1:{port}"), &append, request.bench);
     qemu.current_dir(request.dir);
     let deadline = Instant::now() + request.timeout;

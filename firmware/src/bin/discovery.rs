@@ -19,7 +19,7 @@ fn main() -> ! {
     let board = Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames };
     // A robot has no end of input: after `$FLEND` the loop returns with its
     // counters (already sent as `$FLSTA`) and the board waits for a reset.
-    let stats = frame_loop::run(board, &Options { bench: false, mm_per_px: None, clock: None });
+    let stats = frame_loop::run(board, &Options { bench: false, mm_per_px: None, no_margins: false, clock: None });
     defmt::info!("end of input after {=u32} frames", stats.frames);
     let (used, size) = stack_high_water();
     defmt::info!("stack high-water mark: {=usize} of {=usize} bytes", used, size);

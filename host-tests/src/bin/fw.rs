@@ -9,6 +9,9 @@
 //! - `--selftest`: core's checks on the target, then the panic and HardFault
 //!   paths, which must end QEMU with a nonzero status and a message.
 //! - `--bench`: the main job under `-icount shift=0`; prints `key: value`.
+//!   With `--full-frame`: the worst case, a square AOI making the KG grid
+//!   256x256 without margins (`bench::FullFrame`, as `flatland bench
+//!   --full-frame`), on the `full-frame` firmware build (no GTI stage).
 //!
 //! Every QEMU run has a deadline (`--timeout SECS`, default 300); missing
 //! tools (rustup target, qemu-system-arm, defmt-print) are installed first.
@@ -19,6 +22,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use flatland_core::protocol::Message;
+use flatland_host::bench::FullFrame;
 use flatland_host::qemu::{self, RunRequest, DEFAULT_RECORDING};
 use flatland_host::recording::Recording;
 use flatland_host::serial_decode;
@@ -38,6 +42,7 @@ struct Args {
     recording: PathBuf,
     timeout: Duration,
     mm_per_px: Option<f64>,
+    full_frame: bool,
 }
 
 fn parse_args() -> Result<Args> {
@@ -45,12 +50,14 @@ fn parse_args() -> Result<Args> {
     let mut recording = None;
     let mut timeout = Duration::from_secs(300);
     let mut mm_per_px = None;
+    let mut full_frame = false;
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         match arg.as_str() {
             "--csv" => mode = Mode::Csv,
             "--selftest" => mode = Mode::SelfTest,
             "--bench" => mode = Mode::Bench,
+            "--full-frame" => full_frame = true,
             "--timeout" => {
                 let secs = args.next().and_then(|s| s.parse().ok()).ok_or("--timeout needs seconds")?;
                 timeout = Duration::from_secs(secs);
@@ -59,7 +66,7 @@ fn parse_args() -> Result<Args> {
                 mm_per_px = Some(args.next().and_then(|s| s.parse().ok()).ok_or("--mm-per-px needs a number")?);
             }
             "-h" | "--help" => {
-                println!("usage: cargo fw [RECORDING] [--csv] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X]");
+                println!("usage: cargo fw [RECORDING] [--csv] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame]");
                 std::process::exit(0);
             }
             other if other.starts_with('-') => return Err(format!("unknown option {other}")),
@@ -68,7 +75,10 @@ fn parse_args() -> Result<Args> {
     }
     let recording = recording.unwrap_or_else(|| qemu::workspace_root().join(DEFAULT_RECORDING));
     let recording = recording.canonicalize().map_err(|e| format!("recording {}: {e}", recording.display()))?;
-    Ok(Args { mode, recording, timeout, mm_per_px })
+    if full_frame && mode != Mode::Bench {
+        return Err("--full-frame is for cargo fw-bench".into());
+    }
+    Ok(Args { mode, recording, timeout, mm_per_px, full_frame })
 }
 
 fn describe(message: &Message) -> Option<String> {
@@ -98,18 +108,24 @@ fn describe(message: &Message) -> Option<String> {
     }
 }
 
-/// The main job, `--csv` and `--bench`: runs the firmware on a recording.
+/// The main job, `--csv` and `--bench`: runs the firmware `elf` on a recording.
 /// Returns the decoded log.
-fn run_recording(args: &Args, release_dir: &Path) -> Result<String> {
-    let recording = Recording::open(&args.recording).map_err(|e| e.to_string())?;
-    let elf = release_dir.join("flatland-firmware");
+fn run_recording(args: &Args, elf: &Path) -> Result<String> {
+    let mut recording = Recording::open(&args.recording).map_err(|e| e.to_string())?;
+    let mut mm_per_px = args.mm_per_px;
+    if args.full_frame {
+        let full = FullFrame::for_rig(&recording.rig, mm_per_px)?;
+        recording.rig = full.rig;
+        mm_per_px = Some(full.mm_per_px);
+    }
     let human = args.mode == Mode::Run;
     let request = RunRequest {
-        elf: &elf,
+        elf,
         dir: &args.recording,
         script: qemu::host_script(&recording)?,
         bench: args.mode == Mode::Bench,
-        bench_mm_per_px: args.mm_per_px,
+        bench_mm_per_px: mm_per_px,
+        bench_no_margins: args.full_frame,
         echo_log: human,
         timeout: args.timeout,
     };
@@ -158,8 +174,8 @@ fn run_selftest(args: &Args, release_dir: &Path) -> Result<()> {
     Ok(())
 }
 
-fn run_bench(args: &Args, release_dir: &Path) -> Result<()> {
-    let log = run_recording(args, release_dir)?;
+fn run_bench(args: &Args, elf: &Path) -> Result<()> {
+    let log = run_recording(args, elf)?;
     let mut per_frame: BTreeMap<String, Vec<u64>> = BTreeMap::new();
     let mut once: Vec<(String, String)> = Vec::new();
     for line in log.lines() {
@@ -178,6 +194,9 @@ fn run_bench(args: &Args, release_dir: &Path) -> Result<()> {
         return Err("the firmware printed no benchmark figures".into());
     }
     println!("recording: {}", args.recording.display());
+    if args.full_frame {
+        println!("full_frame: square AOI, 256x256 KG grid without margins; firmware feature full-frame (no GTI stage)");
+    }
     println!("unit: instructions (TIM2 under -icount shift=0), mean over the frames compared with a keyframe; _max: worst frame");
     for (key, value) in &once {
         println!("{key}: {value}");
@@ -192,7 +211,7 @@ fn run_bench(args: &Args, release_dir: &Path) -> Result<()> {
     // The |diff| histogram is accumulated inside the shift search and its
     // median taken in the decision; it has no instructions of its own.
     println!("histogram: in_shift_search_and_decision");
-    let (flash, ram) = qemu::memory_use(&release_dir.join("flatland-firmware"))?;
+    let (flash, ram) = qemu::memory_use(elf)?;
     println!("flash_bytes: {flash}");
     println!("static_ram_bytes: {ram}");
     Ok(())
@@ -201,11 +220,16 @@ fn run_bench(args: &Args, release_dir: &Path) -> Result<()> {
 fn main() {
     let result = parse_args().and_then(|args| {
         qemu::ensure_tools()?;
+        if args.full_frame {
+            // parse_args allows it with --bench only.
+            return run_bench(&args, &qemu::build_full_frame_firmware()?);
+        }
         let release_dir = qemu::build_firmware()?;
+        let elf = release_dir.join("flatland-firmware");
         match args.mode {
-            Mode::Run | Mode::Csv => run_recording(&args, &release_dir).map(drop),
+            Mode::Run | Mode::Csv => run_recording(&args, &elf).map(drop),
             Mode::SelfTest => run_selftest(&args, &release_dir),
-            Mode::Bench => run_bench(&args, &release_dir),
+            Mode::Bench => run_bench(&args, &elf),
         }
     });
     if let Err(message) = result {
