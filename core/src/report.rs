@@ -28,9 +28,10 @@ pub struct FrameReport {
     /// Lateral extent (robot frame x, mm) of the nearest obstacle.
     pub left_mm: Option<i32>,
     pub right_mm: Option<i32>,
-    /// Sum of |diff| above the paper's level (30) inside the AOI at the best shift.
+    /// Sum of |diff| above the paper's level (30) inside the AOI at the
+    /// predicted shift (from the shift search's histogram).
     pub sad: u32,
-    /// AOI pixels with |diff| > 50 at the best shift.
+    /// AOI pixels with |diff| > 50 at the predicted shift.
     pub count50: u32,
     /// Best shift beyond the odometry prediction, in 1/[`SHIFT_SCALE`] KG px.
     pub shift_k: i32,
