@@ -525,10 +525,11 @@ fn bilinear(upper: &[u8], lower: &[u8], u: i32, v: i32) -> u8 {
 /// width - 1)` clamp becomes one duplicated entry after the last column.
 ///
 /// The vertical pass is contiguous and vectorises (SSE2 on the host, packed
-/// halfwords on the M4); the horizontal one is two loads and a multiply-add
-/// per pixel. On the M4 (`flatland_dsp`) both are `asm!` (`dsp` below) and
-/// the line holds `V ^ 0x8000`, which read as i16 is `V - 2^15`, so that
-/// `smlad` (signed 16x16) can blend the pair with one instruction.
+/// halfwords on the M4); the horizontal one is one pair load and one
+/// multiply-add per pixel. On x86_64 (`sse2`) and on the M4 (`dsp`, `asm!`)
+/// the line holds `V ^ 0x8000`, which read as i16 is `V - 2^15`, so that a
+/// signed 16x16 dual multiply-add (`pmaddwd`, `smlad`) blends the pair
+/// `[V[x0] | V[x0 + 1]]` (one 32-bit load) with `[256 - wx | wx]` at once.
 mod pinhole {
     use super::{bilinear, FRAC_BITS, MAX_IMAGE_SIDE, WEIGHT_BITS};
 
@@ -582,7 +583,9 @@ mod pinhole {
     pub fn sample_row(upper: &[u8], lower: &[u8], u: i32, step: i32, v: i32, line: &mut Line, out: &mut [u8]) {
         #[cfg(flatland_dsp)]
         let kernels = (dsp::vertical as Vertical, dsp::horizontal as Horizontal);
-        #[cfg(not(flatland_dsp))]
+        #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+        let kernels = (sse2::vertical as Vertical, sse2::horizontal as Horizontal);
+        #[cfg(not(any(flatland_dsp, target_arch = "x86_64")))]
         let kernels = (portable::vertical as Vertical, portable::horizontal as Horizontal);
         sample_row_with(kernels, upper, lower, u, step, v, line, out);
     }
@@ -628,8 +631,9 @@ mod pinhole {
         true
     }
 
-    /// Plain Rust: the reference for the DSP kernels, and the host's
-    /// kernels (the vertical pass vectorises to SSE2 u16 lanes).
+    /// Plain Rust: the reference for the kernels below (and the M4's
+    /// vertical tail), and the kernels of targets without them.
+    #[cfg_attr(all(target_arch = "x86_64", not(any(test, feature = "selftest"))), allow(dead_code))]
     pub mod portable {
         #[inline]
         pub fn vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
@@ -653,6 +657,75 @@ mod pinhole {
                 let (v0, v1) = unsafe { (u32::from(*base.add(x)), u32::from(*base.add(x + 1))) };
                 *pixel = ((v0 * (256 - wx) + v1 * wx + (1 << 15)) >> 16) as u8;
                 u = u.wrapping_add(step as u32);
+            }
+        }
+    }
+
+    /// x86_64 kernels (SSE2 is baseline there). The line holds `V ^ 0x8000`
+    /// as on the M4, so that `pmaddwd` (signed 16x16, summed in pairs) blends
+    /// `[V'[x0] | V'[x0 + 1]]` with `[256 - wx | wx]` like `smlad` does.
+    #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+    pub mod sse2 {
+        use core::arch::x86_64::*;
+
+        const FLIP: u16 = 0x8000;
+
+        /// Vectorises to 8 u16 lanes (`pmullw`); the flip is one `pxor`.
+        #[inline]
+        pub fn vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
+            let (ay, wy) = ((256 - wy) as u16, wy as u16);
+            for ((v, &a), &b) in line.iter_mut().zip(upper).zip(lower) {
+                *v = (u16::from(a) * ay + u16::from(b) * wy) ^ FLIP;
+            }
+        }
+
+        /// Eight pixels per step: the pairs are scalar (unaligned) 32-bit
+        /// loads, the weights `(wx << 16) | (256 - wx)` are computed in i32
+        /// lanes from the four u's, `pmaddwd` gives `V'0 * (256 - wx) +
+        /// V'1 * wx`, and `2^23 + 2^15` restores the bias and rounds: the
+        /// sum is `bilinear`'s, < 2^24, and its bits 16..24 the pixel.
+        ///
+        /// # Safety
+        /// See `Horizontal`.
+        #[inline]
+        pub unsafe fn horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]) {
+            let n = out.len();
+            let base = line.as_ptr();
+            let mut u = u;
+            let mut done = 0;
+            // SAFETY: SSE2 is baseline on x86_64; the caller guarantees each
+            // pixel's x0 and x0 + 1 index `line` (read as one unaligned
+            // u32 at x0); stores write out[done..done + 8] (<= n).
+            unsafe {
+                let pair = |u: i32| (base.add((u as u32 >> 16) as usize) as *const i32).read_unaligned();
+                let lanes = _mm_set_epi32(3i32.wrapping_mul(step), 2i32.wrapping_mul(step), step, 0);
+                let step4 = 4i32.wrapping_mul(step);
+                let (byte, c256) = (_mm_set1_epi32(0xFF), _mm_set1_epi32(256));
+                let bias = _mm_set1_epi32((1 << 23) + (1 << 15));
+                let four = |u: i32| {
+                    let us = _mm_add_epi32(_mm_set1_epi32(u), lanes);
+                    let wx = _mm_and_si128(_mm_srli_epi32(us, 8), byte);
+                    let weights = _mm_or_si128(_mm_slli_epi32(wx, 16), _mm_sub_epi32(c256, wx));
+                    let (u1, u2, u3) = (u.wrapping_add(step), u.wrapping_add(step.wrapping_mul(2)), u.wrapping_add(step.wrapping_mul(3)));
+                    let pairs = _mm_set_epi32(pair(u3), pair(u2), pair(u1), pair(u));
+                    _mm_srli_epi32(_mm_add_epi32(_mm_madd_epi16(pairs, weights), bias), 16)
+                };
+                while done + 8 <= n {
+                    let low = four(u);
+                    let high = four(u.wrapping_add(step4));
+                    let bytes = _mm_packus_epi16(_mm_packs_epi32(low, high), _mm_setzero_si128());
+                    _mm_storel_epi64(out.as_mut_ptr().add(done).cast(), bytes);
+                    u = u.wrapping_add(step4).wrapping_add(step4);
+                    done += 8;
+                }
+            }
+            for pixel in &mut out[done..] {
+                let x = (u as u32 >> 16) as usize;
+                let wx = (u as u32 >> 8) & 0xFF;
+                // SAFETY: as above.
+                let (v0, v1) = unsafe { (*base.add(x) ^ FLIP, *base.add(x + 1) ^ FLIP) };
+                *pixel = ((u32::from(v0) * (256 - wx) + u32::from(v1) * wx + (1 << 15)) >> 16) as u8;
+                u = u.wrapping_add(step);
             }
         }
     }
