@@ -12,6 +12,8 @@ pub const TESTS: &[(&str, Check)] = &[
     ("sad::dsp_kernels_equal_portable", crate::sad::checks::dsp_kernels_equal_portable),
     ("sad::bilinear_line_equals_plain", crate::sad::checks::bilinear_line_equals_plain),
     ("sad::seed_statistics_equal_plain", crate::sad::checks::seed_statistics_equal_plain),
+    ("remap::pinhole_rows_equal_bilinear", crate::remap::checks::pinhole_rows_equal_bilinear),
+    ("remap::copy_row_copies", crate::remap::checks::copy_row_copies),
     ("protocol::every_message_round_trips", crate::protocol::checks::every_message_round_trips),
     ("protocol::floats_round_trip_bit_for_bit", crate::protocol::checks::floats_round_trip_bit_for_bit),
     ("protocol::longest_rig_fits_a_line", crate::protocol::checks::longest_rig_fits_a_line),
