@@ -671,24 +671,43 @@ mod pinhole {
     pub mod portable {
         #[inline]
         pub fn vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
-            let (ay, wy) = ((256 - wy) as u16, wy as u16);
-            for ((v, &a), &b) in line.iter_mut().zip(upper).zip(lower) {
-                // <= 255 * 256: no overflow.
-                *v = u16::from(a) * ay + u16::from(b) * wy;
-            }
+            vertical_flipped(upper, lower, wy, line, 0);
         }
 
         /// # Safety
         /// See `Horizontal`.
         #[inline]
         pub unsafe fn horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]) {
+            // SAFETY: the caller's contract.
+            unsafe { horizontal_flipped(line, u, step, out, 0) }
+        }
+
+        /// The vertical pass storing `V ^ flip` (the SIMD kernels' line
+        /// holds `V ^ 0x8000`; they use this for the vectorised x86 pass and
+        /// for the M4's tail).
+        #[inline]
+        pub fn vertical_flipped(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16], flip: u16) {
+            let (ay, wy) = ((256 - wy) as u16, wy as u16);
+            for ((v, &a), &b) in line.iter_mut().zip(upper).zip(lower) {
+                // <= 255 * 256: no overflow.
+                *v = (u16::from(a) * ay + u16::from(b) * wy) ^ flip;
+            }
+        }
+
+        /// The horizontal pass from a line holding `V ^ flip` (the SIMD
+        /// kernels' tails).
+        ///
+        /// # Safety
+        /// See `Horizontal`.
+        #[inline]
+        pub unsafe fn horizontal_flipped(line: &[u16], u: i32, step: i32, out: &mut [u8], flip: u16) {
             let mut u = u as u32;
             let base = line.as_ptr();
             for pixel in out {
                 let x = (u >> 16) as usize;
                 let wx = (u >> 8) & 0xFF;
                 // SAFETY: x + 1 < line.len() (the caller's contract).
-                let (v0, v1) = unsafe { (u32::from(*base.add(x)), u32::from(*base.add(x + 1))) };
+                let (v0, v1) = unsafe { (u32::from(*base.add(x) ^ flip), u32::from(*base.add(x + 1) ^ flip)) };
                 *pixel = ((v0 * (256 - wx) + v1 * wx + (1 << 15)) >> 16) as u8;
                 u = u.wrapping_add(step as u32);
             }
@@ -707,10 +726,7 @@ mod pinhole {
         /// Vectorises to 8 u16 lanes (`pmullw`); the flip is one `pxor`.
         #[inline]
         pub fn vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
-            let (ay, wy) = ((256 - wy) as u16, wy as u16);
-            for ((v, &a), &b) in line.iter_mut().zip(upper).zip(lower) {
-                *v = (u16::from(a) * ay + u16::from(b) * wy) ^ FLIP;
-            }
+            super::portable::vertical_flipped(upper, lower, wy, line, FLIP);
         }
 
         /// Eight pixels per step: the pairs are scalar (unaligned) 32-bit
@@ -753,14 +769,8 @@ mod pinhole {
                     done += 8;
                 }
             }
-            for pixel in &mut out[done..] {
-                let x = (u as u32 >> 16) as usize;
-                let wx = (u as u32 >> 8) & 0xFF;
-                // SAFETY: as above.
-                let (v0, v1) = unsafe { (*base.add(x) ^ FLIP, *base.add(x + 1) ^ FLIP) };
-                *pixel = ((u32::from(v0) * (256 - wx) + u32::from(v1) * wx + (1 << 15)) >> 16) as u8;
-                u = u.wrapping_add(step);
-            }
+            // SAFETY: the caller's contract, for the remaining pixels.
+            unsafe { super::portable::horizontal_flipped(line, u, step, &mut out[done..], FLIP) }
         }
     }
 
@@ -816,10 +826,7 @@ mod pinhole {
                 }
             }
             let done = 4 * groups;
-            super::portable::vertical(&upper[done..n], &lower[done..n], wy, &mut line[done..n]);
-            for v in &mut line[done..n] {
-                *v ^= FLIP;
-            }
+            super::portable::vertical_flipped(&upper[done..n], &lower[done..n], wy, &mut line[done..n], FLIP);
         }
 
         /// Four pixels per step, 7.5 instructions each: the pair
@@ -891,14 +898,8 @@ mod pinhole {
                     );
                 }
             }
-            for pixel in &mut out[4 * groups..] {
-                let x = (u as u32 >> 16) as usize;
-                let wx = (u as u32 >> 8) & 0xFF;
-                // SAFETY: as above.
-                let (v0, v1) = unsafe { (*line.get_unchecked(x) ^ FLIP, *line.get_unchecked(x + 1) ^ FLIP) };
-                *pixel = ((u32::from(v0) * (256 - wx) + u32::from(v1) * wx + (1 << 15)) >> 16) as u8;
-                u = u.wrapping_add(step);
-            }
+            // SAFETY: the caller's contract, for the remaining pixels.
+            unsafe { super::portable::horizontal_flipped(line, u, step, &mut out[4 * groups..], FLIP) }
         }
     }
 
@@ -1041,14 +1042,7 @@ pub fn remap_frame(table: &RemapTable, frame: &[u8], ring: &mut [u8], out: &mut 
 /// portable ones, equal [`bilinear`] per pixel.
 pub mod checks {
     use super::{bilinear, pinhole, FRAC_BITS};
-
-    /// xorshift32: deterministic bytes without a dependency.
-    fn next(state: &mut u32) -> u32 {
-        *state ^= *state << 13;
-        *state ^= *state >> 17;
-        *state ^= *state << 5;
-        *state
-    }
+    use crate::sad::checks::xorshift32 as next;
 
     /// Random rows (and a 0/255 pattern at the start), widths 1..=70 at
     /// unaligned starts, wy and wx of 0, 1, 128, 255 and random, steps from

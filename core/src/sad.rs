@@ -539,11 +539,17 @@ pub mod checks {
     /// xorshift32: deterministic bytes without a dependency.
     fn fill(buffer: &mut [u8], mut state: u32, spread: u32) {
         for byte in buffer.iter_mut() {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            *byte = if spread >= 256 { state as u8 } else { 128u32.wrapping_add(state % (2 * spread + 1)).wrapping_sub(spread) as u8 };
+            let random = xorshift32(&mut state);
+            *byte = if spread >= 256 { random as u8 } else { 128u32.wrapping_add(random % (2 * spread + 1)).wrapping_sub(spread) as u8 };
         }
+    }
+
+    /// The next xorshift32 state: core's checks' random numbers.
+    pub(crate) fn xorshift32(state: &mut u32) -> u32 {
+        *state ^= *state << 13;
+        *state ^= *state >> 17;
+        *state ^= *state << 5;
+        *state
     }
 
     /// Every length 0..=300, unaligned starts, random and edge values

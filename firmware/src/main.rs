@@ -20,10 +20,10 @@ fn main() -> ! {
     defmt::info!("flatland firmware {=str}", env!("CARGO_PKG_VERSION"));
     let mut buf = [0u8; 512];
     let line = command_line(&mut buf);
-    let bench = line.split(|&b| b == b' ').any(|word| word == b"bench");
-    let no_margins = line.split(|&b| b == b' ').any(|word| word == b"no_margins");
-    let mm_per_px = line
-        .split(|&b| b == b' ')
+    let words = || line.split(|&b| b == b' ');
+    let bench = words().any(|word| word == b"bench");
+    let no_margins = words().any(|word| word == b"no_margins");
+    let mm_per_px = words()
         .find_map(|word| word.strip_prefix(b"mm_per_px="))
         .and_then(|value| core::str::from_utf8(value).ok())
         .and_then(|value| value.parse::<f64>().ok());
