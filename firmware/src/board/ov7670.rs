@@ -1,8 +1,9 @@
-//! OV7670 register map and the set-up table for Flatland: YUV422 (the board
-//! keeps only Y), a 256x256 window cut from the centre of the VGA array, no
-//! scaler, slow pixel clock.
+//! OV7670 registers and the set-up table for Flatland: YUV422 (the board
+//! keeps only Y), the whole VGA array (the board bins it 2x2), no scaler,
+//! slow pixel clock.
 //!
-//! Register names follow the OmniVision OV7670/OV7171 datasheet (v1.4). The
+//! Only the registers the set-up writes or reads are named; the names follow
+//! the OmniVision OV7670/OV7171 datasheet (v1.4). The
 //! "reserved" tuning values are the OmniVision reference values that the
 //! Linux `ov7670` driver also writes; they are undocumented, so they keep
 //! their addresses.
@@ -17,8 +18,6 @@ pub const PRODUCT_ID: (u8, u8) = (0x76, 0x73);
 
 // Register addresses (datasheet names).
 pub const GAIN: u8 = 0x00;
-pub const BLUE: u8 = 0x01;
-pub const RED: u8 = 0x02;
 /// Vertical frame control: VSTART/VSTOP low bits, AGC high bits.
 pub const VREF: u8 = 0x03;
 pub const COM1: u8 = 0x04;
@@ -66,7 +65,6 @@ pub const EDGE: u8 = 0x3F;
 /// Output data range, RGB 555/565.
 pub const COM15: u8 = 0x40;
 pub const COM16: u8 = 0x41;
-pub const COM17: u8 = 0x42;
 pub const GFIX: u8 = 0x69;
 /// PLL control (input clock multiplier).
 pub const DBLV: u8 = 0x6B;
@@ -101,16 +99,9 @@ pub const COM13_UVSAT: u8 = 0x40;
 pub const COM15_R00FF: u8 = 0xC0;
 /// TSLB[3] = 0 with COM13[0] = 0: bytes come Y0 U0 Y1 V0.
 pub const TSLB_YUYV: u8 = 0x04;
-/// CLKRC[6]: use the input clock directly.
-pub const CLKRC_EXTERNAL: u8 = 0x40;
 
 /// Where Y sits in each 2-byte YUYV pixel (0 with [`TSLB_YUYV`]).
 pub const Y_OFFSET: usize = 0;
-
-/// VGA timing in YUV mode (datasheet): 784 pixel periods per line, 2 PCLK
-/// per pixel, 510 lines per frame.
-pub const PCLK_PER_LINE: u32 = 784 * 2;
-pub const LINES_PER_FRAME: u32 = 510;
 
 /// The VGA window the Linux driver uses (OmniVision's values; the
 /// horizontal counter wraps at 784, hence stop < start).
