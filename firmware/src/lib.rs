@@ -1,9 +1,70 @@
 //! Flatland firmware: the board layer, the runtime (logging, panic and fault
-//! handling, exit status) and the frame loop, shared by the `flatland-firmware`
-//! and `selftest` binaries.
+//! handling, exit status, stack use) and the frame loop, and what every
+//! board binary does around that loop ([`options`], [`serve`]).
+//!
+//! Binaries: `flatland-firmware` (src/main.rs, QEMU's netduinoplus2),
+//! `discovery` (src/bin/discovery.rs, the STM32F4DISCOVERY + OV7670, feature
+//! `discovery`) and `selftest` (src/bin/selftest.rs, core's checks).
+//! Each is a `#![no_std]`, `#![no_main]` crate with a cortex-m-rt `#[entry]`;
+//! the lints they share are in Cargo.toml's `[lints]`.
 #![no_std]
-#![deny(clippy::unwrap_used, clippy::expect_used)]
 
 pub mod board;
 pub mod frame_loop;
 pub mod rt;
+
+use embedded_hal::digital::OutputPin;
+use embedded_io::{Read, Write};
+
+use board::{CycleCounter, RowSource};
+use frame_loop::{Board, Options};
+
+/// The frame loop's options, from the semihosting command line (QEMU's
+/// `-append`): `bench` adds instruction counts to the log (`profile_clock`
+/// times the detector's stages), `mm_per_px=X` fixes the KG resolution,
+/// `no_margins` makes the grid the AOI alone (`cargo fw-bench
+/// --full-frame`). A real board has no command line: it runs as `flatland
+/// detect` does.
+pub fn options(profile_clock: Option<fn() -> u32>) -> Options {
+    let mut buf = [0u8; 512];
+    let line = rt::command_line(&mut buf);
+    let has = |flag: &[u8]| rt::words(line).any(|word| word == flag);
+    let mm_per_px = rt::words(line)
+        .find_map(|word| word.strip_prefix(b"mm_per_px="))
+        .and_then(|value| core::str::from_utf8(value).ok())
+        .and_then(|value| value.parse::<f64>().ok());
+    Options { bench: has(b"bench"), mm_per_px, no_margins: has(b"no_margins"), clock: profile_clock }
+}
+
+/// Announces the firmware on `board_name`, sets the board up (`take`), runs
+/// the frame loop until the host's `$FLEND` and logs its counters and the
+/// stack's high-water mark, which it returns.
+pub fn serve<S, A, C, R>(board_name: &str, take: impl FnOnce() -> Board<S, A, C, R>, options: &Options) -> rt::StackUse
+where
+    S: Read + Write,
+    A: OutputPin,
+    C: CycleCounter,
+    R: RowSource,
+{
+    defmt::info!("flatland firmware {=str} ({=str})", env!("CARGO_PKG_VERSION"), board_name);
+    let stats = frame_loop::run(take(), options);
+    defmt::info!(
+        "done: {=u32} frames; serial garbage {=u32} B, truncated {=u32}, too long {=u32}, bad checksum {=u32}, unknown {=u32}, bad field {=u32}, out of order {=u32}, frame gaps {=u32}, aborted {=u32}",
+        stats.frames,
+        stats.garbage_bytes,
+        stats.truncated,
+        stats.too_long,
+        stats.bad_checksum,
+        stats.unknown_type,
+        stats.bad_field,
+        stats.out_of_order,
+        stats.frame_gaps,
+        stats.aborted
+    );
+    let stack = rt::stack_use();
+    defmt::info!("stack high-water mark: {=usize} of {=usize} bytes", stack.high_water, stack.size);
+    if stack.reached_statics() {
+        defmt::error!("stack overflow: the stack reached the statics");
+    }
+    stack
+}

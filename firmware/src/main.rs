@@ -1,56 +1,28 @@
 //! Flatland on the emulated board: receives the rig and the poses on USART1,
 //! reads the frames through semihosting, streams them through the KG remap
-//! and reports each frame on USART1 (see PROTOCOL.md).
-//!
-//! Semihosting command line (QEMU `-append`): `bench` adds instruction
-//! counts to the log; `mm_per_px=X` fixes the KG resolution (benchmarks);
-//! `no_margins` makes the grid the AOI alone (`cargo fw-bench --full-frame`).
+//! and reports each frame on USART1 (see PROTOCOL.md). The semihosting
+//! command line sets the options ([`flatland_firmware::options`]); with
+//! `bench` it also prints the stack's high-water mark and the DSP kernels'
+//! instruction counts. The exit status is QEMU's.
 #![no_std]
 #![no_main]
-#![deny(clippy::unwrap_used, clippy::expect_used)]
 
 use cortex_m_rt::entry;
-use flatland_firmware::board::emulated::EmulatedBoard;
-use flatland_firmware::frame_loop::{self, Board, Options};
-use flatland_firmware::rt::{command_line, exit, paint_stack, stack_high_water, Exit};
+use flatland_firmware::board::emulated::{instructions_now, EmulatedBoard};
+use flatland_firmware::frame_loop::Board;
+use flatland_firmware::rt::{exit, Exit};
 
 #[entry]
 fn main() -> ! {
-    paint_stack();
-    defmt::info!("flatland firmware {=str}", env!("CARGO_PKG_VERSION"));
-    let mut buf = [0u8; 512];
-    let line = command_line(&mut buf);
-    let words = || line.split(|&b| b == b' ');
-    let bench = words().any(|word| word == b"bench");
-    let no_margins = words().any(|word| word == b"no_margins");
-    let mm_per_px = words()
-        .find_map(|word| word.strip_prefix(b"mm_per_px="))
-        .and_then(|value| core::str::from_utf8(value).ok())
-        .and_then(|value| value.parse::<f64>().ok());
-
-    let parts = EmulatedBoard::take();
-    let board = Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames };
-    let options = Options { bench, mm_per_px, no_margins, clock: Some(flatland_firmware::board::emulated::instructions_now) };
-    let stats = frame_loop::run(board, &options);
-
-    defmt::info!(
-        "done: {=u32} frames; serial garbage {=u32} B, truncated {=u32}, too long {=u32}, bad checksum {=u32}, unknown {=u32}, bad field {=u32}, out of order {=u32}, frame gaps {=u32}, aborted {=u32}",
-        stats.frames,
-        stats.garbage_bytes,
-        stats.truncated,
-        stats.too_long,
-        stats.bad_checksum,
-        stats.unknown_type,
-        stats.bad_field,
-        stats.out_of_order,
-        stats.frame_gaps,
-        stats.aborted
-    );
-    let (used, size) = stack_high_water();
-    defmt::info!("stack high-water mark: {=usize} of {=usize} bytes", used, size);
-    if bench {
-        defmt::println!("bench: stack_high_water_bytes: {=usize}", used);
-        defmt::println!("bench: stack_region_bytes: {=usize}", size);
+    let options = flatland_firmware::options(Some(instructions_now));
+    let take = || {
+        let parts = EmulatedBoard::take();
+        Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames }
+    };
+    let stack = flatland_firmware::serve("QEMU netduinoplus2", take, &options);
+    if options.bench {
+        defmt::println!("bench: stack_high_water_bytes: {=usize}", stack.high_water);
+        defmt::println!("bench: stack_region_bytes: {=usize}", stack.size);
         // After the stack measurement: the kernels' buffers are not the pipeline's.
         let (sad, shifts, histogram) = kernel_bench();
         let bilinear = bilinear_bench();
@@ -59,13 +31,7 @@ fn main() -> ! {
         defmt::println!("bench: histogram_instructions_per_pixel_x100: {=u32}", histogram);
         defmt::println!("bench: bilinear_instructions_per_pixel_x100: {=u32}", bilinear);
     }
-    // No guard page below the stack: a stack that reached the statics may
-    // have corrupted them, so the run is not trusted.
-    if used >= size {
-        defmt::error!("stack overflow: the stack reached the statics");
-        exit(Exit::Failure)
-    }
-    exit(Exit::Success)
+    exit(if stack.reached_statics() { Exit::Failure } else { Exit::Success })
 }
 
 /// Kernel figures on 1024-byte blocks (call overhead included), x100:
@@ -75,7 +41,6 @@ fn main() -> ! {
 fn kernel_bench() -> (u32, u32, u32) {
     use core::hint::black_box;
     use flatland_core::sad;
-    use flatland_firmware::board::emulated::instructions_now;
     const N: usize = 1024;
     let mut a = [0u8; N];
     let mut b = [0u8; N + 4];
@@ -108,7 +73,6 @@ fn kernel_bench() -> (u32, u32, u32) {
 /// their code.
 #[inline(never)]
 fn bilinear_bench() -> u32 {
-    use flatland_firmware::board::emulated::instructions_now;
     const N: usize = 1024;
     let mut upper = [0u8; N];
     let mut lower = [0u8; N];

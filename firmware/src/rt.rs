@@ -1,11 +1,11 @@
-//! Runtime: the defmt transport, the panic handler, the HardFault handler and
-//! the exit status.
+//! Runtime: the defmt transport, the panic handler, the HardFault handler,
+//! the exit status, the semihosting command line and the stack's use.
 //!
 //! Under QEMU every way out ends the emulator through semihosting
 //! (`SYS_EXIT_EXTENDED`), so a fault is a nonzero exit status with a message,
 //! never a hang.
 
-use cortex_m_rt::{exception, ExceptionFrame};
+use cortex_m_rt::{exception, ExceptionFrame, STACK_PAINT_VALUE};
 
 #[cfg(feature = "rtt")]
 use defmt_rtt as _;
@@ -80,38 +80,63 @@ pub fn command_line(buf: &mut [u8]) -> &[u8] {
     &buf[..0]
 }
 
-/// Fill pattern for the stack high-water mark.
-const STACK_PAINT: u32 = 0xCCCC_CCCC;
+/// The space-separated words of a command line; QEMU puts the kernel's path
+/// first.
+pub fn words(line: &[u8]) -> impl Iterator<Item = &[u8]> {
+    line.split(|&b| b == b' ').filter(|word| !word.is_empty())
+}
+
+// ------------------------------------------------------------------ stack use
 
 extern "C" {
-    /// End of .bss/.uninit: the lowest address the stack can grow down to (cortex-m-rt).
-    static mut __sheap: u32;
-    /// Initial stack pointer: the top of RAM (cortex-m-rt).
+    /// The lowest address the stack may grow down to: the end of the
+    /// statics (cortex-m-rt's link.x).
+    static _stack_end: u32;
+    /// The initial stack pointer: the top of RAM (cortex-m-rt's link.x).
     static _stack_start: u32;
 }
 
-/// Paints the unused stack so [`stack_high_water`] can measure it. Call
-/// first thing in `main`; it leaves 256 bytes below the live stack pointer.
-pub fn paint_stack() {
-    let bottom = core::ptr::addr_of_mut!(__sheap) as usize;
-    let limit = cortex_m::register::msp::read() as usize - 256;
-    let mut address = bottom;
-    while address < limit {
-        // SAFETY: [bottom, limit) is RAM between the statics and the live
-        // stack, used by nothing else yet.
-        unsafe { core::ptr::write_volatile(address as *mut u32, STACK_PAINT) };
-        address += 4;
+/// How deep the stack has been since reset.
+#[derive(Clone, Copy, Debug)]
+pub struct StackUse {
+    /// Bytes between the top of the stack and the deepest word written.
+    pub high_water: usize,
+    /// Bytes between the top of the stack and the statics.
+    pub size: usize,
+}
+
+impl StackUse {
+    /// The stack reached the statics. There is no guard page, so they may be
+    /// corrupted: the run is not to be trusted.
+    pub fn reached_statics(&self) -> bool {
+        self.high_water >= self.size
     }
 }
 
-/// Deepest stack use since [`paint_stack`], in bytes, and the stack's size.
-pub fn stack_high_water() -> (usize, usize) {
-    let bottom = core::ptr::addr_of_mut!(__sheap) as usize;
+/// The stack's high-water mark, read from cortex-m-rt's paint.
+///
+/// The painting is cortex-m-rt's (feature `paint-stack`): its reset handler
+/// fills the whole stack region with [`STACK_PAINT_VALUE`] in assembly,
+/// before `main` runs, while nothing lives on the stack. Painting from Rust
+/// instead would write below frames the compiler has already laid out, into
+/// memory it is entitled to think nobody touches.
+///
+/// Here we only read, and only below the current stack pointer: RAM that
+/// holds no live object, with volatile loads the compiler neither elides nor
+/// reasons about, and with interrupts masked so that no handler pushes a
+/// frame there meanwhile.
+pub fn stack_use() -> StackUse {
+    let bottom = core::ptr::addr_of!(_stack_end) as usize;
     let top = core::ptr::addr_of!(_stack_start) as usize;
-    let mut address = bottom;
-    // SAFETY: reads RAM between the statics and the top of the stack.
-    while address < top && unsafe { core::ptr::read_volatile(address as *const u32) } == STACK_PAINT {
-        address += 4;
-    }
-    (top - address, top - bottom)
+    let deepest = cortex_m::interrupt::free(|_| {
+        let limit = cortex_m::register::msp::read() as usize;
+        let mut address = bottom;
+        // SAFETY: [bottom, limit) is RAM below the live stack pointer, word
+        // aligned (link.x asserts `_stack_end % 4 == 0`).
+        while address < limit && unsafe { core::ptr::read_volatile(address as *const u32) } == STACK_PAINT_VALUE {
+            address += 4;
+        }
+        address
+    });
+    StackUse { high_water: top - deepest, size: top - bottom }
 }

@@ -4,25 +4,20 @@
 //! defmt over RTT. Build and flash: `cargo board-run`.
 #![no_std]
 #![no_main]
-#![deny(clippy::unwrap_used, clippy::expect_used)]
 
 use cortex_m_rt::entry;
 use flatland_firmware::board::discovery::DiscoveryBoard;
-use flatland_firmware::frame_loop::{self, Board, Options};
-use flatland_firmware::rt::{paint_stack, stack_high_water};
+use flatland_firmware::frame_loop::Board;
 
 #[entry]
 fn main() -> ! {
-    paint_stack();
-    defmt::info!("flatland firmware {=str} (STM32F4DISCOVERY + OV7670)", env!("CARGO_PKG_VERSION"));
-    let parts = DiscoveryBoard::take();
-    let board = Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames };
+    let take = || {
+        let parts = DiscoveryBoard::take();
+        Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames }
+    };
     // A robot has no end of input: after `$FLEND` the loop returns with its
     // counters (already sent as `$FLSTA`) and the board waits for a reset.
-    let stats = frame_loop::run(board, &Options { bench: false, mm_per_px: None, no_margins: false, clock: None });
-    defmt::info!("end of input after {=u32} frames", stats.frames);
-    let (used, size) = stack_high_water();
-    defmt::info!("stack high-water mark: {=usize} of {=usize} bytes", used, size);
+    flatland_firmware::serve("STM32F4DISCOVERY + OV7670", take, &flatland_firmware::options(None));
     loop {
         cortex_m::asm::wfi();
     }

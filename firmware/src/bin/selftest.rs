@@ -5,18 +5,16 @@
 //! fault paths are tested too: `panic` or `hardfault`.
 #![no_std]
 #![no_main]
-#![deny(clippy::unwrap_used, clippy::expect_used)]
 
 use cortex_m_rt::entry;
 use flatland_core::selftest::TESTS;
-use flatland_firmware::rt::{command_line, exit, Exit};
+use flatland_firmware::rt::{command_line, exit, words, Exit};
 
 #[entry]
 fn main() -> ! {
     let mut buf = [0u8; 512];
-    let arguments = command_line(&mut buf);
     // QEMU prefixes the kernel's file name; the request is the last word.
-    let request = arguments.rsplit(|&b| b == b' ').next().unwrap_or(b"");
+    let request = words(command_line(&mut buf)).last().unwrap_or(b"");
     match request {
         b"panic" => deliberate_panic(),
         b"hardfault" => cortex_m::asm::udf(),
