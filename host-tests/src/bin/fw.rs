@@ -13,6 +13,11 @@
 //!   256x256 without margins (`bench::FullFrame`, as `flatland bench
 //!   --full-frame`), on the `full-frame` firmware build (no GTI stage).
 //!
+//! - `--elf PATH`: runs that firmware ELF instead of building one; the
+//!   thumb target's cargo runner (`cargo run --target thumbv7em-none-eabihf`
+//!   in .cargo/config.toml). An ELF named `selftest` gets `--selftest`'s
+//!   run, any other the main job (or `--csv`, `--bench`).
+//!
 //! Every QEMU run has a deadline (`--timeout SECS`, default 300); missing
 //! tools (rustup target, qemu-system-arm, defmt-print) are installed first.
 
@@ -39,6 +44,8 @@ enum Mode {
 
 struct Args {
     mode: Mode,
+    /// A firmware ELF to run (`--elf`); None: build it.
+    elf: Option<PathBuf>,
     recording: PathBuf,
     timeout: Duration,
     mm_per_px: Option<f64>,
@@ -47,6 +54,7 @@ struct Args {
 
 fn parse_args() -> Result<Args> {
     let mut mode = Mode::Run;
+    let mut elf = None;
     let mut recording = None;
     let mut timeout = Duration::from_secs(300);
     let mut mm_per_px = None;
@@ -58,6 +66,7 @@ fn parse_args() -> Result<Args> {
             "--selftest" => mode = Mode::SelfTest,
             "--bench" => mode = Mode::Bench,
             "--full-frame" => full_frame = true,
+            "--elf" => elf = Some(PathBuf::from(args.next().ok_or("--elf needs a path")?)),
             "--timeout" => {
                 let secs = args.next().and_then(|s| s.parse().ok()).ok_or("--timeout needs seconds")?;
                 timeout = Duration::from_secs(secs);
@@ -67,6 +76,7 @@ fn parse_args() -> Result<Args> {
             }
             "-h" | "--help" => {
                 println!("usage: cargo fw [RECORDING] [--csv] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame]");
+                println!("       fw --elf PATH [same options]: run that firmware ELF (the thumb target's cargo runner)");
                 std::process::exit(0);
             }
             other if other.starts_with('-') => return Err(format!("unknown option {other}")),
@@ -78,7 +88,12 @@ fn parse_args() -> Result<Args> {
     if full_frame && mode != Mode::Bench {
         return Err("--full-frame is for cargo fw-bench".into());
     }
-    Ok(Args { mode, recording, timeout, mm_per_px, full_frame })
+    // QEMU runs in the recording's directory: the ELF's path must not be relative.
+    let elf = elf.map(|elf: PathBuf| elf.canonicalize().map_err(|e| format!("firmware {}: {e}", elf.display()))).transpose()?;
+    if mode == Mode::Run && elf.as_deref().and_then(Path::file_name).is_some_and(|name| name == "selftest") {
+        mode = Mode::SelfTest;
+    }
+    Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame })
 }
 
 fn describe(message: &Message) -> Option<String> {
@@ -156,16 +171,15 @@ fn run_recording(args: &Args, elf: &Path) -> Result<String> {
     Ok(outcome.log)
 }
 
-/// core's checks on the target, then the deliberate faults.
-fn run_selftest(args: &Args, release_dir: &Path) -> Result<()> {
-    let elf = release_dir.join("selftest");
-    let (status, log) = qemu::run_selftest(&elf, "", true, args.timeout)?;
+/// core's checks on the target (the `selftest` ELF), then the deliberate faults.
+fn run_selftest(args: &Args, elf: &Path) -> Result<()> {
+    let (status, log) = qemu::run_selftest(elf, "", true, args.timeout)?;
     let summary = log.lines().find(|l| l.contains(" passed, ")).ok_or("selftest printed no summary")?;
     if !status.success() || !summary.contains(" 0 failed") {
         return Err(format!("on-target tests failed ({status}): {summary}"));
     }
     for (request, expected) in [("panic", "panic:"), ("hardfault", "HardFault")] {
-        let (status, log) = qemu::run_selftest(&elf, request, false, args.timeout)?;
+        let (status, log) = qemu::run_selftest(elf, request, false, args.timeout)?;
         if status.success() || !log.contains(expected) {
             return Err(format!("a deliberate {request} did not end QEMU with a failure and a message:\n{log}"));
         }
@@ -220,15 +234,18 @@ fn run_bench(args: &Args, elf: &Path) -> Result<()> {
 fn main() {
     let result = parse_args().and_then(|args| {
         qemu::ensure_tools()?;
-        if args.full_frame {
-            // parse_args allows it with --bench only.
-            return run_bench(&args, &qemu::build_full_frame_firmware()?);
-        }
-        let release_dir = qemu::build_firmware()?;
-        let elf = release_dir.join("flatland-firmware");
+        let elf = match &args.elf {
+            Some(elf) => elf.clone(),
+            // parse_args allows --full-frame with --bench only.
+            None if args.full_frame => qemu::build_full_frame_firmware()?,
+            None => {
+                let release_dir = qemu::build_firmware()?;
+                release_dir.join(if args.mode == Mode::SelfTest { "selftest" } else { "flatland-firmware" })
+            }
+        };
         match args.mode {
             Mode::Run | Mode::Csv => run_recording(&args, &elf).map(drop),
-            Mode::SelfTest => run_selftest(&args, &release_dir),
+            Mode::SelfTest => run_selftest(&args, &elf),
             Mode::Bench => run_bench(&args, &elf),
         }
     });
