@@ -118,8 +118,9 @@ impl StackUse {
 /// The painting is cortex-m-rt's (feature `paint-stack`): its reset handler
 /// fills the whole stack region with [`STACK_PAINT_VALUE`] in assembly,
 /// before `main` runs, while nothing lives on the stack. Painting from Rust
-/// instead would write below frames the compiler has already laid out, into
-/// memory it is entitled to think nobody touches.
+/// would write, through pointers to no object, into the memory the compiler
+/// allocates its frames in, trusting a guessed margin below the stack
+/// pointer.
 ///
 /// Here we only read, and only below the current stack pointer: RAM that
 /// holds no live object, with volatile loads the compiler neither elides nor
