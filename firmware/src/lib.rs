@@ -1,6 +1,6 @@
 //! Flatland firmware: the board layer, the runtime (logging, panic and fault
 //! handling, exit status, stack use) and the frame loop, and what every
-//! board binary does around that loop ([`options`], [`serve`]).
+//! board binary does around that loop ([`command_line_options`], [`serve`]).
 //!
 //! Binaries: `flatland-firmware` (src/main.rs, QEMU's netduinoplus2),
 //! `discovery` (src/bin/discovery.rs, the STM32F4DISCOVERY + OV7670, feature
@@ -25,7 +25,7 @@ use frame_loop::{Board, Options};
 /// `no_margins` makes the grid the AOI alone (`cargo fw-bench
 /// --full-frame`). A real board has no command line: it runs as `flatland
 /// detect` does.
-pub fn options(profile_clock: Option<fn() -> u32>) -> Options {
+pub fn command_line_options(profile_clock: Option<fn() -> u32>) -> Options {
     let mut buf = [0u8; 512];
     let line = rt::command_line(&mut buf);
     let has = |flag: &[u8]| rt::words(line).any(|word| word == flag);

@@ -1,9 +1,10 @@
 //! Flatland on the emulated board: receives the rig and the poses on USART1,
 //! reads the frames through semihosting, streams them through the KG remap
 //! and reports each frame on USART1 (see PROTOCOL.md). The semihosting
-//! command line sets the options ([`flatland_firmware::options`]); with
-//! `bench` it also prints the stack's high-water mark and the DSP kernels'
-//! instruction counts. QEMU exits with 0, or 1 if the stack reached the
+//! command line sets the options
+//! ([`flatland_firmware::command_line_options`]); with `bench` the run also
+//! prints the stack's high-water mark and the DSP kernels' instruction
+//! counts. QEMU exits with 0, or 1 if the stack reached the
 //! statics.
 #![no_std]
 #![no_main]
@@ -15,7 +16,7 @@ use flatland_firmware::rt::{exit, Exit};
 
 #[entry]
 fn main() -> ! {
-    let options = flatland_firmware::options(Some(instructions_now));
+    let options = flatland_firmware::command_line_options(Some(instructions_now));
     let take = || {
         let parts = EmulatedBoard::take();
         Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames }

@@ -17,7 +17,8 @@ fn main() -> ! {
     };
     // A robot has no end of input: after `$FLEND` the loop returns with its
     // counters (already sent as `$FLSTA`) and the board waits for a reset.
-    flatland_firmware::serve("STM32F4DISCOVERY + OV7670", take, &flatland_firmware::options(None));
+    let options = flatland_firmware::command_line_options(None);
+    flatland_firmware::serve("STM32F4DISCOVERY + OV7670", take, &options);
     loop {
         cortex_m::asm::wfi();
     }
