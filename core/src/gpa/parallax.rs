@@ -204,12 +204,13 @@ impl Parallax {
                     *d = d.abs_diff(value);
                 }
                 cells.segments(columns, |cell_column, columns| {
-                    let pixels = columns.len() as u16;
+                    // Counted before the sum is taken: nothing stays live across it.
+                    self.sums.pixels[k][cell_column] += columns.len() as u16;
                     #[cfg(flatland_dsp)]
                     let sum = super::kernels::sad(&row[columns.clone()], &samples[columns]);
                     #[cfg(not(flatland_dsp))]
                     let sum: u32 = samples[columns].iter().map(|&d| u32::from(d)).sum();
-                    self.sums.add(k, cell_column, pixels, sum);
+                    self.sums.sad[k][cell_column] += sum;
                 });
             }
         }

@@ -1,6 +1,7 @@
 //! The row step: one KG row of the current frame through every stage, and
 //! its per-pixel reference (the tests' oracle for the whole-line passes).
 
+use super::warp::Runs;
 use super::Gpa;
 
 impl Gpa<'_> {
@@ -19,7 +20,8 @@ impl Gpa<'_> {
         let (grid, cells, aoi) = (&self.layout.grid, &self.layout.cells, &self.layout.aoi);
         let cell_row = j / cells.px;
         let mut lap = self.profiler.now();
-        let runs = self.coverage.usable_runs(warp, seen.clone(), grid);
+        let mut runs = Runs::new();
+        self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
         self.band.sample(&self.keyframe, j, warp, seen.clone(), s, grid.width());
         let band = self.band.rows(s);
         lap = self.profiler.charge(lap, |p| &mut p.warp);
