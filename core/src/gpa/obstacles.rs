@@ -85,8 +85,10 @@ pub(super) fn parallax_obstacle(
 ) -> Option<(Footprint, i32)> {
     let (grid, cells, camera_height_mm) = (&layout.grid, &layout.cells, layout.camera_height_mm);
     let (w, h) = (cells.wide, cells.high);
-    let min_height = config.min_obstacle_height_mm;
-    let tall = |cell: usize| f64::from(heights[cell]) >= min_height;
+    // Heights are whole mm, so h >= min_height exactly when h >= ceil(min_height):
+    // an integer compare per cell instead of a soft-float one on the M4.
+    let min_height = libm::ceil(config.min_obstacle_height_mm) as u32;
+    let tall = |cell: usize| u32::from(heights[cell]) >= min_height;
     let aoi = layout.aoi_mm();
     let mut seen = [false; MAX_CELLS];
     let mut best: Option<(f64, f64, f64, f64)> = None;

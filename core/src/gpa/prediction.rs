@@ -7,15 +7,13 @@
 use crate::motion::Motion;
 
 pub(super) struct Prediction {
-    /// Refined motion keyframe -> last frame.
+    /// Refined motion keyframe -> last frame (-> this frame once settled).
     to_last: Motion,
     last_frame: u32,
     /// This frame's prediction, keyframe -> now.
     pub(super) predicted: Motion,
     /// Odometry since the previous frame, scale-corrected.
     pub(super) step: Motion,
-    /// Refined motion keyframe -> previous frame, when this frame began.
-    before_step: Motion,
     /// Measured ratio of true to odometry travel (1.0 until measured).
     odometry_scale: f64,
 }
@@ -26,7 +24,6 @@ impl Prediction {
         last_frame: 0,
         predicted: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
         step: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
-        before_step: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
         odometry_scale: 1.0,
     };
 
@@ -42,7 +39,6 @@ impl Prediction {
             tz_mm: odometry.tz_mm * self.odometry_scale,
             dyaw_deg: odometry.dyaw_deg,
         };
-        self.before_step = self.to_last;
         self.predicted = self.to_last.then(&self.step);
     }
 
@@ -55,9 +51,14 @@ impl Prediction {
     /// measured one (and then the odometry scale learns from it), else the
     /// prediction (on a grid of `mm_per_px`).
     pub(super) fn settle(&mut self, refined: Option<Motion>, mm_per_px: f64) {
-        self.to_last = refined.unwrap_or(self.predicted);
-        if refined.is_some() {
-            self.learn_odometry_scale(mm_per_px);
+        match refined {
+            Some(refined) => {
+                // The step as measured: refined keyframe->now, minus keyframe->before.
+                let (dx, dz) = (refined.tx_mm - self.to_last.tx_mm, refined.tz_mm - self.to_last.tz_mm);
+                self.to_last = refined;
+                self.learn_odometry_scale(dx, dz, mm_per_px);
+            }
+            None => self.to_last = self.predicted,
         }
     }
 
@@ -74,11 +75,10 @@ impl Prediction {
         }
     }
 
-    /// Updates the odometry scale from this frame's refined step: a slow
-    /// average, so random per-step errors cancel and a constant one remains.
-    fn learn_odometry_scale(&mut self, mm_per_px: f64) {
-        // The step as measured: refined keyframe->now, minus keyframe->before.
-        let (dx, dz) = (self.to_last.tx_mm - self.before_step.tx_mm, self.to_last.tz_mm - self.before_step.tz_mm);
+    /// Updates the odometry scale from this frame's refined step (`dx`,
+    /// `dz`): a slow average, so random per-step errors cancel and a
+    /// constant one remains.
+    fn learn_odometry_scale(&mut self, dx: f64, dz: f64, mm_per_px: f64) {
         let odometry = self.step.distance_mm() / self.odometry_scale;
         // Short steps measure the scale poorly.
         if odometry < 4.0 * mm_per_px {
