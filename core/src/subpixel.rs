@@ -79,10 +79,7 @@ mod tests {
         };
         let plain_max = |a: f32, b: f32, c: f32| {
             let curvature = a - 2.0 * b + c;
-            if !(curvature < 0.0) {
-                return 0.0;
-            }
-            (0.5 * (a - c) / curvature).clamp(-0.5, 0.5)
+            if curvature < 0.0 { (0.5 * (a - c) / curvature).clamp(-0.5, 0.5) } else { 0.0 }
         };
         // Every triple on a small lattice: minima, maxima, flat, clamped.
         for a in 0..24 {

@@ -8,20 +8,21 @@
 //! motion, the noise level and the obstacle.
 //!
 //! The rooms, in the order a row passes them:
-//! - [`keyframe`]: the stored keyframe, a row-circular buffer updated in
+//! - `keyframe`: the stored keyframe, a row-circular buffer updated in
 //!   place while it is read.
-//! - [`prediction`]: the chained prediction keyframe -> now (refined motion
+//! - `prediction`: the chained prediction keyframe -> now (refined motion
 //!   then odometry) and the learned odometry scale.
-//! - [`warp`]: the prediction as a Q16.16 line per row, and the columns
+//! - `warp`: the prediction as a Q16.16 line per row, and the columns
 //!   where a comparison is possible.
-//! - [`band`]: the keyframe warped onto the row, `2S+1` rows, as a ring.
-//! - [`residue`]: the tolerant residue, counted per coherence cell.
-//! - [`parallax`]: height hypotheses per cell, and each cell's height.
-//! - [`shift_search`]: the seed's `(2S+1)^2` SADs and statistics, the best
+//! - `band`: the keyframe warped onto the row, `2S+1` rows, as a ring.
+//! - `residue`: the tolerant residue, counted per coherence cell.
+//! - `parallax`: height hypotheses per cell, and each cell's height.
+//! - `shift_search`: the seed's `(2S+1)^2` SADs and statistics, the best
 //!   shift to sub-pixel, the refined motion.
-//! - [`obstacles`]: blobs of cells and where they stand.
-//! - [`decision`]: the noise model and the alarm (held on short baselines).
-//! - [`layout`]: the AOI and the coherence cells on the grid; [`config`]: the tuning.
+//! - `obstacles`: blobs of cells and where they stand.
+//! - `decision`: the noise model and the alarm (held on short baselines).
+//! - `row`: one row through the stages, and its per-pixel reference.
+//! - `layout`: the AOI and the coherence cells on the grid; `config`: the tuning.
 //!
 //! `Gpa` owns one of each and passes each stage the others' results, so
 //! every stage borrows only what it reads and writes.
@@ -50,11 +51,11 @@ pub use parallax::HEIGHT_FRACTIONS;
 pub use shift_search::{SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
 
 use crate::geometry::Rig;
+use crate::grid::KgGrid;
 use crate::limits::MAX_BLOBS;
 use crate::motion::Motion;
 use crate::remap::RemapTable;
 use crate::report::{FrameReport, MOTION_SCALE, SHIFT_SCALE};
-use crate::grid::KgGrid;
 use band::Band;
 use decision::{Alarm, Noise};
 use keyframe::Keyframe;

@@ -61,7 +61,6 @@ impl Gpa<'_> {
     // Indexed loops on purpose: the reference is written pixel by pixel.
     #[allow(clippy::needless_range_loop)]
     pub(super) fn compare_row_reference(&mut self, j: usize, row: &[u8]) {
-        use super::band::MAX_WINDOW;
         use super::parallax::HYPOTHESES;
         use super::warp::FRAC;
         use crate::grid::MAX_GRID_SIDE;
@@ -86,7 +85,7 @@ impl Gpa<'_> {
         }
         // The search band: band[dg][c + MAX_SEARCH_RADIUS] = keyframe at warp(c) + (0, dg - S).
         let keyframe = &self.keyframe;
-        let band: &mut [[u8; _]; MAX_WINDOW] = self.band.unrolled();
+        let band = self.band.unrolled();
         let first = cur_lo.saturating_sub(s);
         let last = (cur_hi + s).min(width);
         for dg in 0..=2 * s {
