@@ -18,6 +18,8 @@
 //! - [`fusion`]: GPA's alarm with GTI's heights (the seed's §3.3).
 //! - [`pgm`]: checked view of binary PGM (P5) headers.
 //! - [`report`]: the per-frame result, shared by the CLI and the serial protocol.
+//! - [`limits`]: every capacity (buffer sizes, search bounds) in one place.
+//! - [`subpixel`]: the parabola vertex that refines a sampled extremum.
 #![cfg_attr(not(test), no_std)]
 #![deny(clippy::unwrap_used, clippy::expect_used)]
 
@@ -26,12 +28,14 @@ pub mod geometry;
 pub mod gpa;
 pub mod grid;
 pub mod gti;
+pub mod limits;
 pub mod motion;
 pub mod pgm;
 pub mod remap;
 pub mod sad;
 pub mod protocol;
 pub mod report;
+pub mod subpixel;
 /// core's checks as a list for the on-target runner (`cargo fw-test`).
 #[cfg(any(test, feature = "selftest"))]
 pub mod selftest;

@@ -5,8 +5,9 @@
 //! the worst-case bounds are also computed and checked against the types.
 
 use flatland_core::geometry::{Aoi, Intrinsics, Mount, Rig, MAX_IMAGE_SIDE};
-use flatland_core::gpa::{Gpa, GpaConfig, MAX_SEARCH_RADIUS};
+use flatland_core::gpa::{Gpa, GpaConfig};
 use flatland_core::grid::{GridConfig, KgGrid, MAX_GRID_SIDE};
+use flatland_core::limits::MAX_SEARCH_RADIUS;
 use flatland_core::motion::Motion;
 use flatland_core::remap::{RemapTable, StreamingRemap, FRAC_BITS};
 use flatland_core::report::FrameReport;

@@ -4,8 +4,9 @@
 //! against a naive SAD, and the serial protocol's encode/decode round trip.
 
 use flatland_core::geometry::{Aoi, Distortion, Intrinsics, Mount, Pixel, Rig};
-use flatland_core::gpa::{Gpa, GpaConfig, MAX_SEARCH_RADIUS, SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
+use flatland_core::gpa::{Gpa, GpaConfig, SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
 use flatland_core::grid::{GridConfig, KgGrid};
+use flatland_core::limits::MAX_SEARCH_RADIUS;
 use flatland_core::motion::Motion;
 use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, Odometry, RigRecord};
 use flatland_core::remap::{remap_frame, RemapTable, StreamingRemap};

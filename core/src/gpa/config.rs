@@ -1,0 +1,88 @@
+//! The detector's tuning, in physical units so it carries across cameras
+//! and grids.
+
+use super::GpaError;
+use crate::limits::MAX_SEARCH_RADIUS;
+
+/// Tuning, in physical units so it carries across cameras and grids.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GpaConfig {
+    /// Search radius S in KG pixels around the predicted shift.
+    pub search_radius: usize,
+    /// Travel since the keyframe at which the current frame becomes the keyframe.
+    pub keyframe_travel_mm: f64,
+    /// Turn since the keyframe at which the current frame becomes the keyframe:
+    /// turning shrinks the ground both frames see.
+    pub keyframe_yaw_deg: f64,
+    /// A residue pixel exceeds `max(residue_floor, noise_factor * noise)`.
+    pub residue_floor: u8,
+    pub noise_factor: f64,
+    /// Side of a coherence cell, mm of ground.
+    pub cell_mm: f64,
+    /// A cell joins a blob when this percentage of its valid pixels are residue.
+    pub active_cell_percent: u32,
+    /// A blob is an obstacle when one of its cells reaches this percentage...
+    pub peak_cell_percent: u32,
+    /// ...and its residue covers at least this ground area (mm²).
+    pub min_residue_mm2: f64,
+    /// Parallax test: a cell is elevated when its best height hypothesis
+    /// lowers the cell's SAD by this percentage of the ground hypothesis...
+    pub parallax_gain_percent: u32,
+    /// ...and by at least this many gray levels per pixel (or the noise level, if higher).
+    pub parallax_min_gain: f64,
+    /// Obstacles are at least this tall (mm); lower bumps are ground.
+    pub min_obstacle_height_mm: f64,
+    /// Odometry error to tolerate, as a fraction of the step since the last
+    /// frame (the part of the motion the shift search has not refined yet):
+    /// height hypotheses whose displacement stays within it count as ground.
+    pub odometry_error_fraction: f64,
+    /// Heading error to tolerate over that step, degrees: it moves ground at
+    /// distance z sideways by z * error.
+    pub odometry_yaw_error_deg: f64,
+}
+
+impl Default for GpaConfig {
+    fn default() -> Self {
+        GpaConfig::DEFAULT
+    }
+}
+
+impl GpaConfig {
+    /// The defaults (a constant, so [`super::Gpa::EMPTY`] can hold it).
+    pub const DEFAULT: GpaConfig = GpaConfig {
+        search_radius: 2,
+        keyframe_travel_mm: 100.0,
+        keyframe_yaw_deg: 3.0,
+        residue_floor: 16,
+        noise_factor: 4.0,
+        cell_mm: 30.0,
+        active_cell_percent: 12,
+        peak_cell_percent: 35,
+        min_residue_mm2: 800.0,
+        parallax_gain_percent: 30,
+        parallax_min_gain: 3.0,
+        min_obstacle_height_mm: 20.0,
+        odometry_error_fraction: 0.05,
+        odometry_yaw_error_deg: 0.1,
+    };
+
+    /// [`GpaError::Config`] unless the search radius is in
+    /// 1..=[`MAX_SEARCH_RADIUS`] and every real value is finite and positive.
+    pub(super) fn check(&self) -> Result<(), GpaError> {
+        let finite = [
+            self.keyframe_travel_mm,
+            self.keyframe_yaw_deg,
+            self.noise_factor,
+            self.cell_mm,
+            self.min_residue_mm2,
+            self.parallax_min_gain,
+            self.min_obstacle_height_mm,
+            self.odometry_error_fraction,
+            self.odometry_yaw_error_deg,
+        ];
+        if self.search_radius == 0 || self.search_radius > MAX_SEARCH_RADIUS || !finite.iter().all(|v| v.is_finite() && *v > 0.0) {
+            return Err(GpaError::Config);
+        }
+        Ok(())
+    }
+}

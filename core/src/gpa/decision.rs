@@ -1,0 +1,135 @@
+//! What a frame's evidence decides beyond itself: the noise level that sets
+//! the next frame's thresholds (normalised decision: the pixel threshold
+//! follows the measured noise), and the alarm, held through frames whose
+//! baseline is too short to see the obstacle again.
+
+use super::config::GpaConfig;
+use super::obstacles::Footprint;
+use crate::motion::Motion;
+
+/// Which evidence raised (or held) the last frame's alarm.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum AlarmSource {
+    #[default]
+    None,
+    /// Cells whose parallax says they stand above the ground.
+    Parallax,
+    /// Residue that no height explains (moving or deforming things).
+    Residue,
+    /// Too short a baseline to decide: the last obstacle, held.
+    Held,
+}
+
+/// The noise level measured on earlier frames.
+pub(super) struct Noise {
+    /// Noise sigma (gray levels, x16).
+    x16: u32,
+    /// Median plain |diff| per pixel (gray levels) on the last frame: the
+    /// floor noise puts under every plain SAD.
+    floor: u8,
+    /// A wide residue above this is residue.
+    residue_threshold: u8,
+}
+
+impl Noise {
+    pub(super) const NONE: Noise = Noise { x16: 0, floor: 0, residue_threshold: 0 };
+
+    /// Before any measurement: the threshold is the configured floor.
+    pub(super) fn new(config: &GpaConfig) -> Noise {
+        Noise { residue_threshold: config.residue_floor, ..Noise::NONE }
+    }
+
+    /// Noise sigma, gray levels.
+    pub(super) fn level(&self) -> f64 {
+        f64::from(self.x16) / 16.0
+    }
+
+    pub(super) fn floor(&self) -> u8 {
+        self.floor
+    }
+
+    pub(super) fn residue_threshold(&self) -> u8 {
+        self.residue_threshold
+    }
+
+    /// Noise level from this frame's |diff| at the predicted shift, for the
+    /// next frame's residue threshold. The median is robust while obstacles
+    /// cover less than half the AOI; for Gaussian noise on both images it is
+    /// 0.674 * sqrt(2) * sigma.
+    pub(super) fn update(&mut self, histogram: &[u32; 256], config: &GpaConfig) {
+        let total: u32 = histogram.iter().sum();
+        if total == 0 {
+            return;
+        }
+        let mut seen = 0;
+        let mut median = 0u32;
+        for (level, &count) in histogram.iter().enumerate() {
+            seen += count;
+            if seen * 2 >= total {
+                median = level as u32;
+                break;
+            }
+        }
+        self.floor = median.min(255) as u8;
+        // sigma = median / (0.674 * 1.414) ~= median * 1.05
+        let sigma = f64::from(median) * 1.05;
+        self.x16 = libm::round(sigma * 16.0) as u32;
+        let threshold = libm::round(config.noise_factor * sigma) as u32;
+        self.residue_threshold = threshold.clamp(u32::from(config.residue_floor), 120) as u8;
+    }
+}
+
+/// The alarm, with the obstacle it holds.
+pub(super) struct Alarm {
+    source: AlarmSource,
+    /// The last decided obstacle, held through frames whose baseline is too
+    /// short to see it.
+    previous: Option<Footprint>,
+}
+
+impl Alarm {
+    pub(super) const NONE: Alarm = Alarm { source: AlarmSource::None, previous: None };
+
+    pub(super) fn source(&self) -> AlarmSource {
+        self.source
+    }
+
+    /// Motion is lost: an obstacle seen before cannot be carried on.
+    pub(super) fn forget(&mut self) {
+        self.previous = None;
+    }
+
+    /// The obstacle of this frame from its evidence: parallax first (it
+    /// measures height and footprint directly), then residue. Too short a
+    /// baseline (`short_baseline`) shows too little parallax to clear an
+    /// alarm: then the last obstacle, moved by the odometry `step`, is held
+    /// until a frame with enough baseline decides again.
+    pub(super) fn decide(
+        &mut self,
+        parallax: Option<Footprint>,
+        residue: Option<Footprint>,
+        short_baseline: bool,
+        step: &Motion,
+    ) -> Option<Footprint> {
+        self.source = match (parallax, residue) {
+            (Some(_), _) => AlarmSource::Parallax,
+            (None, Some(_)) => AlarmSource::Residue,
+            (None, None) => AlarmSource::None,
+        };
+        let obstacle = match (parallax.or(residue), self.previous) {
+            (Some(found), _) => Some(found),
+            (None, Some(held)) if short_baseline => {
+                self.source = AlarmSource::Held;
+                let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
+                Some(Footprint {
+                    near_mm: moved(held.near_mm, step.tz_mm),
+                    left_mm: moved(held.left_mm, step.tx_mm),
+                    right_mm: moved(held.right_mm, step.tx_mm),
+                })
+            }
+            _ => None,
+        };
+        self.previous = obstacle;
+        obstacle
+    }
+}

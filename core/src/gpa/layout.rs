@@ -1,0 +1,96 @@
+//! Where things are on the KG grid for one rig: the AOI, the rows analysed,
+//! and the coarse coherence cells that residue and parallax are counted in.
+
+use crate::geometry::Rig;
+use crate::grid::{KgGrid, PixelRect};
+use crate::limits::{MAX_CELLS, MAX_CELLS_SIDE};
+use core::ops::Range;
+
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Layout {
+    pub(super) grid: KgGrid,
+    /// H, the camera's height above the ground (mm).
+    pub(super) camera_height_mm: f64,
+    pub(super) aoi: PixelRect,
+    /// Rows analysed: from the top of the grid (beyond the AOI) to the AOI's near edge.
+    pub(super) analysis_rows: usize,
+    pub(super) cells: Cells,
+}
+
+/// The coherence cells: `px` x `px` squares, `wide` x `high` of them over
+/// the analysed rows, stored row by row.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Cells {
+    pub(super) px: usize,
+    pub(super) wide: usize,
+    pub(super) high: usize,
+}
+
+/// The AOI's edges in mm (robot frame).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct AoiMm {
+    pub(super) near: f64,
+    pub(super) far: f64,
+    pub(super) half_width: f64,
+}
+
+impl Layout {
+    pub(super) const EMPTY: Layout = Layout {
+        grid: KgGrid { mm_per_px: 1.0, x_left_mm: 0.0, z_far_mm: 0.0, width: 0, height: 0 },
+        camera_height_mm: 0.0,
+        aoi: PixelRect { left: 0, right: 0, top: 0, bottom: 0 },
+        analysis_rows: 0,
+        cells: Cells { px: 5, wide: 0, high: 0 },
+    };
+
+    /// The layout of `rig` on `grid`, with cells of about `cell_mm`.
+    pub(super) fn new(rig: &Rig, grid: &KgGrid, cell_mm: f64) -> Layout {
+        let aoi = grid.aoi_pixels(rig);
+        let rows = aoi.bottom;
+        // At least 5 px: a coherent sample for the parallax test; and large
+        // enough that the cells fit MAX_CELLS_SIDE per side and MAX_CELLS in all.
+        let mut px = (libm::round(cell_mm / grid.mm_per_px) as usize).clamp(5, 15);
+        while grid.width().div_ceil(px) * rows.div_ceil(px) > MAX_CELLS
+            || grid.width().div_ceil(px) > MAX_CELLS_SIDE
+            || rows.div_ceil(px) > MAX_CELLS_SIDE
+        {
+            px += 1;
+        }
+        Layout {
+            grid: *grid,
+            camera_height_mm: rig.height_mm(),
+            aoi,
+            analysis_rows: rows,
+            cells: Cells { px, wide: grid.width().div_ceil(px), high: rows.div_ceil(px) },
+        }
+    }
+
+    /// Row `j` is in the far half of the AOI (a yaw error shifts far rows
+    /// sideways more than near ones, which is how it is measured).
+    pub(super) fn in_far_half(&self, j: usize) -> bool {
+        j < (self.aoi.top + self.aoi.bottom) / 2
+    }
+
+    /// The AOI in mm (robot frame).
+    pub(super) fn aoi_mm(&self) -> AoiMm {
+        let (left, far) = self.grid.pixel_to_ground(self.aoi.left as f64, self.aoi.top as f64);
+        let (_, near) = self.grid.pixel_to_ground(0.0, self.aoi.bottom as f64 - 1.0);
+        AoiMm { near, far, half_width: -left }
+    }
+}
+
+impl Cells {
+    /// Calls `f(cell_column, columns)` for the cell segments of `columns`
+    /// (generic so `f` inlines; one division per call, not per segment).
+    #[inline(always)]
+    pub(super) fn segments(&self, columns: Range<usize>, mut f: impl FnMut(usize, Range<usize>)) {
+        let mut c = columns.start;
+        let mut cell_column = c / self.px;
+        while c < columns.end {
+            let end = ((cell_column + 1) * self.px).min(columns.end);
+            f(cell_column, c..end);
+            c = end;
+            cell_column += 1;
+        }
+    }
+}

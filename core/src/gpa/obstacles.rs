@@ -1,0 +1,230 @@
+//! Obstacles from a frame's evidence: connected groups of coherence cells
+//! and where they stand. Parallax cells give heights and true footprints;
+//! residue blobs catch what has no consistent parallax. The whole grid
+//! ahead of the AOI is analysed, and a blob counts when its base (nearest
+//! point) lies in the AOI; blobs are measured in mm² of ground, so
+//! thresholds carry across cameras.
+
+use super::config::GpaConfig;
+use super::layout::Layout;
+use super::residue::Residue;
+use crate::limits::{MAX_BLOBS, MAX_BLOB_CELLS, MAX_CELLS, MAX_FLOOD_CELLS};
+
+/// A connected group of hot cells.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Blob {
+    /// Cell bounds (inclusive).
+    pub cell_left: u8,
+    pub cell_right: u8,
+    pub cell_top: u8,
+    pub cell_bottom: u8,
+    pub cells: u16,
+    /// Residue pixels in the blob.
+    pub pixels: u32,
+    /// Highest residue percentage of any of its cells.
+    pub peak_percent: u8,
+}
+
+/// Where an obstacle stands, robot frame mm: its nearest point ahead and
+/// its lateral extent.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) struct Footprint {
+    pub(super) near_mm: i32,
+    pub(super) left_mm: i32,
+    pub(super) right_mm: i32,
+}
+
+/// Visits the cells connected to `start` (neighbours within `radius` cells,
+/// in a grid of `size` = (columns, rows) cells stored row by row)
+/// for which `member` holds, marking them in `seen`; `visit` gets (cell,
+/// row, column). The work stack is bounded: a full one truncates the growth.
+fn flood_cells(
+    size: (usize, usize),
+    radius: i32,
+    start: usize,
+    seen: &mut [bool],
+    member: impl Fn(usize) -> bool,
+    mut visit: impl FnMut(usize, usize, usize),
+) {
+    let (w, h) = size;
+    let mut stack: heapless::Vec<u16, MAX_FLOOD_CELLS> = heapless::Vec::new();
+    seen[start] = true;
+    let _ = stack.push(start as u16);
+    while let Some(cell) = stack.pop() {
+        let cell = usize::from(cell);
+        let (r, c) = (cell / w, cell % w);
+        visit(cell, r, c);
+        for dr in -radius..=radius {
+            for dc in -radius..=radius {
+                let (nr, nc) = (r as i32 + dr, c as i32 + dc);
+                if nr < 0 || nc < 0 || nr as usize >= h || nc as usize >= w {
+                    continue;
+                }
+                let neighbour = nr as usize * w + nc as usize;
+                if !seen[neighbour] && member(neighbour) {
+                    seen[neighbour] = true;
+                    let _ = stack.push(neighbour as u16);
+                }
+            }
+        }
+    }
+}
+
+/// Groups cells whose parallax height (`heights`, mm) reaches the obstacle
+/// height; returns the nearest footprint inside the AOI and its height (mm).
+/// A `short_baseline` measures heights coarsely: only a large group counts.
+///
+/// A cell at apparent ground position p with height h stands on p*(H-h)/H,
+/// so every cell of a vertical face points at the face's own footprint.
+pub(super) fn parallax_obstacle(
+    layout: &Layout,
+    heights: &[u8; MAX_CELLS],
+    residue: &Residue,
+    config: &GpaConfig,
+    short_baseline: bool,
+) -> Option<(Footprint, i32)> {
+    let (grid, cells, camera_height_mm) = (&layout.grid, &layout.cells, layout.camera_height_mm);
+    let (w, h) = (cells.wide, cells.high);
+    // Heights are whole mm, so h >= min_height exactly when h >= ceil(min_height):
+    // an integer compare per cell instead of a soft-float one on the M4.
+    let min_height = libm::ceil(config.min_obstacle_height_mm) as u32;
+    let tall = |cell: usize| u32::from(heights[cell]) >= min_height;
+    let aoi = layout.aoi_mm();
+    let mut seen = [false; MAX_CELLS];
+    let mut best: Option<(f64, f64, f64, f64)> = None;
+    for start in 0..h * w {
+        if seen[start] || !tall(start) {
+            continue;
+        }
+        let mut with_residue = false;
+        let mut footprints: heapless::Vec<f64, MAX_BLOB_CELLS> = heapless::Vec::new();
+        let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
+        let mut group = 0usize;
+        // Parallax is measured only where there is texture, so a face can
+        // leave a cell out here and there: bridge one-cell gaps (radius 2).
+        flood_cells((w, h), 2, start, &mut seen, tall, |cell, r, c| {
+            group += 1;
+            with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
+            let height = f64::from(heights[cell]);
+            // The cell's measured height belongs to its centre.
+            let scale = (camera_height_mm - height) / camera_height_mm;
+            let centre_row = (r as f64 + 0.5) * cells.px as f64 - 0.5;
+            let (x_left, z_centre) = grid.pixel_to_ground((c * cells.px) as f64, centre_row);
+            let (x_right, _) = grid.pixel_to_ground(((c + 1) * cells.px) as f64 - 1.0, 0.0);
+            let _ = footprints.push(z_centre * scale);
+            left = left.min(x_left * scale);
+            right = right.max(x_right * scale);
+            tallest = tallest.max(height);
+        });
+        // One cell alone is too easily a fluke of texture, and a small
+        // patch of parallax without any residue is a blur difference on a
+        // sharp ground edge (the camera resolves it differently from
+        // another distance). Smooth obstacles leave little residue but
+        // parallax over a wider patch.
+        // A short baseline measures heights coarsely, so its footprints
+        // wander: there a blob must be large to raise an alarm by itself.
+        if group < 3 || (!with_residue && group < 4) || (short_baseline && group < 8) {
+            continue;
+        }
+        // Every cell of a vertical face points at the same footprint; the
+        // lower quartile is robust to the odd cell whose height is off.
+        footprints.sort_unstable_by(|a, b| a.total_cmp(b));
+        let nearest = footprints[(footprints.len() - 1) / 4];
+        let inside = nearest <= aoi.far
+            && nearest >= aoi.near - cells.px as f64 * grid.mm_per_px
+            && right >= -aoi.half_width
+            && left <= aoi.half_width;
+        if inside && best.is_none_or(|b| nearest < b.0) {
+            best = Some((nearest, left.max(-aoi.half_width), right.min(aoi.half_width), tallest));
+        }
+    }
+    best.map(|(z, left, right, height)| {
+        let z = z.max(aoi.near);
+        let footprint =
+            Footprint { near_mm: libm::round(z) as i32, left_mm: libm::round(left) as i32, right_mm: libm::round(right) as i32 };
+        (footprint, libm::round(height) as i32)
+    })
+}
+
+/// Labels the cells active with residue into blobs (at most [`MAX_BLOBS`]).
+pub(super) fn residue_blobs(layout: &Layout, residue: &Residue, config: &GpaConfig) -> heapless::Vec<Blob, MAX_BLOBS> {
+    let mut blobs: heapless::Vec<Blob, MAX_BLOBS> = heapless::Vec::new();
+    let cells = &layout.cells;
+    let (w, h) = (cells.wide, cells.high);
+    let mut label = [false; MAX_CELLS];
+    let percent = |cell: usize| residue.percent(cell, cells.px);
+    let active = |cell: usize| percent(cell) >= config.active_cell_percent;
+    for start in 0..h * w {
+        if label[start] || !active(start) {
+            continue;
+        }
+        let (sr, sc) = ((start / w) as u8, (start % w) as u8);
+        let mut blob = Blob { cell_left: sc, cell_right: sc, cell_top: sr, cell_bottom: sr, cells: 0, pixels: 0, peak_percent: 0 };
+        flood_cells((w, h), 1, start, &mut label, active, |cell, r, c| {
+            blob.cells += 1;
+            blob.pixels += u32::from(residue.cell_residue[cell]);
+            blob.peak_percent = blob.peak_percent.max(percent(cell).min(100) as u8);
+            blob.cell_left = blob.cell_left.min(c as u8);
+            blob.cell_right = blob.cell_right.max(c as u8);
+            blob.cell_top = blob.cell_top.min(r as u8);
+            blob.cell_bottom = blob.cell_bottom.max(r as u8);
+        });
+        if blobs.push(blob).is_err() {
+            break;
+        }
+    }
+    blobs
+}
+
+/// The nearest of `blobs` that is an obstacle (peak and area) and whose
+/// base lies in the AOI, located.
+pub(super) fn nearest_residue_obstacle(blobs: &[Blob], layout: &Layout, residue: &Residue, config: &GpaConfig) -> Option<Footprint> {
+    let (grid, aoi, cell_px) = (&layout.grid, &layout.aoi, layout.cells.px);
+    let pixel_mm2 = grid.mm_per_px * grid.mm_per_px;
+    let mut best: Option<Blob> = None;
+    for blob in blobs {
+        let obstacle = u32::from(blob.peak_percent) >= config.peak_cell_percent
+            && f64::from(blob.pixels) * pixel_mm2 >= config.min_residue_mm2;
+        if !obstacle {
+            continue;
+        }
+        let left_px = usize::from(blob.cell_left) * cell_px;
+        let right_px = (usize::from(blob.cell_right) + 1) * cell_px;
+        let base_z = base_z(blob, layout, residue);
+        let (_, aoi_far_z) = grid.pixel_to_ground(0.0, aoi.top as f64);
+        let in_aoi = base_z <= aoi_far_z + 0.5 * grid.mm_per_px && right_px > aoi.left && left_px < aoi.right;
+        if in_aoi && best.is_none_or(|b| blob.cell_bottom > b.cell_bottom) {
+            best = Some(*blob);
+        }
+    }
+    best.map(|blob| locate(&blob, layout, residue))
+}
+
+/// Apparent ground distance (mm) of a blob's nearest residue row.
+/// Residue of anything standing up appears beyond its footprint, so this
+/// never places a static obstacle nearer than it is: the residue path
+/// cannot raise an early alarm, and parallax measures the true footprint.
+fn base_z(blob: &Blob, layout: &Layout, residue: &Residue) -> f64 {
+    let cell_px = layout.cells.px;
+    let top = usize::from(blob.cell_top) * cell_px;
+    let bottom = ((usize::from(blob.cell_bottom) + 1) * cell_px).min(layout.analysis_rows);
+    let mut base = bottom.saturating_sub(1);
+    while base > top && residue.row_residue[base] < 2 {
+        base -= 1;
+    }
+    let (_, apparent_z) = layout.grid.pixel_to_ground(0.0, base as f64);
+    apparent_z
+}
+
+/// Nearest point and lateral extent of a blob.
+fn locate(blob: &Blob, layout: &Layout, residue: &Residue) -> Footprint {
+    let (grid, aoi, cell_px) = (&layout.grid, &layout.aoi, layout.cells.px);
+    let near_z = base_z(blob, layout, residue);
+    let (_, aoi_near_z) = grid.pixel_to_ground(0.0, (aoi.bottom.saturating_sub(1)) as f64);
+    let near_z = near_z.max(aoi_near_z);
+    let left_px = usize::from(blob.cell_left) * cell_px;
+    let right_px = ((usize::from(blob.cell_right) + 1) * cell_px).min(grid.width()) - 1;
+    let (left, _) = grid.pixel_to_ground(left_px as f64, 0.0);
+    let (right, _) = grid.pixel_to_ground(right_px as f64, 0.0);
+    Footprint { near_mm: libm::round(near_z) as i32, left_mm: libm::round(left) as i32, right_mm: libm::round(right) as i32 }
+}

@@ -1,0 +1,253 @@
+//! The parallax test: does a cell stand above the ground? A point at height
+//! h = f*H shows, beyond the ground prediction, an extra displacement of
+//! T * f / (1 - f) (T the baseline). Each cell's SAD is summed per height
+//! hypothesis over a cell row; a hypothesis that clearly beats the ground,
+//! refined by a parabola, gives the cell's height.
+
+use super::config::GpaConfig;
+use super::decision::Noise;
+use super::keyframe::Keyframe;
+use super::layout::Cells;
+use super::warp::{clip, to_q16, RowWarp};
+use crate::grid::{KgGrid, MAX_GRID_SIDE};
+use crate::limits::{KEYFRAME_SPARE_ROWS, MAX_CELLS, MAX_CELLS_SIDE};
+use crate::motion::Motion;
+use crate::subpixel;
+use core::ops::Range;
+
+/// Height hypotheses for the per-cell parallax test, as fractions of the
+/// camera height H (index 0 is the ground). A point at height h = f*H shows,
+/// beyond the ground prediction, an extra displacement of T * f / (1 - f).
+pub const HEIGHT_FRACTIONS: [f64; 8] = [0.0, 0.04, 0.08, 0.13, 0.19, 0.27, 0.37, 0.5];
+pub(super) const HYPOTHESES: usize = HEIGHT_FRACTIONS.len();
+
+/// This frame's hypotheses: where each one samples the keyframe and which
+/// of them take part.
+pub(super) struct Hypotheses {
+    /// Extra keyframe offset (KG px, Q16.16) per hypothesis.
+    pub(super) offset: [(i32, i32); HYPOTHESES],
+    /// Hypotheses whose samples stay clear of the in-place keyframe update.
+    pub(super) usable: usize,
+    /// Per axis (K, G): may the odometry error exceed half a pixel this frame?
+    pub(super) full_tolerance: (bool, bool),
+    /// Hypotheses 0..ground_like whose displacement the odometry error could
+    /// explain: they all stand for the ground.
+    pub(super) ground_like: usize,
+}
+
+impl Hypotheses {
+    pub(super) const NONE: Hypotheses =
+        Hypotheses { offset: [(0, 0); HYPOTHESES], usable: 0, full_tolerance: (false, false), ground_like: 1 };
+
+    /// The hypotheses of a frame at `predicted` from the keyframe, `step`
+    /// from the last frame (the part of the motion the shift search has not
+    /// refined yet, so the part whose odometry error they must tolerate).
+    pub(super) fn plan(predicted: &Motion, step: &Motion, grid: &KgGrid, config: &GpaConfig) -> Hypotheses {
+        let mut offset = [(0, 0); HYPOTHESES];
+        let (di, dj) = (predicted.tx_mm / grid.mm_per_px, -predicted.tz_mm / grid.mm_per_px);
+        for (slot, f) in offset.iter_mut().zip(HEIGHT_FRACTIONS) {
+            let g = f / (1.0 - f);
+            *slot = (to_q16(di * g), to_q16(dj * g));
+        }
+        let error = config.odometry_error_fraction;
+        let half_px = 0.5 * grid.mm_per_px;
+        let full_tolerance = (error * libm::fabs(step.tx_mm) > half_px, error * libm::fabs(step.tz_mm) > half_px);
+        let tolerance_mm = error * step.distance_mm() + half_px;
+        let baseline = predicted.distance_mm();
+        let ground_like = HEIGHT_FRACTIONS.iter().take_while(|f| baseline * **f / (1.0 - **f) <= tolerance_mm).count().max(1);
+        Hypotheses { offset, usable: HYPOTHESES, full_tolerance, ground_like }
+    }
+
+    /// For a frame that replaces the keyframe in place: the update runs
+    /// [`KEYFRAME_SPARE_ROWS`] ahead of the write position, so reads must
+    /// stay within that lead. Hypotheses that would reach further (at
+    /// `predicted`, search radius `s`) are left out for this frame; false
+    /// when none is left.
+    pub(super) fn keep_clear_of_update(&mut self, predicted: &Motion, grid: &KgGrid, s: usize) -> bool {
+        let dj = -predicted.tz_mm / grid.mm_per_px;
+        let yaw_rows = libm::fabs(libm::sin(predicted.dyaw_deg.to_radians())) * grid.width() as f64;
+        let base_lead = libm::fabs(dj) + yaw_rows + (s + 3) as f64;
+        self.usable = HEIGHT_FRACTIONS
+            .iter()
+            .take_while(|f| base_lead + libm::fabs(dj) * **f / (1.0 - **f) < KEYFRAME_SPARE_ROWS as f64)
+            .count();
+        self.usable > 0
+    }
+
+    /// How far (K, G) the ground hypothesis's residue of row `j` reaches: a
+    /// full pixel along an axis the odometry may be that far off, sideways
+    /// also where a heading error moves far ground by more than half a pixel.
+    pub(super) fn ground_tolerance(&self, j: usize, grid: &KgGrid, config: &GpaConfig) -> (bool, bool) {
+        let (_, row_z) = grid.pixel_to_ground(0.0, j as f64);
+        let yaw_blur = row_z * config.odometry_yaw_error_deg.to_radians() > 0.5 * grid.mm_per_px;
+        (self.full_tolerance.0 || yaw_blur, self.full_tolerance.1)
+    }
+
+    /// The height (as a fraction of H) that a cell's hypothesis SADs point
+    /// at, or None if the ground explains the cell as well. `noise_floor`
+    /// is the median plain |diff| per pixel.
+    fn height_fraction(&self, sads: &[u32], pixels: u16, min_gain: f64, noise_floor: u8, gain_percent: u32) -> Option<f64> {
+        // The ground: the tolerant residue, or any height so small that the
+        // odometry error alone could produce its displacement.
+        let ground_like = self.ground_like.min(sads.len());
+        let ground = sads[..ground_like].iter().copied().min().unwrap_or(u32::MAX);
+        let mut best = 0;
+        for k in ground_like..sads.len() {
+            if best == 0 || sads[k] < sads[best] {
+                best = k;
+            }
+        }
+        if best == 0 || sads[best] >= ground {
+            return None;
+        }
+        let best_sad = sads[best];
+        let gain = ground - best_sad;
+        // Sensor noise puts a floor under every plain SAD (the ground's
+        // tolerant residue sits lower); compare what lies above it.
+        let floor = u32::from(noise_floor) * u32::from(pixels);
+        let above = |sad: u32| u64::from(sad.saturating_sub(floor));
+        let keep = u64::from(100 - gain_percent);
+        let relative = above(best_sad) * 100 <= u64::from(ground) * keep;
+        let absolute = f64::from(gain) >= min_gain * f64::from(pixels);
+        // Uniqueness, as in stereo matching: structure that is uniform along
+        // the motion (a tape strip driven along) matches every height
+        // equally; only a distinct minimum is a measurement.
+        let runner_up = (1..sads.len()).filter(|k| k.abs_diff(best) > 1).map(|k| sads[k]).min().unwrap_or(0);
+        let distinct = above(best_sad) * 100 <= above(runner_up) * keep;
+        if !(relative && absolute && distinct) {
+            return None;
+        }
+        // Parabola through the neighbouring hypotheses, in the displacement
+        // they stand for (f / (1 - f)), not in index.
+        let g = |k: usize| HEIGHT_FRACTIONS[k] / (1.0 - HEIGHT_FRACTIONS[k]);
+        if best + 1 >= sads.len() || sads[best + 1] == u32::MAX {
+            return Some(HEIGHT_FRACTIONS[best]);
+        }
+        let offset = subpixel::minimum_offset(f64::from(sads[best - 1]), f64::from(best_sad), f64::from(sads[best + 1]));
+        let displacement = if offset < 0.0 {
+            g(best) + offset * (g(best) - g(best - 1))
+        } else {
+            g(best) + offset * (g(best + 1) - g(best))
+        };
+        Some(displacement / (1.0 + displacement))
+    }
+}
+
+/// Per-hypothesis SAD and pixel count of the cells of the current cell row.
+pub(super) struct CellRowSums {
+    pub(super) sad: [[u32; MAX_CELLS_SIDE]; HYPOTHESES],
+    pub(super) pixels: [[u16; MAX_CELLS_SIDE]; HYPOTHESES],
+}
+
+impl CellRowSums {
+    pub(super) const EMPTY: CellRowSums =
+        CellRowSums { sad: [[0; MAX_CELLS_SIDE]; HYPOTHESES], pixels: [[0; MAX_CELLS_SIDE]; HYPOTHESES] };
+
+    pub(super) fn clear(&mut self) {
+        self.sad = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
+        self.pixels = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
+    }
+
+    /// Adds `pixels` pixels of SAD `sad` to hypothesis `k` of cell `column`.
+    #[inline(always)]
+    pub(super) fn add(&mut self, k: usize, column: usize, pixels: u16, sad: u32) {
+        self.pixels[k][column] += pixels;
+        self.sad[k][column] += sad;
+    }
+}
+
+/// Parallax evidence of the current frame.
+pub(super) struct Parallax {
+    pub(super) hypotheses: Hypotheses,
+    /// Hypothesis 0, the ground, is summed by the residue stage.
+    pub(super) sums: CellRowSums,
+    /// Parallax height (mm, 0 = ground or undecided) per cell, this frame.
+    pub(super) height: [u8; MAX_CELLS],
+}
+
+impl Parallax {
+    pub(super) const EMPTY: Parallax =
+        Parallax { hypotheses: Hypotheses::NONE, sums: CellRowSums::EMPTY, height: [0; MAX_CELLS] };
+
+    pub(super) fn clear(&mut self) {
+        self.height = [0; MAX_CELLS];
+        self.sums.clear();
+    }
+
+    /// Sums current row `row` (warp `warp`, `seen` columns, usable `runs`)
+    /// against the keyframe at every height hypothesis but the ground
+    /// (columns whose sample is off the keyframe skip that hypothesis).
+    pub(super) fn add_row(
+        &mut self,
+        keyframe: &Keyframe,
+        warp: RowWarp,
+        seen: Range<usize>,
+        runs: &[(u16, u16)],
+        row: &[u8],
+        cells: &Cells,
+    ) {
+        let mut samples = [0u8; MAX_GRID_SIDE];
+        for k in 1..self.hypotheses.usable {
+            let (oi, oj) = self.hypotheses.offset[k];
+            let sampled = keyframe.sample_line(warp.moved(oi, oj), seen.clone(), &mut samples);
+            for &run in runs {
+                let columns = clip(run, sampled.start, sampled.end);
+                if columns.is_empty() {
+                    continue;
+                }
+                // Cell segments are 5-15 px. On the M4 `usada8` sums them
+                // in place; elsewhere a per-segment kernel call costs more
+                // than the work, so |diff| is taken over the whole line
+                // (vectorised) and the segments sum bytes.
+                #[cfg(not(flatland_dsp))]
+                for (d, &value) in samples[columns.clone()].iter_mut().zip(&row[columns.clone()]) {
+                    *d = d.abs_diff(value);
+                }
+                cells.segments(columns, |cell_column, columns| {
+                    // Counted before the sum is taken: nothing stays live across it.
+                    self.sums.pixels[k][cell_column] += columns.len() as u16;
+                    #[cfg(flatland_dsp)]
+                    let sum = super::kernels::sad(&row[columns.clone()], &samples[columns]);
+                    #[cfg(not(flatland_dsp))]
+                    let sum: u32 = samples[columns].iter().map(|&d| u32::from(d)).sum();
+                    self.sums.sad[k][cell_column] += sum;
+                });
+            }
+        }
+    }
+
+    /// Decides the parallax height of each cell of finished cell row
+    /// `cell_row`, and starts the next cell row's sums.
+    pub(super) fn finish_cell_row(&mut self, cell_row: usize, cells: &Cells, camera_height_mm: f64, noise: &Noise, config: &GpaConfig) {
+        if cell_row >= cells.high {
+            return;
+        }
+        let usable = self.hypotheses.usable;
+        let min_pixels = (cells.px * cells.px / 2) as u16;
+        let min_gain = config.parallax_min_gain.max(noise.level());
+        for column in 0..cells.wide {
+            let pixels = self.sums.pixels[0][column];
+            let cell = cell_row * cells.wide + column;
+            self.height[cell] = 0;
+            if pixels < min_pixels || usable < 2 {
+                continue;
+            }
+            // Each hypothesis' SAD scaled to the cell's pixel count; one that
+            // saw less than 3/4 of the cell (off the keyframe) does not compete.
+            let mut sads = [u32::MAX; HYPOTHESES];
+            for (k, sad) in sads.iter_mut().enumerate().take(usable) {
+                let seen = u32::from(self.sums.pixels[k][column]);
+                if seen * 4 >= u32::from(pixels) * 3 {
+                    *sad = ((u64::from(self.sums.sad[k][column]) * u64::from(pixels)) / u64::from(seen.max(1))) as u32;
+                }
+            }
+            let fraction =
+                self.hypotheses.height_fraction(&sads[..usable], pixels, min_gain, noise.floor(), config.parallax_gain_percent);
+            if let Some(fraction) = fraction {
+                let height = fraction * camera_height_mm;
+                self.height[cell] = libm::round(height).clamp(1.0, 255.0) as u8;
+            }
+        }
+        self.sums.clear();
+    }
+}

@@ -1,0 +1,92 @@
+//! The chained prediction: the motion keyframe -> frame n is predicted as
+//! the *refined* motion keyframe -> n-1 followed by the odometry n-1 -> n,
+//! so odometry error never accumulates over the keyframe baseline. Wheel
+//! odometry with a constant scale error (a worn tyre) is corrected by the
+//! scale the shift search has been measuring.
+
+use crate::motion::Motion;
+
+pub(super) struct Prediction {
+    /// Refined motion keyframe -> last frame (-> this frame once settled).
+    to_last: Motion,
+    last_frame: u32,
+    /// This frame's prediction, keyframe -> now.
+    pub(super) predicted: Motion,
+    /// Odometry since the previous frame, scale-corrected.
+    pub(super) step: Motion,
+    /// Measured ratio of true to odometry travel (1.0 until measured).
+    odometry_scale: f64,
+}
+
+impl Prediction {
+    pub(super) const START: Prediction = Prediction {
+        to_last: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
+        last_frame: 0,
+        predicted: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
+        step: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
+        odometry_scale: 1.0,
+    };
+
+    /// Whether `frame` directly follows the last one.
+    pub(super) fn follows(&self, frame: u32) -> bool {
+        frame == self.last_frame.wrapping_add(1)
+    }
+
+    /// Predicts this frame from the last one moved by `odometry`.
+    pub(super) fn predict(&mut self, odometry: &Motion) {
+        self.step = Motion {
+            tx_mm: odometry.tx_mm * self.odometry_scale,
+            tz_mm: odometry.tz_mm * self.odometry_scale,
+            dyaw_deg: odometry.dyaw_deg,
+        };
+        self.predicted = self.to_last.then(&self.step);
+    }
+
+    /// No motion known: this frame starts a keyframe.
+    pub(super) fn start_keyframe(&mut self) {
+        self.predicted = Motion::default();
+    }
+
+    /// The motion keyframe -> now: the shift search's `refined` one if it
+    /// measured one (and then the odometry scale learns from it), else the
+    /// prediction (on a grid of `mm_per_px`).
+    pub(super) fn settle(&mut self, refined: Option<Motion>, mm_per_px: f64) {
+        match refined {
+            Some(refined) => {
+                // The step as measured: refined keyframe->now, minus keyframe->before.
+                let (dx, dz) = (refined.tx_mm - self.to_last.tx_mm, refined.tz_mm - self.to_last.tz_mm);
+                self.to_last = refined;
+                self.learn_odometry_scale(dx, dz, mm_per_px);
+            }
+            None => self.to_last = self.predicted,
+        }
+    }
+
+    /// The motion keyframe -> last frame.
+    pub(super) fn to_last(&self) -> Motion {
+        self.to_last
+    }
+
+    /// Frame `frame` is over; if it became the keyframe, motion restarts from it.
+    pub(super) fn finish(&mut self, frame: u32, new_keyframe: bool) {
+        self.last_frame = frame;
+        if new_keyframe {
+            self.to_last = Motion::default();
+        }
+    }
+
+    /// Updates the odometry scale from this frame's refined step (`dx`,
+    /// `dz`): a slow average, so random per-step errors cancel and a
+    /// constant one remains.
+    fn learn_odometry_scale(&mut self, dx: f64, dz: f64, mm_per_px: f64) {
+        let odometry = self.step.distance_mm() / self.odometry_scale;
+        // Short steps measure the scale poorly.
+        if odometry < 4.0 * mm_per_px {
+            return;
+        }
+        let measured = libm::hypot(dx, dz) / odometry;
+        if (0.8..=1.25).contains(&measured) {
+            self.odometry_scale = (0.8 * self.odometry_scale + 0.2 * measured).clamp(0.8, 1.25);
+        }
+    }
+}

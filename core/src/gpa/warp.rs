@@ -1,0 +1,188 @@
+//! The warp: where each current KG pixel lies in the keyframe under the
+//! predicted motion (translation and yaw, a rotation in the KG plane about
+//! the robot origin), one Q16.16 line per row; and which of a row's columns
+//! can be compared at all.
+
+use crate::grid::{KgGrid, MAX_GRID_SIDE};
+use crate::motion::Motion;
+use crate::remap::RemapTable;
+use core::ops::Range;
+
+/// Fraction bits of the Q16.16 keyframe positions.
+pub(super) const FRAC: u32 = 16;
+
+/// `value` in Q16.16, saturated far beyond any grid.
+pub(super) fn to_q16(value: f64) -> i32 {
+    libm::round(value * 65536.0).clamp(-1.0e9, 1.0e9) as i32
+}
+
+/// One row's warp: keyframe position of current column 0 and its
+/// per-column step, Q16.16.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(super) struct RowWarp {
+    pub(super) i_start: i32,
+    pub(super) i_step: i32,
+    pub(super) j_start: i32,
+    pub(super) j_step: i32,
+}
+
+impl RowWarp {
+    /// No yaw: the row maps onto one keyframe row, columns a pixel apart.
+    #[inline(always)]
+    pub(super) fn is_translation(&self) -> bool {
+        self.i_step == 1 << FRAC && self.j_step == 0
+    }
+
+    /// Keyframe position (i, j) of current column `c`.
+    #[inline(always)]
+    pub(super) fn at(&self, c: usize) -> (i32, i32) {
+        (
+            self.i_start.wrapping_add((c as i32).wrapping_mul(self.i_step)),
+            self.j_start.wrapping_add((c as i32).wrapping_mul(self.j_step)),
+        )
+    }
+
+    /// The same line moved by (`di`, `dj`), Q16.16.
+    #[inline(always)]
+    pub(super) fn moved(&self, di: i32, dj: i32) -> RowWarp {
+        RowWarp { i_start: self.i_start.wrapping_add(di), j_start: self.j_start.wrapping_add(dj), ..*self }
+    }
+}
+
+/// The predicted motion as an affine map from current KG pixels to
+/// keyframe KG pixels (ground point, then back through the motion).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Warp {
+    origin: (f64, f64),
+    column: (f64, f64),
+    row: (f64, f64),
+}
+
+impl Warp {
+    pub(super) const NONE: Warp = Warp { origin: (0.0, 0.0), column: (0.0, 0.0), row: (0.0, 0.0) };
+
+    pub(super) fn predicted(grid: &KgGrid, predicted: &Motion) -> Warp {
+        let warp = |i: f64, j: f64| {
+            let (x, z) = grid.pixel_to_ground(i, j);
+            let (xk, zk) = predicted.to_earlier_frame(x, z);
+            grid.ground_to_pixel(xk, zk)
+        };
+        let origin = warp(0.0, 0.0);
+        let along = warp(1.0, 0.0);
+        let down = warp(0.0, 1.0);
+        Warp {
+            origin,
+            column: (along.0 - origin.0, along.1 - origin.1),
+            row: (down.0 - origin.0, down.1 - origin.1),
+        }
+    }
+
+    /// The warp of current row `j`.
+    pub(super) fn row(&self, j: usize) -> RowWarp {
+        let jf = j as f64;
+        RowWarp {
+            i_start: to_q16(self.origin.0 + self.row.0 * jf),
+            i_step: to_q16(self.column.0),
+            j_start: to_q16(self.origin.1 + self.row.1 * jf),
+            j_step: to_q16(self.column.1),
+        }
+    }
+}
+
+/// Usable columns of a row as runs `[start, end)`: a translation row has
+/// one, a yawed row may have several (runs are a column apart at least).
+pub(super) type Runs = heapless::Vec<(u16, u16), { MAX_GRID_SIDE / 2 + 1 }>;
+
+/// The part of `run` within `lo..hi`.
+#[inline(always)]
+pub(super) fn clip(run: (u16, u16), lo: usize, hi: usize) -> Range<usize> {
+    usize::from(run.0).max(lo)..usize::from(run.1).min(hi)
+}
+
+/// Which columns the camera sees, per grid row: in the current frame, and
+/// in the keyframe all around a search neighbourhood.
+pub(super) struct Coverage {
+    /// Current-frame valid columns per row.
+    current: [(u16, u16); MAX_GRID_SIDE],
+    /// Valid reference columns for a sample centred on row j' (all taps in view), per row.
+    reference: [(u16, u16); MAX_GRID_SIDE],
+}
+
+impl Coverage {
+    pub(super) const EMPTY: Coverage =
+        Coverage { current: [(0, 0); MAX_GRID_SIDE], reference: [(0, 0); MAX_GRID_SIDE] };
+
+    /// Fills in place (4 KB) from the remap table's valid columns.
+    pub(super) fn init(&mut self, grid: &KgGrid, table: &RemapTable, search_radius: usize) {
+        self.current = [(0, 0); MAX_GRID_SIDE];
+        for (j, slot) in self.current.iter_mut().enumerate().take(grid.height()) {
+            let range = table.valid_columns(j);
+            *slot = (range.start as u16, range.end as u16);
+        }
+        // A reference sample around row j' touches rows j'-S-1 ..= j'+S+2 and
+        // columns i'-S-1 ..= i'+S+2: keep the columns where all of them are in view.
+        let reach = search_radius + 1;
+        self.reference = [(0, 0); MAX_GRID_SIDE];
+        for (j, slot) in self.reference.iter_mut().enumerate().take(grid.height()) {
+            let (mut lo, mut hi) = (0usize, grid.width());
+            for r in j as isize - reach as isize..=(j + reach + 1) as isize {
+                let range = if r < 0 || r as usize >= grid.height() { 0..0 } else { table.valid_columns(r as usize) };
+                lo = lo.max(range.start);
+                hi = hi.min(range.end);
+            }
+            let (lo, hi) = (lo + reach, hi.saturating_sub(reach + 1));
+            *slot = if hi > lo { (lo as u16, hi as u16) } else { (0, 0) };
+        }
+    }
+
+    /// Columns of current row `j` that the camera sees, or None.
+    pub(super) fn seen(&self, j: usize) -> Option<Range<usize>> {
+        let (lo, hi) = self.current[j];
+        (hi > lo).then_some(usize::from(lo)..usize::from(hi))
+    }
+
+    /// Whether current column `c` under `warp` has its whole search
+    /// neighbourhood in the keyframe's view.
+    #[inline(always)]
+    pub(super) fn usable(&self, warp: RowWarp, c: usize, grid: &KgGrid) -> bool {
+        let rows_limit = (grid.height() as i32 - 1) << FRAC;
+        let (i_ref, j_ref) = warp.at(c);
+        let (i0, j0) = (i_ref >> FRAC, j_ref >> FRAC);
+        j_ref >= 0 && j_ref < rows_limit && i0 >= 0 && (i0 as usize) < grid.width() && {
+            let (lo, hi) = self.reference[j0 as usize];
+            (i0 as usize) >= usize::from(lo) && (i0 as usize) < usize::from(hi)
+        }
+    }
+
+    /// Sets `runs` to the usable columns among `seen` (see [`Self::usable`]).
+    /// (Filled in place: returned, the 0.5 KB would be copied every row.)
+    pub(super) fn usable_runs(&self, warp: RowWarp, seen: Range<usize>, grid: &KgGrid, runs: &mut Runs) {
+        runs.clear();
+        if warp.is_translation() {
+            // One keyframe row: its reference columns, moved by the shift.
+            let rows_limit = (grid.height() as i32 - 1) << FRAC;
+            if warp.j_start >= 0 && warp.j_start < rows_limit {
+                let (lo, hi) = self.reference[(warp.j_start >> FRAC) as usize];
+                let i0 = i64::from(warp.i_start >> FRAC);
+                let first = (i64::from(lo) - i0).max(seen.start as i64);
+                let end = (i64::from(hi) - i0).min(seen.end as i64);
+                if end > first {
+                    let _ = runs.push((first as u16, end as u16));
+                }
+            }
+            return;
+        }
+        let mut open: Option<usize> = None;
+        for c in seen.start..=seen.end {
+            let usable = c < seen.end && self.usable(warp, c, grid);
+            match (usable, open) {
+                (true, None) => open = Some(c),
+                (false, Some(first)) => {
+                    let _ = runs.push((first as u16, c as u16));
+                    open = None;
+                }
+                _ => {}
+            }
+        }
+    }
+}
