@@ -26,6 +26,7 @@ pub mod geometry;
 pub mod gpa;
 pub mod grid;
 pub mod gti;
+pub mod limits;
 pub mod motion;
 pub mod pgm;
 pub mod remap;
