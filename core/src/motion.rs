@@ -1,4 +1,5 @@
-//! Robot poses and the odometry between them (the seed's Tx, Tz, and yaw).
+//! Robot poses and the odometry between them (the seed's Tx, Tz, and yaw),
+//! and the rotation by a heading that every change of frame goes through.
 //!
 //! World frame as in RECORDING.md: yaw is the heading, positive turning left
 //! (counter-clockwise seen from above), 0 = world +z. The robot's forward
@@ -152,5 +153,22 @@ mod tests {
         assert!((chained.tx_mm - direct.tx_mm).abs() < 1e-9 && (chained.tz_mm - direct.tz_mm).abs() < 1e-9);
         assert!((chained.dyaw_deg - direct.dyaw_deg).abs() < 1e-12);
         assert!((rx - wx).abs() < 1e-9 && (rz - wz).abs() < 1e-9);
+    }
+
+    #[test]
+    fn rotation_turns_left_and_back() {
+        // 90 degrees left: the robot's right axis is world +z, forward is world -x.
+        let turn = Rotation::from_degrees(90.0);
+        let [x, z] = turn.to_world([1.0, 0.0]);
+        assert!(x.abs() < 1e-12 && (z - 1.0).abs() < 1e-12);
+        let [x, z] = turn.to_f32().to_world([0.0f32, 1.0]);
+        assert!((x + 1.0).abs() < 1e-6 && z.abs() < 1e-6);
+        let v = [30.0, -7.5];
+        let yaw = Rotation::from_radians(0.7);
+        let [bx, bz] = yaw.to_robot(yaw.to_world(v));
+        assert!((bx - v[0]).abs() < 1e-12 && (bz - v[1]).abs() < 1e-12);
+        let [px, pz] = yaw.place([100.0, 200.0], v);
+        let [wx, wz] = yaw.to_world(v);
+        assert!((px - 100.0 - wx).abs() < 1e-9 && (pz - 200.0 - wz).abs() < 1e-9);
     }
 }

@@ -341,9 +341,9 @@ impl Gti {
     /// this one (in the previous robot frame; zero for the first frame).
     pub fn end_frame(&mut self, motion: &Motion) {
         self.lines.end_frame(self.config.lines);
-        // One line's edges at a time, for the travel correction and then for
-        // the association: every line's at once would be the firmware's
-        // deepest stack (~11 KB).
+        // One line's edges at a time (found for the travel correction, then
+        // again for the association): every line's at once would add ~10 KB
+        // to the firmware's deepest stack.
         let mut edges = LineEdges::NONE;
         self.advance_pose(motion, &mut edges);
         for track in self.tracks.iter_mut().flatten() {
