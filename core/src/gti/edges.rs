@@ -8,6 +8,7 @@ use super::fits::median;
 use super::lines::LineSamples;
 use super::GtiConfig;
 use crate::limits::{MAX_EDGES_PER_LINE, MAX_LINE_SAMPLES, MAX_WEAK_EDGES_PER_LINE};
+use crate::subpixel::maximum_offset;
 use heapless::Vec;
 use libm::fabsf;
 
@@ -18,16 +19,6 @@ pub(super) const PATCH: usize = 2 * PATCH_RADIUS + 1;
 const WEAK_EDGE_SCALE: f32 = 0.5;
 /// Samples per block in which a line's noise is measured.
 const NOISE_BLOCK: usize = 32;
-
-/// Offset in (-0.5, 0.5) of the vertex of the parabola through three equally
-/// spaced samples whose middle one is a maximum; 0 when they are collinear.
-pub fn subpixel_peak(before: f32, peak: f32, after: f32) -> f32 {
-    let curvature = before - 2.0 * peak + after;
-    if !(curvature < 0.0) {
-        return 0.0;
-    }
-    (0.5 * (before - after) / curvature).clamp(-0.5, 0.5)
-}
 
 /// An edge on a line in the current frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -118,7 +109,7 @@ impl LineEdges {
                 *slot = values.get(r + k - PATCH_RADIUS).copied().unwrap_or(0);
             }
             let edge = Edge {
-                row: r as f32 + subpixel_peak(before, here, after),
+                row: r as f32 + maximum_offset(before, here, after),
                 strength: here / weak_threshold,
                 rising: gradient.get(r).is_some_and(|g| *g > 0.0),
                 patch,
@@ -155,11 +146,11 @@ mod tests {
     use super::*;
 
     #[test]
-    fn subpixel_peak_finds_parabola_vertex() {
-        // Samples of -(x - 0.3)^2 at x = -1, 0, 1.
+    fn edge_peaks_use_the_parabola_vertex() {
+        // Samples of -(x - 0.3)^2 at x = -1, 0, 1; collinear samples give 0.
         let f = |x: f32| -(x - 0.3) * (x - 0.3);
-        assert!((subpixel_peak(f(-1.0), f(0.0), f(1.0)) - 0.3).abs() < 1e-5);
-        assert_eq!(subpixel_peak(1.0, 1.0, 1.0), 0.0);
+        assert!((maximum_offset(f(-1.0), f(0.0), f(1.0)) - 0.3).abs() < 1e-5);
+        assert_eq!(maximum_offset(1.0f32, 1.0, 1.0), 0.0);
     }
 
     #[test]

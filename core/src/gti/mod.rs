@@ -54,7 +54,7 @@ mod lines;
 mod tracks;
 mod travel;
 
-pub use edges::{subpixel_peak, PATCH_RADIUS};
+pub use edges::PATCH_RADIUS;
 pub use fits::{
     height_from_slope, robust_line_fit, slope_from_height, top_supported_height, LineFit, FULL_QUALITY_OBSERVATIONS,
     MIN_SUPPORT, QUALITY_SIGMA_MM,
