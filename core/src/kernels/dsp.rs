@@ -272,7 +272,7 @@ pub fn pinhole_vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
 /// shifted right by 8 puts `p0 + (p1 << 8)` in the low half.
 ///
 /// # Safety
-/// See [`super::pinhole::Horizontal`].
+/// Every pixel's `x0 + 1` indexes `line` (see `pinhole::Horizontal`).
 pub unsafe fn pinhole_horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]) {
     const BIAS: u32 = (1 << 23) + (1 << 15);
     let groups = out.len() / 4;

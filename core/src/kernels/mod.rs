@@ -71,7 +71,7 @@ impl DiffHistogram {
         *self = Self::EMPTY;
     }
 
-    /// Counts |a[n] - b[n]| over the common length.
+    /// Counts `|a[n] - b[n]|` over the common length.
     #[inline]
     pub fn add(&mut self, a: &[u8], b: &[u8]) {
         selected::diff_histogram(a, b, &mut self.lanes)

@@ -40,13 +40,15 @@ pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8
     }
 }
 
+// ------------------------------------------------------------ pinhole rows
+
 #[inline]
 pub fn pinhole_vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
     pinhole_vertical_flipped(upper, lower, wy, line, 0);
 }
 
 /// # Safety
-/// See [`super::pinhole::Horizontal`].
+/// Every pixel's `x0 + 1` indexes `line` (see `pinhole::Horizontal`).
 #[inline]
 pub unsafe fn pinhole_horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]) {
     // SAFETY: the caller's contract.
@@ -69,7 +71,7 @@ pub fn pinhole_vertical_flipped(upper: &[u8], lower: &[u8], wy: u32, line: &mut 
 /// kernels' tails).
 ///
 /// # Safety
-/// See [`super::pinhole::Horizontal`].
+/// Every pixel's `x0 + 1` indexes `line` (see `pinhole::Horizontal`).
 #[inline]
 pub unsafe fn pinhole_horizontal_flipped(line: &[u16], u: i32, step: i32, out: &mut [u8], flip: u16) {
     let mut u = u as u32;

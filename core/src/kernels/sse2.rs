@@ -169,7 +169,7 @@ pub fn pinhole_vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
 /// sum is `bilinear`'s, < 2^24, and its bits 16..24 the pixel.
 ///
 /// # Safety
-/// See [`super::pinhole::Horizontal`].
+/// Every pixel's `x0 + 1` indexes `line` (see `pinhole::Horizontal`).
 #[inline]
 pub unsafe fn pinhole_horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]) {
     let n = out.len();
