@@ -43,6 +43,6 @@ pub mod report;
 /// Transitional: gpa and the firmware's benchmarks still name the kernels
 /// `sad::` on this branch; goes when they say `kernels::`.
 pub use kernels as sad;
-/// core's checks as a list for the on-target runner (`cargo fw-test`).
+/// core's checks as one list: the on-target runner's (`cargo fw-test`) and the host `#[test]`s.
 #[cfg(any(test, feature = "selftest"))]
 pub mod selftest;

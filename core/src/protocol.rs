@@ -806,7 +806,17 @@ pub mod checks {
     /// rig.toml's values survive record -> `Rig` -> record, with and without a lens.
     pub fn rig_converts_both_ways() -> Check {
         // A rig `Rig::new_checked` accepts (sample_rig is only a wire sample).
-        let valid = |distortion| RigRecord { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, height_mm: 400.0, tilt_deg: 32.0, ..sample_rig(distortion) };
+        let valid = |distortion| RigRecord {
+            width: 256,
+            height: 256,
+            fx: 240.0,
+            fy: 240.0,
+            cx: 127.5,
+            cy: 127.5,
+            height_mm: 400.0,
+            tilt_deg: 32.0,
+            ..sample_rig(distortion)
+        };
         for distortion in [None, Some([-0.28, 0.07, 1e-4, -2.5e-4, 0.01])] {
             let record = valid(distortion);
             let rig = Rig::try_from(&record).map_err(|_| "valid rig refused")?;

@@ -5,7 +5,6 @@
 use super::{bilinear, pinhole, portable, FRAC_BITS};
 use crate::selftest::{xorshift32, Outcome};
 
-
 /// Deterministic bytes around 128, within `spread` of it (any byte from 256 up).
 fn fill(buffer: &mut [u8], mut state: u32, spread: u32) {
     for byte in buffer.iter_mut() {
