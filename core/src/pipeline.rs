@@ -12,7 +12,7 @@
 //! - the frame's rows ([`Pipeline::push_row`]) and its end
 //!   ([`Pipeline::finish`]), with typed outcomes and errors;
 //! - per-stage timing ([`FrameTiming`]) from an injected clock, for the
-//!   benchmarks of both sides.
+//!   benchmarks of both sides (reading the camera is the caller's to time).
 //!
 //! No heap: the stages are borrowed (the firmware keeps them in statics).
 //! GTI is optional: the firmware's `full-frame` benchmark build leaves it
@@ -77,8 +77,6 @@ impl core::error::Error for FrameError {}
 /// Clock ticks spent per stage on the last frame (all 0 without a clock).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FrameTiming {
-    /// Between the rows: the caller fetching them (reading the camera).
-    pub read: u32,
     /// The streaming remap (`push_row` less the stages' share).
     pub remap: u32,
     /// GPA's per-row work (`Gpa::on_kg_row`: shift search, residue, keyframe update).
@@ -90,7 +88,8 @@ pub struct FrameTiming {
     /// GTI's per-frame work: edges, tracking, fits, and the combination
     /// with GPA's report (`GtiStage::end_frame`, `GtiStage::enrich`).
     pub gti_frame: u32,
-    /// The whole frame, [`Pipeline::begin`] to the end of [`Pipeline::finish`].
+    /// The whole frame, [`Pipeline::begin`] to the end of [`Pipeline::finish`]
+    /// (the caller's reading of the rows included).
     pub cycle: u32,
 }
 
@@ -109,8 +108,6 @@ struct Current {
     motion: Option<Motion>,
     kg_rows: usize,
     begun_at: u32,
-    /// When the pipeline last handed control back: the caller's read starts.
-    returned_at: u32,
 }
 
 /// The stages of one rig and the frame bookkeeping between them.
@@ -185,8 +182,7 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         self.gpa.begin_frame(frame, motion);
         self.remap.reset();
         self.timing = FrameTiming::default();
-        let returned_at = self.now();
-        self.current = Some(Current { frame, pose, motion, kg_rows: 0, begun_at, returned_at });
+        self.current = Some(Current { frame, pose, motion, kg_rows: 0, begun_at });
         Ok(motion)
     }
 
@@ -218,14 +214,10 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
             gti_rows = gti_rows.wrapping_add(end.wrapping_sub(gti_start));
             tap(j, kg_row);
         });
-        let returned_at = now();
-        timing.read = timing.read.wrapping_add(entered_at.wrapping_sub(current.returned_at));
-        timing.remap = timing
-            .remap
-            .wrapping_add(returned_at.wrapping_sub(entered_at).wrapping_sub(detector_rows).wrapping_sub(gti_rows));
+        let stages = detector_rows.wrapping_add(gti_rows);
+        timing.remap = timing.remap.wrapping_add(now().wrapping_sub(entered_at).wrapping_sub(stages));
         timing.detector_rows = timing.detector_rows.wrapping_add(detector_rows);
         timing.gti_rows = timing.gti_rows.wrapping_add(gti_rows);
-        current.returned_at = returned_at;
         pushed.map_err(|error| {
             self.abort();
             FrameError::Remap(error)
