@@ -293,40 +293,49 @@ mod tests {
     use crate::geometry::tests::sample_rig;
     use crate::gpa::GpaConfig;
     use crate::grid::{GridConfig, KgGrid};
+    use std::boxed::Box;
     use std::vec;
     use std::vec::Vec;
 
-    /// Runs `frames` (index, pose) of a flat grey scene through a pipeline;
-    /// the outcome of each, or the error.
-    fn run(frames: &[(u32, Option<PoseSample>)], give_up: &[u32]) -> Vec<Result<(Option<Motion>, Outcome), FrameError>> {
+    /// Runs `test` on a pipeline for the sample rig (with GTI if `with_gti`).
+    fn with_pipeline(with_gti: bool, test: impl FnOnce(&mut Pipeline, &RemapTable)) {
         let rig = sample_rig();
         let grid = KgGrid::for_rig(&rig, &GridConfig::default()).unwrap();
-        let table = std::boxed::Box::new(RemapTable::new(&rig, &grid).unwrap());
+        let table = Box::new(RemapTable::new(&rig, &grid).unwrap());
         let mut ring = vec![0u8; table.ring_bytes()];
         let mut keyframe = vec![0u8; Gpa::keyframe_bytes(&grid)];
-        let mut gpa = std::boxed::Box::new(Gpa::new(&rig, &grid, &table, GpaConfig::default(), &mut keyframe).unwrap());
-        let mut gti = std::boxed::Box::new(GtiStage::new(&rig, &grid).unwrap());
-        let mut pipeline = Pipeline::new(&table, &mut ring, &mut gpa, Some(&mut gti)).unwrap();
-        let row = vec![128u8; table.camera_width()];
+        let mut gpa = Box::new(Gpa::new(&rig, &grid, &table, GpaConfig::default(), &mut keyframe).unwrap());
+        let mut gti = with_gti.then(|| Box::new(GtiStage::new(&rig, &grid).unwrap()));
+        let mut pipeline = Pipeline::new(&table, &mut ring, &mut gpa, gti.as_deref_mut()).unwrap();
+        test(&mut pipeline, &table);
+    }
+
+    /// Runs `frames` (index, pose) of a flat grey scene through a pipeline,
+    /// giving up those in `give_up` after one row; the outcome of each
+    /// other, or the error.
+    fn run(frames: &[(u32, Option<PoseSample>)], give_up: &[u32]) -> Vec<Result<(Option<Motion>, Outcome), FrameError>> {
         let mut outcomes = Vec::new();
-        for &(frame, pose) in frames {
-            let motion = match pipeline.begin(frame, pose) {
-                Ok(motion) => motion,
-                Err(error) => {
-                    outcomes.push(Err(error));
+        with_pipeline(true, |pipeline, table| {
+            let row = vec![128u8; table.camera_width()];
+            for &(frame, pose) in frames {
+                let motion = match pipeline.begin(frame, pose) {
+                    Ok(motion) => motion,
+                    Err(error) => {
+                        outcomes.push(Err(error));
+                        continue;
+                    }
+                };
+                if give_up.contains(&frame) {
+                    pipeline.push_row(&row).unwrap();
+                    pipeline.abort();
                     continue;
                 }
-            };
-            if give_up.contains(&frame) {
-                pipeline.push_row(&row).unwrap();
-                pipeline.abort();
-                continue;
+                for _ in 0..table.camera_height() {
+                    pipeline.push_row(&row).unwrap();
+                }
+                outcomes.push(pipeline.finish().map(|outcome| (motion, outcome)));
             }
-            for _ in 0..table.camera_height() {
-                pipeline.push_row(&row).unwrap();
-            }
-            outcomes.push(pipeline.finish().map(|outcome| (motion, outcome)));
-        }
+        });
         outcomes
     }
 
@@ -370,21 +379,17 @@ mod tests {
 
     #[test]
     fn rows_need_a_frame_and_a_frame_needs_its_rows() {
-        let rig = sample_rig();
-        let grid = KgGrid::for_rig(&rig, &GridConfig::default()).unwrap();
-        let table = std::boxed::Box::new(RemapTable::new(&rig, &grid).unwrap());
-        let mut ring = vec![0u8; table.ring_bytes()];
-        let mut keyframe = vec![0u8; Gpa::keyframe_bytes(&grid)];
-        let mut gpa = std::boxed::Box::new(Gpa::new(&rig, &grid, &table, GpaConfig::default(), &mut keyframe).unwrap());
-        let mut pipeline = Pipeline::new(&table, &mut ring, &mut gpa, None).unwrap();
-        let row = vec![0u8; table.camera_width()];
-        assert_eq!(pipeline.push_row(&row), Err(FrameError::NotBegun));
-        assert_eq!(pipeline.finish(), Err(FrameError::NotBegun));
-        pipeline.begin(0, at(0.0, 0.0)).unwrap();
-        assert!(matches!(pipeline.push_row(&row[1..]), Err(FrameError::Remap(RemapError::RowLength { .. }))));
-        assert_eq!(pipeline.push_row(&row), Err(FrameError::NotBegun), "the frame was given up");
-        pipeline.begin(1, at(0.1, 20.0)).unwrap();
-        pipeline.push_row(&row).unwrap();
-        assert!(matches!(pipeline.finish(), Err(FrameError::MissingRows { got, .. }) if got < grid.height()));
+        with_pipeline(false, |pipeline, table| {
+            let row = vec![0u8; table.camera_width()];
+            assert_eq!(pipeline.push_row(&row), Err(FrameError::NotBegun));
+            assert_eq!(pipeline.finish(), Err(FrameError::NotBegun));
+            pipeline.begin(0, at(0.0, 0.0)).unwrap();
+            assert!(matches!(pipeline.push_row(&row[1..]), Err(FrameError::Remap(RemapError::RowLength { .. }))));
+            assert_eq!(pipeline.push_row(&row), Err(FrameError::NotBegun), "the frame was given up");
+            pipeline.begin(1, at(0.1, 20.0)).unwrap();
+            pipeline.push_row(&row).unwrap();
+            let expected = table.grid_height();
+            assert!(matches!(pipeline.finish(), Err(FrameError::MissingRows { got, .. }) if got < expected));
+        });
     }
 }
