@@ -226,6 +226,9 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
 
     /// Ends the frame: GPA decides, GTI ends its frame and adds its heights.
     /// On error (rows missing) the frame is given up.
+    // Inlined into the caller: a frame of its own would sit under
+    // `Gpa::end_frame`, the deepest stack of the firmware's loop.
+    #[inline]
     pub fn finish(&mut self) -> Result<Outcome, FrameError> {
         let Some(current) = self.current.take() else { return Err(FrameError::NotBegun) };
         // The remap re-arms itself after the last camera row; every KG row must have come out.

@@ -75,7 +75,6 @@ pub enum SetupError {
     /// The grid needs more than [`KEYFRAME_CAPACITY`] bytes of keyframe.
     KeyframeTooLarge { needed: usize },
     Detector(flatland_core::gpa::GpaError),
-    #[cfg(not(feature = "full-frame"))]
     Gti(flatland_core::gti::GtiError),
 }
 
@@ -83,9 +82,9 @@ impl SetupError {
     fn fault_code(self) -> FaultCode {
         match self {
             SetupError::Rig(_) => FaultCode::RigRejected,
-            SetupError::Grid(_) | SetupError::Table(_) | SetupError::Detector(_) => FaultCode::TableRejected,
-            #[cfg(not(feature = "full-frame"))]
-            SetupError::Gti(_) => FaultCode::TableRejected,
+            SetupError::Grid(_) | SetupError::Table(_) | SetupError::Detector(_) | SetupError::Gti(_) => {
+                FaultCode::TableRejected
+            }
             SetupError::CameraTooWide { .. } | SetupError::RingTooSmall { .. } => FaultCode::CameraTooLarge,
             SetupError::KeyframeTooLarge { .. } => FaultCode::GridTooLarge,
         }
