@@ -18,6 +18,8 @@
 //! - [`motion`]: poses and odometry (Tx, Tz, yaw) between frames.
 //! - [`gti`]: heights from motion on GT-images (the seed's §3.2), row-fed.
 //! - [`fusion`]: GPA's alarm with GTI's heights (the seed's §3.3).
+//! - [`pipeline`]: one frame through remap, GPA, GTI and fusion, behind the
+//!   odometry gate; what the firmware and the host both drive.
 //! - [`pgm`]: checked view of binary PGM (P5) headers.
 //! - [`report`]: the per-frame result, shared by the CLI and the serial protocol.
 //! - [`protocol`]: the serial protocol between the firmware and its host.
@@ -38,6 +40,7 @@ pub mod kernels;
 pub mod limits;
 pub mod motion;
 pub mod pgm;
+pub mod pipeline;
 pub mod remap;
 pub mod protocol;
 pub mod report;
