@@ -16,7 +16,7 @@
 use embedded_hal::digital::OutputPin;
 use embedded_io::{Read, Write};
 
-use flatland_core::geometry::{Aoi, Distortion, Intrinsics, Mount, Rig};
+use flatland_core::geometry::Rig;
 use flatland_core::fusion::GtiStage;
 use flatland_core::gpa::{Gpa, GpaConfig, GpaProfile};
 #[cfg(feature = "full-frame")]
@@ -63,7 +63,7 @@ static GTI: ConstStaticCell<GtiStage> = ConstStaticCell::new(GtiStage::UNCONFIGU
 static KEYFRAME: ConstStaticCell<[u8; KEYFRAME_CAPACITY]> = ConstStaticCell::new([0; KEYFRAME_CAPACITY]);
 
 /// Why a rig was refused at start-up. Each is logged and sent as `$FLERR`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, defmt::Format)]
 pub enum SetupError {
     Rig(flatland_core::geometry::RigError),
     Grid(flatland_core::grid::GridError),
@@ -191,29 +191,9 @@ impl<S: Read + Write> Link<S> {
     }
 }
 
-/// The geometry's rig from the wire's record.
-fn rig_from_record(record: &RigRecord) -> Result<Rig, flatland_core::geometry::RigError> {
-    let camera = Intrinsics {
-        width: record.width,
-        height: record.height,
-        fx: record.fx,
-        fy: record.fy,
-        cx: record.cx,
-        cy: record.cy,
-        distortion: record.distortion.map(|[k1, k2, p1, p2, k3]| Distortion { k1, k2, p1, p2, k3 }),
-    };
-    let mount = Mount { height_mm: record.height_mm, tilt_deg: record.tilt_deg };
-    let aoi = Aoi {
-        half_width_mm: record.aoi_half_width_mm,
-        near_mm: record.aoi_near_mm,
-        far_mm: record.aoi_far_mm,
-    };
-    Rig::new_checked(camera, mount, aoi)
-}
-
 /// Validates the rig, checks it fits the target's memory, builds the table.
 fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Result<(Rig, KgGrid), SetupError> {
-    let rig = rig_from_record(record).map_err(SetupError::Rig)?;
+    let rig = Rig::try_from(record).map_err(SetupError::Rig)?;
     if usize::from(record.width) > MAX_CAMERA_WIDTH {
         return Err(SetupError::CameraTooWide { width: usize::from(record.width) });
     }
@@ -255,7 +235,7 @@ fn configure<S: Read + Write, C: CycleCounter>(
         let (rig, grid) = match set_up(&record, table, options) {
             Ok(built) => built,
             Err(error) => {
-                defmt::error!("rig refused: {}", defmt::Debug2Format(&error));
+                defmt::error!("rig refused: {}", error);
                 link.fault(error.fault_code(), 0);
                 continue;
             }
@@ -334,7 +314,9 @@ fn stream_frame<R: RowSource, C: CycleCounter>(
     pipeline.finish().map_err(|error| mid(fault_code(error)))
 }
 
-fn log_bench(frame: u32, read: u32, timing: &FrameTiming, profile: &GpaProfile) {
+/// `cycle`: odometry received to report sent, the board's whole cycle
+/// (the pipeline's own `timing.cycle` leaves out the serial side).
+fn log_bench(frame: u32, read: u32, cycle: u32, timing: &FrameTiming, profile: &GpaProfile) {
     defmt::println!("bench: frame: {=u32}", frame);
     defmt::println!("bench: read_rows: {=u32}", read);
     defmt::println!("bench: remap: {=u32}", timing.remap);
@@ -352,7 +334,7 @@ fn log_bench(frame: u32, read: u32, timing: &FrameTiming, profile: &GpaProfile) 
         defmt::println!("bench: gti_frame: {=u32}", timing.gti_frame);
         defmt::println!("bench: gti: {=u32}", timing.gti_rows.wrapping_add(timing.gti_frame));
     }
-    defmt::println!("bench: instructions_per_cycle: {=u32}", timing.cycle);
+    defmt::println!("bench: instructions_per_cycle: {=u32}", cycle);
 }
 
 fn log_report(report: &FrameReport) {
@@ -405,7 +387,7 @@ where
     // The detector (~17 KB) lives in a static, initialised in place: by value
     // LLVM keeps stack temporaries of it.
     if let Err(error) = gpa.init(&rig, &grid, table, GpaConfig::default(), &mut keyframe[..]) {
-        defmt::error!("detector refused: {}", defmt::Debug2Format(&error));
+        defmt::error!("detector refused: {}", error);
         link.fault(SetupError::Detector(error).fault_code(), 0);
         return link.finish();
     }
@@ -431,6 +413,7 @@ where
                 continue;
             }
         };
+        let cycle_start = counter.now();
         let Odometry { frame, t_s, x_mm, z_mm, yaw_deg } = odometry;
         let pose = PoseSample { t_s, pose: Pose { x_mm, z_mm, yaw_deg } };
         let motion = match pipeline.begin(frame, Some(pose)) {
@@ -454,9 +437,10 @@ where
                 let _ = if report.alarm { alarm.set_high() } else { alarm.set_low() };
                 link.send(&Message::Frame(report));
                 log_report(&report);
+                let cycle = counter.now().wrapping_sub(cycle_start);
                 // Benchmark figures are for detection cycles (frames compared with a keyframe).
                 if options.bench {
-                    log_bench(frame, read, &pipeline.timing(), &pipeline.gpa().profile());
+                    log_bench(frame, read, cycle, &pipeline.timing(), &pipeline.gpa().profile());
                 }
             }
             Ok(Outcome::Keyframe { .. }) => {
@@ -488,7 +472,7 @@ fn gti_stage<S: Read + Write>(link: &mut Link<S>, rig: &Rig, grid: &KgGrid) -> O
     match gti.configure(rig, grid) {
         Ok(()) => Some(Some(gti)),
         Err(error) => {
-            defmt::error!("GTI refused: {}", defmt::Debug2Format(&error));
+            defmt::error!("GTI refused: {}", error);
             link.fault(SetupError::Gti(error).fault_code(), 0);
             None
         }
