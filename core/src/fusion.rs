@@ -67,6 +67,11 @@ impl GtiStage {
         Ok(())
     }
 
+    /// The GTI state (points, tracks) for `flatland heights`.
+    pub fn gti(&self) -> &Gti {
+        &self.gti
+    }
+
     /// Feeds KG row `row` from the streaming remap's callback.
     pub fn on_kg_row(&mut self, row: usize, kg_row: &[u8], valid_columns: Range<usize>) {
         if self.gti.on_kg_row(row, kg_row, valid_columns).is_err() {
