@@ -19,11 +19,9 @@ use embedded_io::{Read, Write};
 use flatland_core::geometry::Rig;
 use flatland_core::fusion::GtiStage;
 use flatland_core::gpa::{Gpa, GpaConfig, GpaProfile};
-#[cfg(feature = "full-frame")]
-use flatland_core::gpa::KEYFRAME_SPARE_ROWS;
-#[cfg(feature = "full-frame")]
-use flatland_core::grid::MAX_GRID_SIDE;
 use flatland_core::grid::{GridConfig, KgGrid};
+#[cfg(feature = "full-frame")]
+use flatland_core::limits::{KEYFRAME_SPARE_ROWS, MAX_GRID_SIDE};
 use flatland_core::motion::Pose;
 use flatland_core::pipeline::{FrameError, FrameTiming, Outcome, Pipeline, PoseSample};
 use flatland_core::protocol::{
