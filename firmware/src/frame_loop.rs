@@ -22,11 +22,8 @@ use flatland_core::gpa::{Gpa, GpaConfig, GpaProfile};
 use flatland_core::grid::{GridConfig, KgGrid};
 #[cfg(feature = "full-frame")]
 use flatland_core::limits::{KEYFRAME_SPARE_ROWS, MAX_GRID_SIDE};
-use flatland_core::motion::Pose;
 use flatland_core::pipeline::{FrameError, FrameTiming, Outcome, Pipeline, PoseSample};
-use flatland_core::protocol::{
-    encode_line, Decoder, Fault, FaultCode, LinkStats, Message, Odometry, RigRecord,
-};
+use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, RigRecord};
 use flatland_core::remap::{RemapError, RemapTable};
 use flatland_core::report::FrameReport;
 use static_cell::ConstStaticCell;
@@ -412,9 +409,8 @@ where
             }
         };
         let cycle_start = counter.now();
-        let Odometry { frame, t_s, x_mm, z_mm, yaw_deg } = odometry;
-        let pose = PoseSample { t_s, pose: Pose { x_mm, z_mm, yaw_deg } };
-        let motion = match pipeline.begin(frame, Some(pose)) {
+        let frame = odometry.frame;
+        let motion = match pipeline.begin(frame, Some(PoseSample::from(odometry))) {
             Ok(motion) => motion,
             Err(_) => {
                 // The pose cannot be trusted: the frame is skipped and the next one restarts.

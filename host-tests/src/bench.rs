@@ -12,7 +12,7 @@
 //! counter; its reads add a little.
 
 use crate::detect::{push_frame, DetectConfig, Detector, Heights};
-use crate::recording::{PoseRow, Recording};
+use crate::recording::Recording;
 use flatland_core::geometry::{Aoi, Pixel, Rig};
 use flatland_core::gpa::{GpaConfig, GpaProfile};
 use flatland_core::grid::{GridConfig, KgGrid};
@@ -189,8 +189,7 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
             continue;
         }
         let frames = (recording.load_frame(a).map_err(|e| e.to_string())?, recording.load_frame(b).map_err(|e| e.to_string())?);
-        let sample = |row: &PoseRow| PoseSample { t_s: row.t_s, pose: row.pose };
-        pairs.push(((a, sample(pa), frames.0), (b, sample(pb), frames.1)));
+        pairs.push(((a, PoseSample::from(pa), frames.0), (b, PoseSample::from(pb), frames.1)));
     }
     if pairs.is_empty() {
         return Err("no consecutive frames with poses".into());

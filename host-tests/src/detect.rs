@@ -107,7 +107,7 @@ impl Detector {
                 if pose.is_none() {
                     eprintln!("flatland: frame {index}: no row in poses.csv; restarting the keyframe");
                 }
-                if let Err(error) = pipeline.begin(index, pose.map(|row| PoseSample { t_s: row.t_s, pose: row.pose })) {
+                if let Err(error) = pipeline.begin(index, pose.map(PoseSample::from)) {
                     let line = pose.map_or(0, |row| row.line);
                     let error = RecordingError::Csv { path: recording.dir.join("poses.csv"), line, message: error.to_string() };
                     on_frame(FrameOutcome::Skipped { frame: index, error }, pipeline);
