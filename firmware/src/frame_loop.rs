@@ -116,7 +116,7 @@ pub struct Options {
     /// A grid without margins, the AOI all of it (`GridConfig::without_margins`;
     /// the full-frame benchmark, which sends a square AOI).
     pub no_margins: bool,
-    /// Per-stage profile of the detector (`Gpa::set_clock`), with `bench`.
+    /// Per-stage profile of the detector (`Pipeline::set_clock`), with `bench`.
     pub clock: Option<fn() -> u32>,
 }
 
@@ -379,8 +379,8 @@ where
     };
     let table: &RemapTable = table;
     let camera = (table.camera_width(), table.camera_height());
-    // The detector (~17 KB) lives in a static, initialised in place: by value
-    // LLVM keeps stack temporaries of it.
+    // The detector lives in a static, initialised in place: by value LLVM
+    // keeps stack temporaries of it, and it is kilobytes.
     if let Err(error) = gpa.init(&rig, &grid, table, GpaConfig::default(), &mut keyframe[..]) {
         defmt::error!("detector refused: {}", error);
         link.fault(SetupError::Detector(error).fault_code(), 0);
