@@ -141,7 +141,7 @@ impl<S: Read + Write> Link<S> {
             }
             match self.decoder.push(byte[0]) {
                 Some(Ok(message)) => return message,
-                Some(Err(error)) => defmt::warn!("serial: dropped a line ({=str})", error.as_str()),
+                Some(Err(error)) => defmt::warn!("serial: dropped a line ({})", error),
                 None => {}
             }
         }
@@ -154,7 +154,7 @@ impl<S: Read + Write> Link<S> {
                     defmt::warn!("serial: write failed");
                 }
             }
-            Err(_) => defmt::error!("serial: cannot encode {=str}", message.tag()),
+            Err(error) => defmt::error!("serial: cannot encode {=str}: {}", message.tag(), error),
         }
     }
 
@@ -391,7 +391,8 @@ where
     // still a typed fault, not a panic.
     let mut pipeline = match Pipeline::new(table, &mut ring[..], gpa, gti) {
         Ok(pipeline) => pipeline,
-        Err(_) => {
+        Err(error) => {
+            defmt::error!("pipeline refused: {}", error);
             link.fault(FaultCode::CameraTooLarge, 0);
             return link.finish();
         }
@@ -412,9 +413,9 @@ where
         let frame = odometry.frame;
         let motion = match pipeline.begin(frame, Some(PoseSample::from(odometry))) {
             Ok(motion) => motion,
-            Err(_) => {
+            Err(error) => {
                 // The pose cannot be trusted: the frame is skipped and the next one restarts.
-                defmt::warn!("frame {=u32}: time goes backwards; frame skipped", frame);
+                defmt::warn!("frame {=u32} skipped: {}", frame, error);
                 let _ = alarm.set_low();
                 continue;
             }

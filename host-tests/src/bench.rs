@@ -109,7 +109,7 @@ impl FullFrame {
             format!("a 256x256 square AOI at {mm_per_px} mm/px ({:.0} mm) does not fit in the camera's view", side_mm(mm_per_px))
         })?;
         let near_mm = rig.aoi().near_mm.clamp(first, last);
-        let rig = square_rig(rig, mm_per_px, near_mm).map_err(|e| format!("full-frame rig: {e:?}"))?;
+        let rig = square_rig(rig, mm_per_px, near_mm).map_err(|e| format!("full-frame rig: {e}"))?;
         let full = FullFrame { rig, mm_per_px };
         // Rounding of an inexact resolution can add a row or lose an AOI column.
         let grid = KgGrid::for_rig(&rig, &full.grid_config()).map_err(|e| format!("full-frame grid at {mm_per_px} mm/px: {e}"))?;

@@ -63,7 +63,7 @@ impl Detector {
     pub fn with_pipeline<T>(&mut self, heights: Heights, drive: impl FnOnce(&mut Pipeline) -> Result<T, String>) -> Result<T, String> {
         let KgFrontEnd { grid, table, ring } = &mut self.front_end;
         let table: &RemapTable = table;
-        let mut gpa = Gpa::new(&self.rig, grid, table, self.config.gpa, &mut self.keyframe).map_err(|e| format!("detector: {e:?}"))?;
+        let mut gpa = Gpa::new(&self.rig, grid, table, self.config.gpa, &mut self.keyframe).map_err(|e| format!("detector: {e}"))?;
         let mut gti = match heights {
             Heights::WithGti => Some(Box::new(GtiStage::new(&self.rig, grid).map_err(|e| format!("GTI: {e}"))?)),
             Heights::GpaOnly => None,
