@@ -83,7 +83,7 @@ impl Gti {
     /// Odometry's scale as the floor measured it so far (1 until it has):
     /// a constant error (wheel diameter) is then gone from the steps before
     /// the floor corrects them, and from steps where it cannot.
-    pub fn odometry_scale(&self) -> f32 {
+    fn odometry_scale(&self) -> f32 {
         let [measured, odometry] = self.travel.step_sums;
         if !(odometry > SCALE_MIN_TRAVEL_MM) {
             return 1.0;
