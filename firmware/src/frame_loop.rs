@@ -355,47 +355,6 @@ fn log_report(report: &FrameReport) {
     }
 }
 
-/// The rig from the link, then the stages it sets up in their statics:
-/// remap table, detector, GTI, and the pipeline over them, with the camera
-/// size it expects. None when the input ends first or a stage refuses the
-/// rig (the fault is sent).
-fn set_up_pipeline<S: Read + Write, C: CycleCounter>(
-    link: &mut Link<S>,
-    counter: &C,
-    options: &Options,
-) -> Option<(Pipeline<'static, 'static, 'static, 'static>, (usize, usize))> {
-    let table: &'static mut RemapTable = TABLE.take();
-    let ring: &'static mut [u8; RING_CAPACITY] = RING.take();
-    let keyframe: &'static mut [u8; KEYFRAME_CAPACITY] = KEYFRAME.take();
-    let gpa: &'static mut Gpa<'static> = DETECTOR.take();
-    let Some((rig, grid)) = configure(link, counter, table, options) else {
-        defmt::warn!("no rig before the end of input");
-        return None;
-    };
-    let table: &'static RemapTable = table;
-    let camera = (table.camera_width(), table.camera_height());
-    // The detector lives in a static, initialised in place: by value LLVM
-    // keeps stack temporaries of it, and it is kilobytes.
-    if let Err(error) = gpa.init(&rig, &grid, table, GpaConfig::default(), &mut keyframe[..]) {
-        defmt::error!("detector refused: {}", error);
-        link.fault(SetupError::Detector(error).fault_code(), 0);
-        return None;
-    }
-    let gti = gti_stage(link, &rig, &grid)?;
-    // `set_up` checked the ring size, so this only fails on a core change;
-    // still a typed fault, not a panic.
-    let mut pipeline = match Pipeline::new(table, &mut ring[..], gpa, gti) {
-        Ok(pipeline) => pipeline,
-        Err(error) => {
-            defmt::error!("pipeline refused: {}", error);
-            link.fault(FaultCode::CameraTooLarge, 0);
-            return None;
-        }
-    };
-    pipeline.set_clock(if options.bench { options.clock } else { None });
-    Some((pipeline, camera))
-}
-
 /// Runs until the host sends `$FLEND`; returns the final counters.
 pub fn run<S, A, C, R>(board: Board<S, A, C, R>, options: &Options) -> LinkStats
 where
@@ -406,11 +365,39 @@ where
 {
     let Board { serial, mut alarm, counter, mut frames } = board;
     let mut link = Link { serial, decoder: Decoder::new(), counters: LoopCounters::default() };
+    let table: &'static mut RemapTable = TABLE.take();
+    let ring: &'static mut [u8; RING_CAPACITY] = RING.take();
+    let keyframe: &'static mut [u8; KEYFRAME_CAPACITY] = KEYFRAME.take();
+    let gpa: &'static mut Gpa<'static> = DETECTOR.take();
     let _ = alarm.set_low();
 
     // Bytes that arrive before the USART is enabled are lost: say when we listen.
     link.send(&Message::Ready);
-    let Some((mut pipeline, camera)) = set_up_pipeline(&mut link, &counter, options) else { return link.finish() };
+    let Some((rig, grid)) = configure(&mut link, &counter, table, options) else {
+        defmt::warn!("no rig before the end of input");
+        return link.finish();
+    };
+    let table: &RemapTable = table;
+    let camera = (table.camera_width(), table.camera_height());
+    // The detector lives in a static, initialised in place: by value LLVM
+    // keeps stack temporaries of it, and it is kilobytes.
+    if let Err(error) = gpa.init(&rig, &grid, table, GpaConfig::default(), &mut keyframe[..]) {
+        defmt::error!("detector refused: {}", error);
+        link.fault(SetupError::Detector(error).fault_code(), 0);
+        return link.finish();
+    }
+    let Some(gti) = gti_stage(&mut link, &rig, &grid) else { return link.finish() };
+    // `set_up` checked the ring size, so this only fails on a core change;
+    // still a typed fault, not a panic.
+    let mut pipeline = match Pipeline::new(table, &mut ring[..], gpa, gti) {
+        Ok(pipeline) => pipeline,
+        Err(error) => {
+            defmt::error!("pipeline refused: {}", error);
+            link.fault(FaultCode::CameraTooLarge, 0);
+            return link.finish();
+        }
+    };
+    pipeline.set_clock(if options.bench { options.clock } else { None });
 
     let mut started = false;
     loop {
