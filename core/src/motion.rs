@@ -25,6 +25,22 @@ pub struct Motion {
     pub dyaw_deg: f64,
 }
 
+/// The body's attitude (RECORDING.md): pitch > 0 dips the front (the
+/// camera looks further down), roll > 0 dips the right side; degrees. As a
+/// change between two frames it is the later minus the earlier.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Attitude {
+    pub pitch_deg: f64,
+    pub roll_deg: f64,
+}
+
+impl Attitude {
+    /// The change from `earlier` to this attitude.
+    pub fn since(&self, earlier: &Attitude) -> Attitude {
+        Attitude { pitch_deg: self.pitch_deg - earlier.pitch_deg, roll_deg: self.roll_deg - earlier.roll_deg }
+    }
+}
+
 impl Motion {
     /// The odometry (Tx, Tz, dyaw) from `from` to `to`, in `from`'s robot frame.
     pub fn between(from: &Pose, to: &Pose) -> Motion {

@@ -20,17 +20,21 @@
 
 use crate::fusion::GtiStage;
 use crate::gpa::Gpa;
-use crate::motion::{Motion, Pose};
+use crate::motion::{Attitude, Motion, Pose};
 use crate::remap::{RemapError, RemapTable, StreamingRemap};
 use crate::report::FrameReport;
 use core::fmt;
 
-/// Where the robot was when a frame was captured, and when.
+/// When a frame was captured, and what the robot's sensors said then.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseSample {
     /// Capture time, s.
     pub t_s: f64,
-    pub pose: Pose,
+    /// Wheel odometry's pose; None: no odometry (the motion comes from the
+    /// images alone).
+    pub pose: Option<Pose>,
+    /// The IMU's body attitude; None: no IMU.
+    pub attitude: Option<Attitude>,
 }
 
 /// What became of a finished frame.
@@ -156,11 +160,12 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
     }
 
     /// Starts frame `frame` captured at `pose` (None: poses.csv has no row
-    /// for it). Returns the motion from the frame just before, or None when
-    /// there is none to trust and the keyframe restarts with this frame:
-    /// the first frame, one after a gap or a frame given up, one without a
-    /// pose. A frame whose time is not after the last frame's is skipped
-    /// (error); a frame still in progress is given up first.
+    /// for it). Returns the odometry from the frame just before, or None
+    /// when there is none: the keyframe restarts with the first frame, one
+    /// after a gap or a frame given up, and one without a sample; a sample
+    /// without odometry continues on the motion seen in the images. A frame
+    /// whose time is not after the last frame's is skipped (error); a frame
+    /// still in progress is given up first.
     pub fn begin(&mut self, frame: u32, pose: Option<PoseSample>) -> Result<Option<Motion>, FrameError> {
         let begun_at = self.now();
         if self.current.is_some() {
@@ -177,16 +182,18 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
                 });
             }
         }
+        let follows = matches!((self.previous, pose), (Some(previous), Some(_)) if previous.frame.checked_add(1) == Some(frame));
         let motion = match (self.previous, pose) {
-            (Some(previous), Some(sample)) if previous.frame.checked_add(1) == Some(frame) => {
-                Some(Motion::between(&previous.sample.pose, &sample.pose))
-            }
+            (Some(previous), Some(sample)) if follows => match (previous.sample.pose, sample.pose) {
+                (Some(from), Some(to)) => Some(Motion::between(&from, &to)),
+                _ => None,
+            },
             _ => None,
         };
-        if motion.is_none() {
+        if !follows {
             self.gpa.reset_keyframe();
         }
-        self.gpa.begin_frame(frame, motion);
+        self.gpa.begin_frame(frame, motion, pose.and_then(|sample| sample.attitude));
         self.remap.reset();
         self.timing = FrameTiming::default();
         self.current = Some(Current { frame, pose, motion, kg_rows: 0, begun_at });
@@ -350,7 +357,7 @@ mod tests {
     }
 
     fn at(t_s: f64, z_mm: f64) -> Option<PoseSample> {
-        Some(PoseSample { t_s, pose: Pose { x_mm: 0.0, z_mm, yaw_deg: 0.0 } })
+        Some(PoseSample { t_s, pose: Some(Pose { x_mm: 0.0, z_mm, yaw_deg: 0.0 }), attitude: None })
     }
 
     fn motion(tz_mm: f64) -> Option<Motion> {

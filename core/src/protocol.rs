@@ -26,7 +26,7 @@ use crate::pipeline::PoseSample;
 use crate::report::FrameReport;
 
 /// Bumped whenever a message's fields change meaning or count.
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 
 /// One encoded line.
 pub type Line = heapless::String<MAX_LINE>;
@@ -104,7 +104,7 @@ pub struct Odometry {
 impl From<Odometry> for PoseSample {
     fn from(odometry: Odometry) -> Self {
         let Odometry { frame: _, t_s, x_mm, z_mm, yaw_deg } = odometry;
-        PoseSample { t_s, pose: Pose { x_mm, z_mm, yaw_deg } }
+        PoseSample { t_s, pose: Some(Pose { x_mm, z_mm, yaw_deg }), attitude: None }
     }
 }
 
@@ -393,6 +393,8 @@ fn write_body<W: Write>(out: &mut W, message: &Message) -> Result<(), EncodeErro
             write_optional_i32(out, r.right_mm)?;
             write!(out, ",{},{},{},{},{},{}", r.sad, r.count50, r.shift_k, r.shift_g, r.tx, r.tz)?;
             write_optional_i32(out, r.obstacle_h_mm)?;
+            write!(out, ",{},{},{}", r.dyaw, r.dpitch, r.droll)?;
+            write_optional_i32(out, r.odometry_fault.map(i32::from))?;
         }
         Message::Stats(s) => write!(
             out,
@@ -474,6 +476,15 @@ impl<'a> Fields<'a> {
         match self.next_raw()? {
             "0" => Ok(false),
             "1" => Ok(true),
+            _ => Err(self.bad()),
+        }
+    }
+
+    fn optional_boolean(&mut self) -> Result<Option<bool>, DecodeError> {
+        match self.next_raw()? {
+            "" => Ok(None),
+            "0" => Ok(Some(false)),
+            "1" => Ok(Some(true)),
             _ => Err(self.bad()),
         }
     }
@@ -568,6 +579,10 @@ fn decode_body(body: &str) -> Result<Message, DecodeError> {
             tx: fields.integer()?,
             tz: fields.integer()?,
             obstacle_h_mm: fields.optional_i32()?,
+            dyaw: fields.integer()?,
+            dpitch: fields.integer()?,
+            droll: fields.integer()?,
+            odometry_fault: fields.optional_boolean()?,
         }),
         "FLSTA" => Message::Stats(LinkStats {
             frames: fields.integer()?,
@@ -896,7 +911,7 @@ pub mod checks {
             (b"$FLODO,1,2*4D\r\n", DecodeError::FieldCount),
             (b"$FLODO,x,0,0,0,0*1A\r\n", DecodeError::BadField { index: 1 }),
             (b"$FLODO,1,0,inf,0,0*02\r\n", DecodeError::BadField { index: 3 }),
-            (b"$FLRIG,2,1,1,1,1,1,1,,,,,,1,1,1,1,1*79\r\n", DecodeError::UnsupportedVersion),
+            (b"$FLRIG,9,1,1,1,1,1,1,,,,,,1,1,1,1,1*72\r\n", DecodeError::UnsupportedVersion),
             (b"$FLEN$FLEND*45\r\n", DecodeError::Truncated),
         ];
         for (bytes, expected) in cases {

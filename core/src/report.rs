@@ -7,13 +7,16 @@
 use core::fmt::{self, Write};
 
 /// Header of `flatland detect --format csv` (and of `flatland serial decode`).
-pub const CSV_HEADER: &str = "frame,ref_frame,alarm,nearest_mm,left_mm,right_mm,sad,count50,shift_k,shift_g,tx_mm,tz_mm,obstacle_h_mm";
+pub const CSV_HEADER: &str = "frame,ref_frame,alarm,nearest_mm,left_mm,right_mm,sad,count50,shift_k,shift_g,tx_mm,tz_mm,obstacle_h_mm,dyaw_deg,dpitch_deg,droll_deg,odometry_fault";
 
 /// Fixed-point scale of [`FrameReport::shift_k`] / [`FrameReport::shift_g`]:
 /// hundredths of a KG pixel.
 pub const SHIFT_SCALE: i32 = 100;
 /// Fixed-point scale of [`FrameReport::tx`] / [`FrameReport::tz`]: tenths of a mm.
 pub const MOTION_SCALE: i32 = 10;
+/// Fixed-point scale of [`FrameReport::dyaw`], [`FrameReport::dpitch`] and
+/// [`FrameReport::droll`]: thousandths of a degree.
+pub const ANGLE_SCALE: i32 = 1000;
 
 /// What the detector says about frame `frame`, compared with `ref_frame`.
 ///
@@ -41,6 +44,14 @@ pub struct FrameReport {
     pub tz: i32,
     /// Estimated height of the nearest obstacle (GTI), mm.
     pub obstacle_h_mm: Option<i32>,
+    /// Estimated turn (yaw, left positive), pitch and roll change since
+    /// `ref_frame`, in 1/[`ANGLE_SCALE`] degrees.
+    pub dyaw: i32,
+    pub dpitch: i32,
+    pub droll: i32,
+    /// Whether the odometry disagrees with the motion seen on the ground
+    /// beyond its noise (slip, scale); None without odometry.
+    pub odometry_fault: Option<bool>,
 }
 
 /// Writes a fixed-point value with `decimals` digits after the point.
@@ -76,7 +87,13 @@ impl FrameReport {
         out.write_char(',')?;
         write_fixed(out, self.tz, MOTION_SCALE, 1)?;
         out.write_char(',')?;
-        write_optional(out, self.obstacle_h_mm)
+        write_optional(out, self.obstacle_h_mm)?;
+        for angle in [self.dyaw, self.dpitch, self.droll] {
+            out.write_char(',')?;
+            write_fixed(out, angle, ANGLE_SCALE, 3)?;
+        }
+        out.write_char(',')?;
+        write_optional(out, self.odometry_fault.map(i32::from))
     }
 }
 
@@ -98,6 +115,10 @@ pub(crate) fn sample_report() -> FrameReport {
         tx: -3,
         tz: 1003,
         obstacle_h_mm: None,
+        dyaw: -1500,
+        dpitch: 120,
+        droll: -7,
+        odometry_fault: Some(true),
     }
 }
 
@@ -108,9 +129,9 @@ mod tests {
     #[test]
     fn csv_row_has_one_field_per_header_column() {
         let report = FrameReport { frame: 3, ref_frame: 1, right_mm: Some(95), ..sample_report() };
-        let mut line: heapless::String<160> = heapless::String::new();
+        let mut line: heapless::String<200> = heapless::String::new();
         report.write_csv(&mut line).unwrap();
-        assert_eq!(line.as_str(), "3,1,1,820,-120,95,12345,67,-0.05,1.25,-0.3,100.3,");
+        assert_eq!(line.as_str(), "3,1,1,820,-120,95,12345,67,-0.05,1.25,-0.3,100.3,,-1.500,0.120,-0.007,1");
         assert_eq!(line.split(',').count(), CSV_HEADER.split(',').count());
     }
 }

@@ -75,7 +75,7 @@ fn run(frames: &[(u8, Option<Motion>)]) -> Vec<Option<FrameReport>> {
     let mut reports = Vec::new();
     for (n, &(value, odometry)) in frames.iter().enumerate() {
         let row = vec![value; cw];
-        gpa.begin_frame(n as u32, odometry);
+        gpa.begin_frame(n as u32, odometry, None);
         for _ in 0..ch {
             stream
                 .push_row(&row, |j, kg| {

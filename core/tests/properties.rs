@@ -281,13 +281,13 @@ proptest! {
             let base = key(i as i64 + sk, j as i64 + sg);
             if in_patch(i, j) { base + patch.3 } else { base }
         };
-        gpa.begin_frame(0, None);
+        gpa.begin_frame(0, None, None);
         for j in 0..h {
             let row: Vec<u8> = (0..w).map(|i| if table.valid_columns(j).contains(&i) { key(i as i64, j as i64) } else { 0 }).collect();
             gpa.on_kg_row(j, &row);
         }
         prop_assert!(gpa.end_frame().is_none(), "the first frame only starts the keyframe");
-        gpa.begin_frame(1, Some(Motion::default()));
+        gpa.begin_frame(1, Some(Motion::default()), None);
         for j in 0..h {
             let row: Vec<u8> = (0..w).map(|i| if table.valid_columns(j).contains(&i) { current(i, j) } else { 0 }).collect();
             gpa.on_kg_row(j, &row);
@@ -362,6 +362,7 @@ fn frame_report() -> impl Strategy<Value = FrameReport> {
     )
         .prop_map(|((frame, ref_frame, alarm, nearest_mm, left_mm, right_mm), (sad, count50, shift_k, shift_g, tx, tz, obstacle_h_mm))| FrameReport {
             frame, ref_frame, alarm, nearest_mm, left_mm, right_mm, sad, count50, shift_k, shift_g, tx, tz, obstacle_h_mm,
+            dyaw: sad as i32, dpitch: count50 as i32, droll: shift_k.wrapping_neg(), odometry_fault: alarm.then_some(tx > 0),
         })
 }
 

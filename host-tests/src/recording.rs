@@ -200,7 +200,7 @@ pub struct PoseRow {
 /// The pipeline's input for this row.
 impl From<&PoseRow> for PoseSample {
     fn from(row: &PoseRow) -> Self {
-        PoseSample { t_s: row.t_s, pose: row.pose }
+        PoseSample { t_s: row.t_s, pose: Some(row.pose), attitude: None }
     }
 }
 

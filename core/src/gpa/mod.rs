@@ -53,7 +53,7 @@ pub use shift_search::{SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
 use crate::geometry::Rig;
 use crate::grid::KgGrid;
 use crate::limits::MAX_BLOBS;
-use crate::motion::Motion;
+use crate::motion::{Attitude, Motion};
 use crate::remap::RemapTable;
 use crate::report::{FrameReport, MOTION_SCALE, SHIFT_SCALE};
 use band::Band;
@@ -265,18 +265,21 @@ impl<'b> Gpa<'b> {
         self.keyframe.taken_at()
     }
 
-    /// Starts frame `frame`; `odometry` is the motion since the previous
-    /// frame (None if unknown: the keyframe is reset).
-    pub fn begin_frame(&mut self, frame: u32, odometry: Option<Motion>) {
+    /// Starts frame `frame`; `odometry` is the wheels' motion since the
+    /// previous frame and `attitude` the IMU's (None: no such sensor).
+    /// A frame that does not follow the last one restarts the keyframe.
+    pub fn begin_frame(&mut self, frame: u32, odometry: Option<Motion>, attitude: Option<Attitude>) {
+        let _ = attitude;
         self.profiler.profile = GpaProfile::default();
         self.band.forget();
         self.frame = frame;
         self.frame_active = true;
         self.rows_seen = 0;
         let consecutive = self.keyframe.taken_at().is_some() && self.prediction.follows(frame);
-        match odometry {
-            Some(step) if consecutive => self.prediction.predict(&step),
-            _ => self.keyframe.forget(),
+        if consecutive {
+            self.prediction.predict(&odometry.unwrap_or_default());
+        } else {
+            self.keyframe.forget();
         }
         if self.keyframe.taken_at().is_none() {
             self.start_keyframe();
@@ -383,6 +386,10 @@ impl<'b> Gpa<'b> {
             tz: libm::round(motion.tz_mm * f64::from(MOTION_SCALE)) as i32,
             // A parallax obstacle always raises the alarm.
             obstacle_h_mm: parallax.map(|(_, height)| height),
+            dyaw: 0,
+            dpitch: 0,
+            droll: 0,
+            odometry_fault: None,
         }
     }
 

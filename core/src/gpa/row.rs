@@ -279,7 +279,7 @@ mod tests {
                 let image = kg_image(&grid, &table, p, n as u32);
                 let odometry = (n > 0).then(|| Motion::between(&poses[n - 1], p));
                 for gpa in [&mut fast, &mut reference] {
-                    gpa.begin_frame(n as u32, odometry);
+                    gpa.begin_frame(n as u32, odometry, None);
                     for (j, row) in image.chunks_exact(grid.width()).enumerate() {
                         gpa.on_kg_row(j, row);
                     }

@@ -149,7 +149,7 @@ fuzz_target!(|input: Input| {
             (None, None) => None,
         };
         if let Some(gpa) = gpa.as_mut() {
-            gpa.begin_frame(frame_number, odometry);
+            gpa.begin_frame(frame_number, odometry, None);
         }
         let rows = f.stop_after_rows.map_or(ch, |r| usize::from(r) % (ch + 1));
         let mut kg = vec![0u8; grid.len()];
