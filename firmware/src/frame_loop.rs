@@ -21,7 +21,7 @@ use flatland_core::fusion::GtiStage;
 use flatland_core::gpa::{Gpa, GpaConfig, GpaProfile};
 use flatland_core::grid::{GridConfig, KgGrid};
 #[cfg(feature = "full-frame")]
-use flatland_core::limits::{KEYFRAME_SPARE_ROWS, MAX_GRID_SIDE};
+use flatland_core::limits::MAX_GRID_SIDE;
 use flatland_core::pipeline::{FrameError, FrameTiming, Outcome, Pipeline, PoseSample};
 use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, RigRecord};
 use flatland_core::remap::{RemapError, RemapTable};
@@ -47,7 +47,7 @@ pub const KEYFRAME_CAPACITY: usize = 48 * 1024;
 /// --full-frame`): the 256x256 grid's keyframe, 77,824 B. It fits in 128 KB
 /// only without the GTI stage, which that build leaves out.
 #[cfg(feature = "full-frame")]
-pub const KEYFRAME_CAPACITY: usize = MAX_GRID_SIDE * (MAX_GRID_SIDE + KEYFRAME_SPARE_ROWS);
+pub const KEYFRAME_CAPACITY: usize = 2 * MAX_GRID_SIDE * MAX_GRID_SIDE;
 
 static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
 static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
