@@ -53,26 +53,48 @@ pub struct GroundMotion {
 impl GroundMotion {
     /// Where the ground point that the fixed remap shows at (`x_mm`,
     /// `z_mm`) now (it assumes the rig's nominal attitude) shows in the
-    /// keyframe, for a camera `height_mm` above the robot origin. The body
-    /// turns about the robot origin on the ground, attitude = Rz(roll)
-    /// Rx(pitch): the ray through the point is turned with it and met with
-    /// the ground again, then moved back by the planar motion. None when
-    /// the turned ray no longer meets the ground.
+    /// keyframe, for a camera `height_mm` above the robot origin; see
+    /// [`GroundMap`]. None when the turned ray no longer meets the ground.
     pub fn to_keyframe(&self, height_mm: f64, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
-        let (sp, cp) = (sin(self.attitude.pitch_deg.to_radians()), cos(self.attitude.pitch_deg.to_radians()));
-        let (sr, cr) = (sin(self.attitude.roll_deg.to_radians()), cos(self.attitude.roll_deg.to_radians()));
-        // Rx(pitch) then Rz(roll) of a body vector (x right, y up, z forward).
-        let turn = |[x, y, z]: [f64; 3]| {
-            let (y1, z1) = (y * cp - z * sp, y * sp + z * cp);
-            [x * cr + y1 * sr, -x * sr + y1 * cr, z1]
-        };
-        let centre = turn([0.0, height_mm, 0.0]);
-        let ray = turn([x_mm, -height_mm, z_mm]);
-        if ray[1] >= -1e-9 {
+        GroundMap::new(self, height_mm).to_keyframe(x_mm, z_mm)
+    }
+}
+
+/// [`GroundMotion::to_keyframe`] with its sines worked out once, for the
+/// many points of one motion. The body turns about the robot origin on the
+/// ground, attitude = Rz(roll) Rx(pitch): the ray through the point is
+/// turned with it and met with the ground again, then moved back by the
+/// planar motion.
+#[derive(Clone, Copy, Debug)]
+pub struct GroundMap {
+    /// The turned camera centre and the turn of a body vector (rows).
+    centre: [f64; 3],
+    turn: [[f64; 3]; 3],
+    height_mm: f64,
+    planar: Motion,
+    heading: Rotation<f64>,
+}
+
+impl GroundMap {
+    pub fn new(motion: &GroundMotion, height_mm: f64) -> GroundMap {
+        let (sp, cp) = (sin(motion.attitude.pitch_deg.to_radians()), cos(motion.attitude.pitch_deg.to_radians()));
+        let (sr, cr) = (sin(motion.attitude.roll_deg.to_radians()), cos(motion.attitude.roll_deg.to_radians()));
+        // Rz(roll) Rx(pitch) of a body vector (x right, y up, z forward).
+        let turn = [[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [0.0, sp, cp]];
+        let centre = [turn[0][1] * height_mm, turn[1][1] * height_mm, turn[2][1] * height_mm];
+        GroundMap { centre, turn, height_mm, planar: motion.planar, heading: motion.planar.turn() }
+    }
+
+    pub fn to_keyframe(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+        let v = [x_mm, -self.height_mm, z_mm];
+        let ray = |row: &[f64; 3]| row[0] * v[0] + row[1] * v[1] + row[2] * v[2];
+        let (rx, ry, rz) = (ray(&self.turn[0]), ray(&self.turn[1]), ray(&self.turn[2]));
+        if ry >= -1e-9 {
             return None;
         }
-        let t = -centre[1] / ray[1];
-        Some(self.planar.to_earlier_frame(centre[0] + t * ray[0], centre[2] + t * ray[2]))
+        let t = -self.centre[1] / ry;
+        let [x, z] = self.heading.place([self.planar.tx_mm, self.planar.tz_mm], [self.centre[0] + t * rx, self.centre[2] + t * rz]);
+        Some((x, z))
     }
 }
 

@@ -22,7 +22,7 @@
 use super::warp::Coverage;
 use crate::grid::KgGrid;
 use crate::limits::{MAX_BLOCK_MATCHES, MAX_COARSE_CELLS};
-use crate::motion::{Attitude, GroundMotion, Motion};
+use crate::motion::{Attitude, GroundMap, GroundMotion, Motion, Rotation};
 
 /// Ground side of a coarse cell, mm: coarse enough that the widest search
 /// stays small, fine enough for floor texture to survive.
@@ -57,15 +57,6 @@ pub(super) struct Prior {
     pub(super) sigma: Params,
 }
 
-/// The measured motion.
-#[derive(Clone, Copy, Debug)]
-pub(super) struct Estimate {
-    pub(super) motion: GroundMotion,
-    /// Blocks that agree with it, and their RMS misfit, KG px.
-    pub(super) inliers: usize,
-    pub(super) rms_px: f64,
-}
-
 /// One block's match: where the current block's centre lies in the keyframe.
 #[derive(Clone, Copy, Debug, Default)]
 struct BlockMatch {
@@ -83,10 +74,15 @@ pub(super) struct Scene<'a> {
 }
 
 impl Scene<'_> {
-    /// Keyframe pixel of current pixel (i, j) under `p`.
-    fn map(&self, p: &Params, i: f64, j: f64) -> Option<(f64, f64)> {
+    /// The map of the motion `p`.
+    fn ground_map(&self, p: &Params) -> GroundMap {
+        GroundMap::new(&motion(p), self.height_mm)
+    }
+
+    /// Keyframe pixel of current pixel (i, j) under `map`.
+    fn map(&self, map: &GroundMap, i: f64, j: f64) -> Option<(f64, f64)> {
         let (x, z) = self.grid.pixel_to_ground(i, j);
-        let (xk, zk) = motion(p).to_keyframe(self.height_mm, x, z)?;
+        let (xk, zk) = map.to_keyframe(x, z)?;
         Some(self.grid.ground_to_pixel(xk, zk))
     }
 
@@ -173,7 +169,7 @@ impl Coarse {
     }
 
     /// Bilinear sample at cell coordinates (u, v) (cell centres at integers).
-    fn at(&self, u: f64, v: f64) -> Option<f64> {
+    fn at(&self, u: f32, v: f32) -> Option<f32> {
         if !(u >= 0.0 && v >= 0.0) {
             return None;
         }
@@ -186,8 +182,8 @@ impl Coarse {
         if !corners.iter().all(|&c| self.valid[c]) {
             return None;
         }
-        let (fu, fv) = (u - u0 as f64, v - v0 as f64);
-        let c = |i: usize| f64::from(self.cells[corners[i]]);
+        let (fu, fv) = (u - u0 as f32, v - v0 as f32);
+        let c = |i: usize| f32::from(self.cells[corners[i]]);
         Some((c(0) * (1.0 - fu) + c(1) * fu) * (1.0 - fv) + (c(2) * (1.0 - fu) + c(3) * fu) * fv)
     }
 }
@@ -207,7 +203,7 @@ impl Estimator {
     /// enough texture in both images to measure it. `prior.sigma` sets the
     /// coarse search's reach (3 sigma); a reach of more than a few cells is
     /// searched on cells twice as large first.
-    pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior) -> Option<Estimate> {
+    pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior) -> Option<GroundMotion> {
         let fine_mm = COARSE_CELL_MM.max(2.0 * scene.grid.mm_per_px);
         let reach = |sigma: f64, unit: f64| 3.0 * sigma / unit;
         let mut p = params(&prior.motion);
@@ -224,7 +220,7 @@ impl Estimator {
         for _ in 0..2 {
             self.match_blocks(scene, &p);
             let fitted = fit(scene, &self.matches, &p, prior)?;
-            p = params(&fitted.motion);
+            p = params(&fitted);
             estimate = Some(fitted);
         }
         estimate
@@ -242,7 +238,7 @@ impl Estimator {
         if key_mean < 1.0 || cur_mean < 1.0 {
             return p;
         }
-        let gain = cur_mean / key_mean;
+        let gain = (cur_mean / key_mean) as f32;
         let grid = scene.grid;
         let cell_mm = grid.mm_per_px * cur.side as f64;
         let reach_cells = |sigma_mm: f64| (libm::ceil(3.0 * sigma_mm / cell_mm) as i32).clamp(1, 8);
@@ -250,24 +246,29 @@ impl Estimator {
         let yaw_step = yaw_step(grid, cell_mm);
         let yaw_reach = (libm::ceil(3.0 * sigma[2] / yaw_step) as i32).clamp(0, 16);
         let counted = (0..cur.wide * cur.high).filter(|&k| cur.valid[k]).count();
+        // A planar motion moves coarse cells affinely: keyframe cell =
+        // rotation * cell + offset, in cell units (G runs against z).
+        // Cell (0, 0)'s centre on the ground, in cells.
+        let centre = 0.5 * (cur.side as f64 - 1.0) / cur.side as f64;
+        let (origin_u, origin_v) = (grid.x_left_mm / cell_mm + centre, grid.z_far_mm / cell_mm - centre);
         let score_at = |yaw_deg: f64, tx_mm: f64, tz_mm: f64| -> f64 {
-            let planar = Motion { tx_mm, tz_mm, dyaw_deg: yaw_deg };
-            let side = cur.side as f64;
-            let centre = |c: usize| c as f64 * side + 0.5 * (side - 1.0);
-            let (mut sum, mut count) = (0.0, 0usize);
+            let heading = Rotation::from_degrees(yaw_deg).to_f32();
+            let [au, av] = heading.to_world([1.0, 0.0]);
+            let [bu, bv] = heading.to_world([0.0, -1.0]);
+            let [ou, ov] = heading.place([(tx_mm / cell_mm) as f32, (tz_mm / cell_mm) as f32], [origin_u as f32, origin_v as f32]);
+            let (ou, ov) = (ou - origin_u as f32, origin_v as f32 - ov);
+            let (mut sum, mut count) = (0f32, 0usize);
             for cj in 0..cur.high {
                 for ci in 0..cur.wide {
                     let k = cj * cur.wide + ci;
                     if !cur.valid[k] {
                         continue;
                     }
-                    let (x, z) = grid.pixel_to_ground(centre(ci), centre(cj));
-                    let (xk, zk) = planar.to_earlier_frame(x, z);
-                    let (i, j) = grid.ground_to_pixel(xk, zk);
-                    let Some(value) = key.at((i - 0.5 * (side - 1.0)) / side, (j - 0.5 * (side - 1.0)) / side) else {
+                    let (u, v) = (ci as f32, cj as f32);
+                    let Some(value) = key.at(au * u + bu * v + ou, -(av * u + bv * v) + ov) else {
                         continue;
                     };
-                    sum += libm::fabs(f64::from(cur.cells[k]) - gain * value);
+                    sum += libm::fabsf(f32::from(cur.cells[k]) - gain * value);
                     count += 1;
                 }
             }
@@ -275,7 +276,7 @@ impl Estimator {
             if count * 3 < counted || count < 12 {
                 f64::MAX
             } else {
-                sum / count as f64
+                f64::from(sum) / count as f64
             }
         };
         let at = |dyaw: i32, dx: i32, dz: i32| {
@@ -317,13 +318,14 @@ impl Estimator {
     /// keyframe around where `p` puts it.
     fn match_blocks(&mut self, scene: &Scene, p: &Params) {
         self.matches.clear();
+        let map = scene.ground_map(p);
         let (w, h) = (scene.grid.width(), scene.grid.height());
         let half = (BLOCK_PX / 2) as f64;
         let mut bj = 0;
         while bj + BLOCK_PX <= h {
             let mut bi = 0;
             while bi + BLOCK_PX <= w {
-                if let Some(found) = match_block(scene, p, bi, bj) {
+                if let Some(found) = match_block(scene, &map, bi, bj) {
                     let centre = (bi as f64 + half - 0.5, bj as f64 + half - 0.5);
                     if self.matches.push(BlockMatch { current: centre, keyframe: found }).is_err() {
                         return;
@@ -338,7 +340,7 @@ impl Estimator {
 
 /// The keyframe position of the centre of the block at (`bi`, `bj`), or
 /// None when it is off the view, flat, or ambiguous.
-fn match_block(scene: &Scene, p: &Params, bi: usize, bj: usize) -> Option<(f64, f64)> {
+fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Option<(f64, f64)> {
     let w = scene.grid.width();
     if !(bj..bj + BLOCK_PX).all(|j| scene.seen(bi, j) && scene.seen(bi + BLOCK_PX - 1, j)) {
         return None;
@@ -366,9 +368,9 @@ fn match_block(scene: &Scene, p: &Params, bi: usize, bj: usize) -> Option<(f64, 
     // affine map about the block's centre.
     let half = (BLOCK_PX / 2) as f64;
     let (ci, cj) = (bi as f64 + half - 0.5, bj as f64 + half - 0.5);
-    let origin = scene.map(p, ci, cj)?;
-    let along = scene.map(p, ci + 1.0, cj)?;
-    let down = scene.map(p, ci, cj + 1.0)?;
+    let origin = scene.map(map, ci, cj)?;
+    let along = scene.map(map, ci + 1.0, cj)?;
+    let down = scene.map(map, ci, cj + 1.0)?;
     let (du, dv) = ((along.0 - origin.0, along.1 - origin.1), (down.0 - origin.0, down.1 - origin.1));
     let mut patch = [[0f32; PATCH]; PATCH];
     let first = -(half - 0.5) - f64::from(BLOCK_REACH);
@@ -428,7 +430,7 @@ fn match_block(scene: &Scene, p: &Params, bi: usize, bj: usize) -> Option<(f64, 
 
 /// Step 3: the parameters that put the blocks where they were found,
 /// robustly (Tukey), with the prior as five more observations.
-fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> Option<Estimate> {
+fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> Option<GroundMotion> {
     if matches.len() < MIN_INLIERS {
         return None;
     }
@@ -440,9 +442,16 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> 
     let mut residuals = [0f64; MAX_BLOCK_MATCHES];
     for iteration in 0..8 {
         // Residual sizes and their robust scale (MAD), floored: sub-pixel matches are not better than ~0.1 px.
+        let map = scene.ground_map(&p);
+        let mut moved_maps = [map; 5];
+        for (k, moved_map) in moved_maps.iter_mut().enumerate() {
+            let mut moved = p;
+            moved[k] += STEP[k];
+            *moved_map = scene.ground_map(&moved);
+        }
         let mut count = 0;
         for (m, r) in matches.iter().zip(residuals.iter_mut()) {
-            *r = match scene.map(&p, m.current.0, m.current.1) {
+            *r = match scene.map(&map, m.current.0, m.current.1) {
                 Some(at) => libm::hypot(at.0 - m.keyframe.0, at.1 - m.keyframe.1),
                 None => f64::MAX,
             };
@@ -470,13 +479,11 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> 
             if w == 0.0 {
                 continue;
             }
-            let Some(at) = scene.map(&p, m.current.0, m.current.1) else { continue };
+            let Some(at) = scene.map(&map, m.current.0, m.current.1) else { continue };
             let error = [at.0 - m.keyframe.0, at.1 - m.keyframe.1];
             let mut jacobian = [[0f64; 5]; 2];
             for k in 0..5 {
-                let mut moved = p;
-                moved[k] += STEP[k];
-                let Some(there) = scene.map(&moved, m.current.0, m.current.1) else { continue };
+                let Some(there) = scene.map(&moved_maps[k], m.current.0, m.current.1) else { continue };
                 jacobian[0][k] = (there.0 - at.0) / STEP[k];
                 jacobian[1][k] = (there.1 - at.1) / STEP[k];
             }
@@ -503,21 +510,17 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> 
         }
     }
     // Inliers: within 3 scales of the final model.
-    let (mut inliers, mut squares) = (0usize, 0f64);
-    for m in matches {
-        if let Some(at) = scene.map(&p, m.current.0, m.current.1) {
-            let r = libm::hypot(at.0 - m.keyframe.0, at.1 - m.keyframe.1);
-            if r < 3.0 * scale {
-                inliers += 1;
-                squares += r * r;
-            }
-        }
-    }
+    let map = scene.ground_map(&p);
+    let inliers = matches
+        .iter()
+        .filter_map(|m| scene.map(&map, m.current.0, m.current.1).map(|at| libm::hypot(at.0 - m.keyframe.0, at.1 - m.keyframe.1)))
+        .filter(|&r| r < 3.0 * scale)
+        .count();
     // A model most blocks disagree with is a wrong one (or the view is mostly obstacle).
     if inliers < MIN_INLIERS || 3 * inliers < matches.len() {
         return None;
     }
-    Some(Estimate { motion: motion(&p), inliers, rms_px: libm::sqrt(squares / inliers as f64) })
+    Some(motion(&p))
 }
 
 /// Solves the 5x5 symmetric positive definite system (Cholesky); None if singular.

@@ -389,7 +389,7 @@ impl<'b> Gpa<'b> {
         };
         let estimate = self.estimator.estimate(&scene, &prior);
         self.measured = match (estimate, self.odometry) {
-            (Some(estimate), _) => estimate.motion,
+            (Some(estimate), _) => estimate,
             (None, Some(_)) => prior.motion,
             (None, None) => {
                 self.keyframe.restart();

@@ -4,7 +4,7 @@
 //! can be compared at all.
 
 use crate::grid::{KgGrid, MAX_GRID_SIDE};
-use crate::motion::{Attitude, GroundMotion, Motion};
+use crate::motion::{GroundMap, GroundMotion};
 use crate::remap::RemapTable;
 use core::ops::Range;
 
@@ -55,9 +55,9 @@ impl RowWarp {
 /// so then each row's line runs through its exact ends.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Warp {
-    motion: GroundMotion,
+    /// The map through the attitude; None when level.
+    bent: Option<GroundMap>,
     grid: KgGrid,
-    height_mm: f64,
     /// The planar part as an affine map (exact without attitude).
     origin: (f64, f64),
     column: (f64, f64),
@@ -70,12 +70,8 @@ const LEVEL_DEG: f64 = 1e-4;
 
 impl Warp {
     pub(super) const NONE: Warp = Warp {
-        motion: GroundMotion {
-            planar: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
-            attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
-        },
+        bent: None,
         grid: KgGrid { mm_per_px: 1.0, x_left_mm: 0.0, z_far_mm: 0.0, width: 0, height: 0 },
-        height_mm: 0.0,
         origin: (0.0, 0.0),
         column: (0.0, 0.0),
         row: (0.0, 0.0),
@@ -90,28 +86,24 @@ impl Warp {
         let origin = warp(0.0, 0.0);
         let along = warp(1.0, 0.0);
         let down = warp(0.0, 1.0);
+        let level = libm::fabs(motion.attitude.pitch_deg) < LEVEL_DEG && libm::fabs(motion.attitude.roll_deg) < LEVEL_DEG;
         Warp {
-            motion: *motion,
+            bent: (!level).then(|| GroundMap::new(motion, height_mm)),
             grid: *grid,
-            height_mm,
             origin,
             column: (along.0 - origin.0, along.1 - origin.1),
             row: (down.0 - origin.0, down.1 - origin.1),
         }
     }
 
-    fn is_level(&self) -> bool {
-        libm::fabs(self.motion.attitude.pitch_deg) < LEVEL_DEG && libm::fabs(self.motion.attitude.roll_deg) < LEVEL_DEG
-    }
-
     /// The warp of current row `j`.
     pub(super) fn row(&self, j: usize) -> RowWarp {
         let jf = j as f64;
-        if !self.is_level() {
+        if let Some(bent) = &self.bent {
             let last = (self.grid.width().max(2) - 1) as f64;
             let at = |i: f64| {
                 let (x, z) = self.grid.pixel_to_ground(i, jf);
-                self.motion.to_keyframe(self.height_mm, x, z).map(|(xk, zk)| self.grid.ground_to_pixel(xk, zk))
+                bent.to_keyframe(x, z).map(|(xk, zk)| self.grid.ground_to_pixel(xk, zk))
             };
             if let (Some(first), Some(end)) = (at(0.0), at(last)) {
                 return RowWarp {
