@@ -88,12 +88,13 @@ impl Scene<'_> {
 
     /// Whether pixel (i, j) of either image is in the camera's view.
     fn seen(&self, i: usize, j: usize) -> bool {
-        self.coverage.seen(j).is_some_and(|columns| columns.contains(&i))
+        j < self.grid.height() && self.coverage.seen(j).is_some_and(|columns| columns.contains(&i))
     }
 
     /// Bilinear keyframe sample at (i, j), None off the camera's view.
     fn keyframe_at(&self, i: f64, j: f64) -> Option<f32> {
-        if !(i >= 0.0 && j >= 0.0) {
+        // (Also refuses NaN.)
+        if !(i >= 0.0 && j >= 0.0 && i < self.grid.width() as f64 && j < self.grid.height() as f64) {
             return None;
         }
         let (i0, j0) = (i as usize, j as usize);
@@ -216,6 +217,11 @@ impl Estimator {
             sigma[2] = sigma[2].min(yaw_step(scene.grid, 2.0 * fine_mm));
         }
         p = self.coarse_search(scene, &p, &sigma, fine_mm);
+        // The coarse search moves level images: its translation is the one
+        // that best explains the attitude change too, so the blocks start
+        // from it level (the fit then splits the two, with the prior).
+        p[3] = 0.0;
+        p[4] = 0.0;
         let mut estimate = None;
         for _ in 0..2 {
             self.match_blocks(scene, &p);
@@ -559,4 +565,102 @@ fn solve(a: [[f64; 5]; 5], b: [f64; 5]) -> Option<[f64; 5]> {
         x[i] = sum / l[i][i];
     }
     Some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::vec::Vec;
+
+    /// Value noise: a hashed lattice of `cell_mm`, bilinear between.
+    fn noise(x: f64, z: f64, cell_mm: f64, seed: u32) -> f64 {
+        let lattice = |i: i64, k: i64| {
+            let mut h = (i as u32).wrapping_mul(0x9E37_79B1) ^ (k as u32).wrapping_mul(0x85EB_CA77) ^ seed;
+            h ^= h >> 15;
+            h = h.wrapping_mul(0x2C1B_3C6D);
+            h ^= h >> 12;
+            f64::from(h & 0xFFFF) / 65535.0 - 0.5
+        };
+        let (u, v) = (x / cell_mm, z / cell_mm);
+        let (i, k) = (libm::floor(u), libm::floor(v));
+        let (fu, fv) = (u - i, v - k);
+        let (i, k) = (i as i64, k as i64);
+        let top = lattice(i, k) * (1.0 - fu) + lattice(i + 1, k) * fu;
+        let bottom = lattice(i, k + 1) * (1.0 - fu) + lattice(i + 1, k + 1) * fu;
+        top * (1.0 - fv) + bottom * fv
+    }
+
+    /// A textured floor, no two places alike (as gravel): noise of three sizes.
+    fn floor(x: f64, z: f64) -> f64 {
+        128.0 + 90.0 * noise(x, z, 60.0, 1) + 70.0 * noise(x, z, 21.0, 2) + 50.0 * noise(x, z, 9.0, 3)
+    }
+
+    fn grid() -> KgGrid {
+        KgGrid { mm_per_px: 5.0, x_left_mm: -350.0, z_far_mm: 1600.0, width: 141, height: 255 }
+    }
+
+    /// The KG image of the floor seen from a robot that moved by `motion`
+    /// from the keyframe's pose; `raised` marks ground the box covers (it
+    /// shows a texture of its own that does not move like the floor).
+    fn render(motion: &GroundMotion, raised: impl Fn(f64, f64) -> bool) -> Vec<u8> {
+        let grid = grid();
+        let map = GroundMap::new(motion, 400.0);
+        let mut image = Vec::new();
+        for j in 0..grid.height() {
+            for i in 0..grid.width() {
+                let (x, z) = grid.pixel_to_ground(i as f64, j as f64);
+                let (xk, zk) = map.to_keyframe(x, z).unwrap();
+                let value = if raised(x, z) { floor(3.0 * x + 500.0, 2.0 * z) } else { floor(xk, zk) };
+                image.push(value.clamp(0.0, 255.0) as u8);
+            }
+        }
+        image
+    }
+
+    fn estimate_of(motion: &GroundMotion, prior: &Prior, raised: impl Fn(f64, f64) -> bool) -> GroundMotion {
+        let grid = grid();
+        let keyframe = render(&GroundMotion::default(), |_, _| false);
+        let current = render(motion, raised);
+        let coverage = Coverage::full(&grid);
+        let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0 };
+        let mut estimator = std::boxed::Box::new(Estimator::EMPTY);
+        estimator.estimate(&scene, prior).expect("a textured floor is measured")
+    }
+
+    fn assert_close(found: &GroundMotion, truth: &GroundMotion) {
+        let (f, t) = (params(found), params(truth));
+        let tolerance = [1.0, 1.0, 0.05, 0.05, 0.05];
+        for k in 0..5 {
+            assert!(libm::fabs(f[k] - t[k]) < tolerance[k], "parameter {k}: {} vs {} ({found:?})", f[k], t[k]);
+        }
+    }
+
+    const TRUTH: GroundMotion = GroundMotion {
+        planar: Motion { tx_mm: 12.0, tz_mm: 90.0, dyaw_deg: 2.0 },
+        attitude: Attitude { pitch_deg: 0.6, roll_deg: -0.4 },
+    };
+
+    #[test]
+    fn measures_pitch_roll_and_planar_motion_from_a_rough_prior() {
+        // Odometry 20 % short and a degree off, no IMU.
+        let prior = Prior {
+            motion: GroundMotion { planar: Motion { tx_mm: 0.0, tz_mm: 72.0, dyaw_deg: 1.0 }, attitude: Attitude::default() },
+            sigma: [12.0, 12.0, 1.0, 1.0, 1.0],
+        };
+        assert_close(&estimate_of(&TRUTH, &prior, |_, _| false), &TRUTH);
+    }
+
+    #[test]
+    fn without_odometry_the_wide_search_finds_the_step() {
+        let prior = Prior { motion: GroundMotion::default(), sigma: [83.0, 83.0, 8.0, 1.0, 1.0] };
+        assert_close(&estimate_of(&TRUTH, &prior, |_, _| false), &TRUTH);
+    }
+
+    #[test]
+    fn an_obstacle_in_view_does_not_bend_the_estimate() {
+        let prior = Prior { motion: TRUTH, sigma: [12.0, 12.0, 1.0, 1.0, 1.0] };
+        // A box a fifth as wide as the view, from 900 to 1200 mm.
+        let found = estimate_of(&TRUTH, &prior, |x, z| (-60.0..80.0).contains(&x) && (900.0..1200.0).contains(&z));
+        assert_close(&found, &TRUTH);
+    }
 }

@@ -169,6 +169,14 @@ impl Coverage {
         }
     }
 
+    /// Every column of every row seen (the tests' synthetic images).
+    #[cfg(test)]
+    pub(super) fn full(grid: &KgGrid) -> Coverage {
+        let mut rows = [(0, 0); MAX_GRID_SIDE];
+        rows[..grid.height()].fill((0, grid.width() as u16));
+        Coverage { current: rows, reference: rows }
+    }
+
     /// Columns of current row `j` that the camera sees, or None.
     pub(super) fn seen(&self, j: usize) -> Option<Range<usize>> {
         let (lo, hi) = self.current[j];
