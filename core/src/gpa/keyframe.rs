@@ -11,8 +11,9 @@ use crate::motion::Motion;
 use core::ops::Range;
 
 pub(super) struct Keyframe<'b> {
-    /// Two images, `width * height` bytes each.
-    data: &'b mut [u8],
+    /// Two images, `width * height` bytes each (a target may keep them
+    /// in different RAM banks).
+    images: [&'b mut [u8]; 2],
     width: usize,
     height: usize,
     /// Which half holds the keyframe (0 or 1); the other takes the current frame.
@@ -28,7 +29,11 @@ impl<'b> Keyframe<'b> {
     pub(super) const EMPTY: Keyframe<'static> = Keyframe {
         // An empty slice: nothing to read or write until `init` gives the buffer.
         // SAFETY: a dangling, aligned, non-null pointer with length 0 is a valid slice.
-        data: unsafe { core::slice::from_raw_parts_mut(core::ptr::NonNull::<u8>::dangling().as_ptr(), 0) },
+        images: [
+            unsafe { core::slice::from_raw_parts_mut(core::ptr::NonNull::<u8>::dangling().as_ptr(), 0) },
+            // SAFETY: as above.
+            unsafe { core::slice::from_raw_parts_mut(core::ptr::NonNull::<u8>::dangling().as_ptr(), 0) },
+        ],
         width: 0,
         height: 0,
         key_half: 0,
@@ -36,14 +41,14 @@ impl<'b> Keyframe<'b> {
         replacing: false,
     };
 
-    /// Bytes the buffer needs for this grid: two images.
-    pub(super) fn bytes(grid: &KgGrid) -> usize {
-        2 * grid.len()
+    /// Bytes each of the two images needs for this grid.
+    pub(super) fn image_bytes(grid: &KgGrid) -> usize {
+        grid.len()
     }
 
-    /// Takes a buffer of at least [`Self::bytes`]; no keyframe yet.
-    pub(super) fn new(data: &'b mut [u8], grid: &KgGrid) -> Keyframe<'b> {
-        Keyframe { data, width: grid.width(), height: grid.height(), ..Keyframe::EMPTY }
+    /// Takes two buffers of at least [`Self::image_bytes`]; no keyframe yet.
+    pub(super) fn new(first: &'b mut [u8], second: &'b mut [u8], grid: &KgGrid) -> Keyframe<'b> {
+        Keyframe { images: [first, second], width: grid.width(), height: grid.height(), ..Keyframe::EMPTY }
     }
 
     pub(super) fn taken_at(&self) -> Option<u32> {
@@ -68,8 +73,8 @@ impl<'b> Keyframe<'b> {
 
     /// Stores row `j` of the current frame.
     pub(super) fn write_row(&mut self, j: usize, row: &[u8]) {
-        let start = ((1 - self.key_half) * self.height + j) * self.width;
-        self.data[start..][..self.width].copy_from_slice(row);
+        let width = self.width;
+        self.images[1 - self.key_half][j * width..][..width].copy_from_slice(row);
     }
 
     /// Row `j` of the current frame.
@@ -79,12 +84,12 @@ impl<'b> Keyframe<'b> {
 
     /// The whole current frame (rows written so far), row-major.
     pub(super) fn current_image(&self) -> &[u8] {
-        &self.data[(1 - self.key_half) * self.height * self.width..][..self.height * self.width]
+        &self.images[1 - self.key_half][..self.height * self.width]
     }
 
     /// The whole keyframe, row-major.
     pub(super) fn keyframe_image(&self) -> &[u8] {
-        &self.data[self.key_half * self.height * self.width..][..self.height * self.width]
+        &self.images[self.key_half][..self.height * self.width]
     }
 
     /// The complete frame `frame` ends; returns whether it became the keyframe.
@@ -98,7 +103,7 @@ impl<'b> Keyframe<'b> {
 
     #[inline(always)]
     fn row(&self, j: usize) -> &[u8] {
-        &self.data[(self.key_half * self.height + j) * self.width..][..self.width]
+        &self.images[self.key_half][j * self.width..][..self.width]
     }
 
     /// Whether the 2x2 neighbourhood of (i, j) Q16.16 lies in the grid.

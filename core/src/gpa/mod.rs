@@ -72,7 +72,7 @@ use warp::{Coverage, Warp};
 pub enum GpaError {
     /// search_radius is 0 or above [`crate::limits::MAX_SEARCH_RADIUS`], or a value is not finite/positive.
     Config,
-    /// The keyframe buffer is smaller than [`Gpa::keyframe_bytes`].
+    /// An image buffer is smaller than [`Gpa::image_bytes`].
     BufferTooSmall { needed: usize },
     /// The grid does not match the remap table.
     GridMismatch,
@@ -82,7 +82,7 @@ impl core::fmt::Display for GpaError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             GpaError::Config => f.write_str("GPA config: search radius out of range, or a value not finite and positive"),
-            GpaError::BufferTooSmall { needed } => write!(f, "keyframe buffer too small: {needed} bytes needed"),
+            GpaError::BufferTooSmall { needed } => write!(f, "image buffer too small: {needed} bytes needed"),
             GpaError::GridMismatch => f.write_str("the grid does not match the remap table"),
         }
     }
@@ -169,9 +169,15 @@ pub struct Gpa<'b> {
 }
 
 impl<'b> Gpa<'b> {
-    /// Bytes the keyframe buffer needs for this grid.
+    /// Bytes of image memory [`Gpa::new`] needs for this grid: the
+    /// keyframe and the current frame.
     pub fn keyframe_bytes(grid: &KgGrid) -> usize {
-        Keyframe::bytes(grid)
+        2 * Keyframe::image_bytes(grid)
+    }
+
+    /// Bytes of each of the two buffers [`Gpa::init_split`] takes.
+    pub fn image_bytes(grid: &KgGrid) -> usize {
+        Keyframe::image_bytes(grid)
     }
 
     /// A detector with no rig and no keyframe buffer: a constant, so a
@@ -221,28 +227,38 @@ impl<'b> Gpa<'b> {
         Ok(gpa)
     }
 
-    /// (Re)initialises the detector in place for a rig; every earlier state
-    /// (keyframe, noise, obstacle) is forgotten. On error it is left unchanged.
-    pub fn init(
+    /// (Re)initialises the detector in place for a rig, its two images in
+    /// `images` ([`Gpa::keyframe_bytes`]); every earlier state (keyframe,
+    /// noise, obstacle) is forgotten. On error it is left unchanged.
+    pub fn init(&mut self, rig: &Rig, grid: &KgGrid, table: &RemapTable, config: GpaConfig, images: &'b mut [u8]) -> Result<(), GpaError> {
+        let half = images.len() / 2;
+        let (first, second) = images.split_at_mut(half);
+        self.init_split(rig, grid, table, config, first, second)
+    }
+
+    /// As [`Gpa::init`], with the two images in buffers of their own
+    /// ([`Gpa::image_bytes`] each), e.g. in two RAM banks.
+    pub fn init_split(
         &mut self,
         rig: &Rig,
         grid: &KgGrid,
         table: &RemapTable,
         config: GpaConfig,
-        keyframe: &'b mut [u8],
+        first: &'b mut [u8],
+        second: &'b mut [u8],
     ) -> Result<(), GpaError> {
         config.check()?;
         if table.grid_width() != grid.width() || table.grid_height() != grid.height() {
             return Err(GpaError::GridMismatch);
         }
-        let needed = Self::keyframe_bytes(grid);
-        if keyframe.len() < needed {
+        let needed = Self::image_bytes(grid);
+        if first.len() < needed || second.len() < needed {
             return Err(GpaError::BufferTooSmall { needed });
         }
         self.config = config;
         self.layout = Layout::new(rig, grid, config.cell_mm);
         self.coverage.init(grid, table, config.search_radius);
-        self.keyframe = Keyframe::new(keyframe, grid);
+        self.keyframe = Keyframe::new(first, second, grid);
         self.prediction = Prediction::START;
         self.warp = Warp::NONE;
         self.band.clear();
