@@ -233,19 +233,28 @@ mod tests {
     fn attitude_moves_far_ground_more_than_near() {
         let level = GroundMotion::default();
         assert_eq!(level.to_keyframe(400.0, 100.0, 800.0), Some((100.0, 800.0)));
-        // The front dips 0.5 deg: the camera looks further down, so a ground
-        // point the fixed remap places at z truly lies farther out.
+        // The front dips 0.5 deg about the robot origin on the ground: the
+        // camera looks further down, so a ground point the fixed remap
+        // places at z truly lies nearer, by z^2/H per radian (ground ahead
+        // stands z sin(pitch) above the body's ground plane).
         let pitched = GroundMotion { attitude: Attitude { pitch_deg: 0.5, roll_deg: 0.0 }, ..level };
         let (_, near) = pitched.to_keyframe(400.0, 0.0, 500.0).unwrap();
         let (_, far) = pitched.to_keyframe(400.0, 0.0, 1500.0).unwrap();
-        assert!(near > 500.0 && far - 1500.0 > 3.0 * (near - 500.0), "{near} {far}");
-        // dz/dpitch = (H^2 + z^2) / H at the centre line.
-        let expected = (400.0f64.powi(2) + 1500.0f64.powi(2)) / 400.0 * 0.5f64.to_radians();
-        assert!((far - 1500.0 - expected).abs() < 0.05 * expected, "{far} {expected}");
-        // The right side dips: the camera sees the ground shifted to the right.
+        assert!(near < 500.0 && 1500.0 - far > 3.0 * (500.0 - near), "{near} {far}");
+        let expected = 1500.0f64.powi(2) / 400.0 * 0.5f64.to_radians();
+        assert!((1500.0 - far - expected).abs() < 0.05 * expected, "{far} {expected}");
+        // The right side dips, about the forward axis on the ground: ground on
+        // that axis stays put; ground on the right stands x sin(roll) above
+        // the body's ground plane, so the fixed remap shows it farther out by
+        // H / (H - x sin(roll)); the left side the other way.
         let rolled = GroundMotion { attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.5 }, ..level };
-        let (right, _) = rolled.to_keyframe(400.0, 0.0, 1000.0).unwrap();
-        assert!(right > 0.0, "{right}");
+        let (x, z) = rolled.to_keyframe(400.0, 0.0, 1000.0).unwrap();
+        assert!(x.abs() < 1e-9 && (z - 1000.0).abs() < 1e-9, "{x} {z}");
+        let lift = 300.0 * 0.5f64.to_radians().sin();
+        let (_, right) = rolled.to_keyframe(400.0, 300.0, 1000.0).unwrap();
+        let (_, left) = rolled.to_keyframe(400.0, -300.0, 1000.0).unwrap();
+        let expected = |lift: f64| 1000.0 * (400.0 - lift) / 400.0;
+        assert!((right - expected(lift)).abs() < 0.5 && (left - expected(-lift)).abs() < 0.5, "{right} {left}");
     }
 
     #[test]

@@ -494,12 +494,6 @@ impl<'b> Gpa<'b> {
         }
     }
 
-    /// The step from the last frame to this one as measured on the ground
-    /// (GTI's motion when the odometry is absent or wrong).
-    pub fn measured_step(&self) -> Motion {
-        self.prediction.step
-    }
-
     /// Blobs found in the last frame (for pictures and tests).
     pub fn blobs(&self) -> &[Blob] {
         &self.blobs
