@@ -180,6 +180,10 @@ impl<'b> Keyframe<'b> {
     }
 }
 
+/// Fraction of the keyframe baseline (travel or turn) within which a frame
+/// counts as having reached it.
+const KEYFRAME_SLACK: f64 = 0.01;
+
 /// Whether the frame at `predicted` from the keyframe (`step` since the
 /// last frame) replaces it: once the baseline is long enough, and also
 /// when the next frame, moving like this one, would overshoot by half
@@ -188,8 +192,13 @@ impl<'b> Keyframe<'b> {
 pub(super) fn is_due(predicted: &Motion, step: &Motion, config: &GpaConfig) -> bool {
     let (travel, turn) = (predicted.distance_mm(), libm::fabs(predicted.dyaw_deg));
     let (step_travel, step_turn) = (step.distance_mm(), libm::fabs(step.dyaw_deg));
-    travel >= config.keyframe_travel_mm
-        || turn >= config.keyframe_yaw_deg
+    // The measured travel is good to a fraction of a pixel: a robot whose
+    // steps add up to the baseline exactly must not have its schedule
+    // flip on that noise.
+    let slack = KEYFRAME_SLACK * config.keyframe_travel_mm;
+    let turn_slack = KEYFRAME_SLACK * config.keyframe_yaw_deg;
+    travel >= config.keyframe_travel_mm - slack
+        || turn >= config.keyframe_yaw_deg - turn_slack
         || travel + step_travel >= 1.5 * config.keyframe_travel_mm
         || turn + step_turn >= 1.5 * config.keyframe_yaw_deg
 }

@@ -441,8 +441,14 @@ impl<'b> Gpa<'b> {
             }
             self.compare_row(&store, j, row);
         }
+        // The seed's statistics and shift are reported against the
+        // prediction (odometry, or constant velocity without it), as the
+        // seed's GPA that trusts it would see them.
+        let predicted = Warp::new(&self.layout.grid, &prior.motion, self.layout.camera_height_mm);
+        let at_prediction = (prior.motion != self.measured).then(|| shift_search::histogram_at(&store, &predicted, &self.coverage, &self.layout));
         self.keyframe = store;
-        Some(self.decide(keyframe_frame))
+        let beyond = self.warp.shift_from(&predicted, &self.layout.aoi);
+        Some(self.decide(keyframe_frame, beyond, at_prediction))
     }
 
     /// Whether the odometry's step disagrees with the step seen on the
@@ -458,12 +464,18 @@ impl<'b> Gpa<'b> {
     }
 
     /// The frame's sums decide: refined motion, noise, obstacle, alarm.
-    fn decide(&mut self, keyframe_frame: u32) -> FrameReport {
-        let fit = self.search.fit(self.config.search_radius, &self.prediction.predicted, &self.layout);
+    /// `beyond` is the measured motion's shift from the prediction (KG px
+    /// at the AOI's centre) and `at_prediction` the |diff| histogram there
+    /// (None: the measured motion is the prediction).
+    fn decide(&mut self, keyframe_frame: u32, beyond: (f64, f64), at_prediction: Option<[u32; 256]>) -> FrameReport {
+        let measured = self.prediction.predicted;
+        let fit = self.search.fit(self.config.search_radius, &measured, &self.layout);
         self.prediction.settle(fit.refined, self.layout.grid.mm_per_px);
         let histogram = self.search.histogram();
-        let (seed_sum, seed_count) = kernels::seed_statistics(&histogram);
+        let (seed_sum, seed_count) = kernels::seed_statistics(at_prediction.as_ref().unwrap_or(&histogram));
         self.noise.update(&histogram, &self.config);
+        // The search ran around the measured motion.
+        let (shift_k, shift_g) = (fit.shift_k + beyond.0, fit.shift_g + beyond.1);
         let short_baseline = self.prediction.predicted.distance_mm() < 0.5 * self.config.keyframe_travel_mm;
         let (layout, config) = (&self.layout, &self.config);
         let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &self.residue, config, short_baseline);
@@ -481,8 +493,8 @@ impl<'b> Gpa<'b> {
             right_mm: obstacle.map(|o| o.right_mm),
             sad: seed_sum,
             count50: seed_count,
-            shift_k: libm::round(fit.shift_k * f64::from(SHIFT_SCALE)) as i32,
-            shift_g: libm::round(fit.shift_g * f64::from(SHIFT_SCALE)) as i32,
+            shift_k: libm::round(shift_k * f64::from(SHIFT_SCALE)) as i32,
+            shift_g: libm::round(shift_g * f64::from(SHIFT_SCALE)) as i32,
             tx: libm::round(motion.tx_mm * f64::from(MOTION_SCALE)) as i32,
             tz: libm::round(motion.tz_mm * f64::from(MOTION_SCALE)) as i32,
             // A parallax obstacle always raises the alarm.

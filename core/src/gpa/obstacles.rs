@@ -130,8 +130,11 @@ pub(super) fn parallax_obstacle(
         // lower quartile is robust to the odd cell whose height is off.
         footprints.sort_unstable_by(|a, b| a.total_cmp(b));
         let nearest = footprints[(footprints.len() - 1) / 4];
-        let inside = nearest <= aoi.far
-            && nearest >= aoi.near - cells.px as f64 * grid.mm_per_px
+        // A footprint is good to a fraction of a cell (the heights are):
+        // one measured a little beyond the far edge may stand on it.
+        let cell_mm = cells.px as f64 * grid.mm_per_px;
+        let inside = nearest <= aoi.far + 0.5 * cell_mm
+            && nearest >= aoi.near - cell_mm
             && right >= -aoi.half_width
             && left <= aoi.half_width;
         if inside && best.is_none_or(|b| nearest < b.0) {
@@ -139,7 +142,7 @@ pub(super) fn parallax_obstacle(
         }
     }
     best.map(|(z, left, right, height)| {
-        let z = z.max(aoi.near);
+        let z = z.clamp(aoi.near, aoi.far);
         let footprint =
             Footprint { near_mm: libm::round(z) as i32, left_mm: libm::round(left) as i32, right_mm: libm::round(right) as i32 };
         (footprint, libm::round(height) as i32)

@@ -8,7 +8,9 @@
 use super::band::{BandRows, MAX_WINDOW};
 use super::kernels;
 use super::layout::Layout;
-use super::warp::clip;
+use super::keyframe::Keyframe;
+use super::warp::{clip, Coverage, Runs, Warp};
+use crate::grid::MAX_GRID_SIDE;
 use crate::grid::PixelRect;
 use crate::limits::MAX_SEARCH_RADIUS;
 use crate::motion::Motion;
@@ -156,6 +158,29 @@ impl ShiftSearch {
         let tx_mm = predicted.tx_mm + near * mm + extra_yaw * z_near;
         Some((extra_yaw.to_degrees(), tx_mm))
     }
+}
+
+/// The |diff| histogram over the AOI's usable pixels of the current frame
+/// against the keyframe under `warp`, the same pixels the search's own
+/// histogram counts: the seed's statistics at another motion.
+pub(super) fn histogram_at(store: &Keyframe, warp: &Warp, coverage: &Coverage, layout: &Layout) -> [u32; 256] {
+    let mut histogram = kernels::DiffHistogram::EMPTY;
+    let mut line = [0u8; MAX_GRID_SIDE];
+    let mut runs = Runs::new();
+    let (grid, aoi) = (&layout.grid, &layout.aoi);
+    for j in aoi.top..aoi.bottom.min(layout.analysis_rows) {
+        let Some(seen) = coverage.seen(j) else { continue };
+        let row_warp = warp.row(j);
+        coverage.usable_runs(row_warp, seen, grid, &mut runs);
+        for &run in &runs {
+            let columns = clip(run, aoi.left, aoi.right);
+            if !columns.is_empty() {
+                store.sample_line(row_warp, columns.clone(), &mut line);
+                histogram.add(&store.current_row(j)[columns.clone()], &line[columns]);
+            }
+        }
+    }
+    histogram.counts()
 }
 
 /// Sub-pixel offset of a SAD minimum from its neighbours.
