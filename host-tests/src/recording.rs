@@ -207,7 +207,7 @@ impl From<&PoseRow> for PoseSample {
 /// The `$FLODO` message a robot controller sends for this row.
 impl From<&PoseRow> for Odometry {
     fn from(row: &PoseRow) -> Self {
-        Odometry { frame: row.frame, t_s: row.t_s, x_mm: row.pose.x_mm, z_mm: row.pose.z_mm, yaw_deg: row.pose.yaw_deg }
+        Odometry { frame: row.frame, t_s: row.t_s, pose: Some(row.pose), attitude: None }
     }
 }
 
