@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 use flatland_core::protocol::{encode_line, Decoder, LinkStats, Message, Odometry, RigRecord};
 
-use crate::recording::Recording;
+use crate::recording::{PoseRow, Recording};
 
 pub const TARGET: &str = "thumbv7em-none-eabihf";
 pub const DEFAULT_RECORDING: &str = "host-tests/data/flat_marks";
@@ -125,11 +125,35 @@ pub fn build_full_frame_firmware() -> Result<PathBuf> {
 
 // ------------------------------------------------------------------ what is sent
 
-/// The messages a robot controller sends for a recording: the rig, one
-/// `$FLODO` per poses.csv row, `$FLEND`.
-pub fn host_messages(recording: &Recording) -> Vec<Message> {
+/// Which of a robot's sensors `$FLODO` carries. `cargo fw REC --odometry
+/// none` / `--imu none` leave the wheels' pose / the IMU's attitude out, as
+/// `flatland detect` then ignores those poses.csv columns.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sensors {
+    pub odometry: bool,
+    pub imu: bool,
+}
+
+impl Sensors {
+    /// Every sensor the recording has.
+    pub const ALL: Sensors = Sensors { odometry: true, imu: true };
+}
+
+/// The `$FLODO` a robot controller with `sensors` sends for a poses.csv row.
+pub fn odometry_message(row: &PoseRow, sensors: Sensors) -> Message {
+    let odometry = Odometry::from(row);
+    Message::Odometry(Odometry {
+        pose: odometry.pose.filter(|_| sensors.odometry),
+        attitude: odometry.attitude.filter(|_| sensors.imu),
+        ..odometry
+    })
+}
+
+/// The messages a robot controller with `sensors` sends for a recording:
+/// the rig, one `$FLODO` per poses.csv row, `$FLEND`.
+pub fn host_messages(recording: &Recording, sensors: Sensors) -> Vec<Message> {
     let mut messages = vec![Message::Rig(RigRecord::from(&recording.rig))];
-    messages.extend(recording.poses.iter().map(|row| Message::Odometry(Odometry::from(row))));
+    messages.extend(recording.poses.iter().map(|row| odometry_message(row, sensors)));
     messages.push(Message::End);
     messages
 }
@@ -144,9 +168,9 @@ pub fn encode_script(messages: &[Message]) -> Result<Vec<u8>> {
     Ok(bytes)
 }
 
-/// The normal script for a recording.
-pub fn host_script(recording: &Recording) -> Result<Vec<u8>> {
-    encode_script(&host_messages(recording))
+/// The script of a robot with `sensors` for a recording.
+pub fn host_script(recording: &Recording, sensors: Sensors) -> Result<Vec<u8>> {
+    encode_script(&host_messages(recording, sensors))
 }
 
 // ------------------------------------------------------------------ QEMU
@@ -396,4 +420,22 @@ pub fn memory_use(elf: &Path) -> Result<(u64, u64)> {
         }
     }
     Ok((flash, ram))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--odometry none` leaves x_mm,z_mm,yaw_deg out of `$FLODO`; `--imu
+    /// none` on a recording without IMU columns changes nothing.
+    #[test]
+    fn sensors_choose_the_odometry_fields() {
+        let recording = Recording::open(workspace_root().join(DEFAULT_RECORDING)).unwrap();
+        let row = &recording.poses[1];
+        let line = |odometry, imu| encode_line(&odometry_message(row, Sensors { odometry, imu })).unwrap();
+        assert_eq!(line(true, true).as_str(), "$FLODO,1,0.1,0,100,0*4D\r\n");
+        assert_eq!(line(true, false), line(true, true));
+        assert_eq!(line(false, true).as_str(), "$FLODO,1,0.1*50\r\n");
+        assert_eq!(line(false, false), line(false, true));
+    }
 }

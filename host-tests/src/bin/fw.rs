@@ -13,6 +13,9 @@
 //!   256x256 without margins (`bench::FullFrame`, as `flatland bench
 //!   --full-frame`), on the `full-frame` firmware build (no GTI stage).
 //!
+//! - `--odometry none`, `--imu none`: the poses go without the wheels' pose
+//!   / the IMU's attitude (`$FLODO`'s optional fields), as `flatland detect`
+//!   ignores them with the same options.
 //! - `--elf PATH`: runs that firmware ELF instead of building one; the
 //!   thumb target's cargo runner (`cargo run --target thumbv7em-none-eabihf`
 //!   in .cargo/config.toml). An ELF named `selftest` gets `--selftest`'s
@@ -28,7 +31,7 @@ use std::time::Duration;
 
 use flatland_core::protocol::Message;
 use flatland_host::bench::FullFrame;
-use flatland_host::qemu::{self, RunRequest, DEFAULT_RECORDING};
+use flatland_host::qemu::{self, RunRequest, Sensors, DEFAULT_RECORDING};
 use flatland_host::recording::Recording;
 use flatland_host::serial_decode;
 
@@ -50,6 +53,16 @@ struct Args {
     timeout: Duration,
     mm_per_px: Option<f64>,
     full_frame: bool,
+    /// What `$FLODO` carries (`--odometry none`, `--imu none`).
+    sensors: Sensors,
+}
+
+/// `--odometry none` / `--imu none`: `none` is the one value.
+fn parse_none(option: &str, value: Option<String>) -> Result<bool> {
+    match value.as_deref() {
+        Some("none") => Ok(false),
+        _ => Err(format!("{option} takes `none` (leave those fields out)")),
+    }
 }
 
 fn parse_args() -> Result<Args> {
@@ -59,6 +72,7 @@ fn parse_args() -> Result<Args> {
     let mut timeout = Duration::from_secs(300);
     let mut mm_per_px = None;
     let mut full_frame = false;
+    let mut sensors = Sensors::ALL;
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         match arg.as_str() {
@@ -66,6 +80,8 @@ fn parse_args() -> Result<Args> {
             "--selftest" => mode = Mode::SelfTest,
             "--bench" => mode = Mode::Bench,
             "--full-frame" => full_frame = true,
+            "--odometry" => sensors.odometry = parse_none("--odometry", args.next())?,
+            "--imu" => sensors.imu = parse_none("--imu", args.next())?,
             "--elf" => elf = Some(PathBuf::from(args.next().ok_or("--elf needs a path")?)),
             "--timeout" => {
                 let secs = args.next().and_then(|s| s.parse().ok()).ok_or("--timeout needs seconds")?;
@@ -75,7 +91,8 @@ fn parse_args() -> Result<Args> {
                 mm_per_px = Some(args.next().and_then(|s| s.parse().ok()).ok_or("--mm-per-px needs a number")?);
             }
             "-h" | "--help" => {
-                println!("usage: cargo fw [RECORDING] [--csv] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame]");
+                println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame]");
+                println!("       --odometry none / --imu none: $FLODO leaves the wheels' pose / the IMU's attitude out");
                 println!("       fw --elf PATH [same options]: run that firmware ELF (the thumb target's cargo runner)");
                 std::process::exit(0);
             }
@@ -93,7 +110,7 @@ fn parse_args() -> Result<Args> {
     if mode == Mode::Run && elf.as_deref().and_then(Path::file_name).is_some_and(|name| name == "selftest") {
         mode = Mode::SelfTest;
     }
-    Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame })
+    Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame, sensors })
 }
 
 fn describe(message: &Message) -> Option<String> {
@@ -137,7 +154,7 @@ fn run_recording(args: &Args, elf: &Path) -> Result<String> {
     let request = RunRequest {
         elf,
         dir: &args.recording,
-        script: qemu::host_script(&recording)?,
+        script: qemu::host_script(&recording, args.sensors)?,
         bench: args.mode == Mode::Bench,
         bench_mm_per_px: mm_per_px,
         bench_no_margins: args.full_frame,

@@ -10,7 +10,7 @@ use std::time::Duration;
 use flatland_core::protocol::{Fault, Message};
 use flatland_core::report::CSV_HEADER;
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
-use flatland_host::qemu::{self, RunOutcome, RunRequest};
+use flatland_host::qemu::{self, RunOutcome, RunRequest, Sensors};
 use flatland_host::recording::Recording;
 use flatland_host::serial_decode::{run_serial_decode, DecodeSummary};
 
@@ -71,12 +71,17 @@ pub fn detect_csv(dir: &Path) -> String {
 
 /// The normal host script for a recording (rig, poses, end).
 pub fn script(dir: &Path) -> Vec<u8> {
+    script_with(dir, Sensors::ALL)
+}
+
+/// The host script of a robot with only `sensors`.
+pub fn script_with(dir: &Path, sensors: Sensors) -> Vec<u8> {
     let recording = Recording::open(dir).unwrap_or_else(|e| panic!("{e}"));
-    qemu::host_script(&recording).unwrap_or_else(|e| panic!("{e}"))
+    qemu::host_script(&recording, sensors).unwrap_or_else(|e| panic!("{e}"))
 }
 
 pub fn messages(dir: &Path) -> Vec<Message> {
-    qemu::host_messages(&Recording::open(dir).unwrap_or_else(|e| panic!("{e}")))
+    qemu::host_messages(&Recording::open(dir).unwrap_or_else(|e| panic!("{e}")), Sensors::ALL)
 }
 
 pub fn faults(outcome: &RunOutcome) -> Vec<Fault> {
