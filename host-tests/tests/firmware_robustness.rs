@@ -29,7 +29,7 @@ fn garbage_truncated_and_oversized_serial_input_is_counted_not_fatal() {
             script.extend_from_slice(b"$FLEND*00\r\n"); // wrong checksum
             script.extend_from_slice(&line("FLXYZ,1")); // unknown type
             script.extend_from_slice(&line("FLODO,3,0.3,x,0,0")); // bad field
-            script.extend_from_slice(&line("FLODO,3,0.3,0,0")); // too few fields
+            script.extend_from_slice(&line("FLODO,3,0.3,0,0,0,0")); // 6 fields: neither 5 nor 7
             script.extend_from_slice(&line("FLRDY,9")); // wrong version
             // A well-formed message out of place: the host sending a report.
             script.extend_from_slice(encode_line(&Message::Frame(Default::default())).unwrap().as_bytes());
