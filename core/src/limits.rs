@@ -36,9 +36,12 @@ pub const MAX_LINE: usize = 512;
 
 /// Largest search radius S (the window is `(2S+1)^2` shifts).
 pub const MAX_SEARCH_RADIUS: usize = 3;
-/// Spare keyframe rows: how far (rows) the in-place keyframe update may run
-/// ahead of the rows still being read. Bounds the travel per keyframe swap.
-pub const KEYFRAME_SPARE_ROWS: usize = 48;
+/// Blocks the motion estimate matches per frame (16 px blocks over the
+/// largest grid).
+pub const MAX_BLOCK_MATCHES: usize = (MAX_GRID_SIDE / 16) * (MAX_GRID_SIDE / 16);
+/// Cells of the motion estimate's coarse images (each image; larger grids
+/// get larger cells).
+pub const MAX_COARSE_CELLS: usize = 48 * 48;
 /// Coarse cells for blob analysis, per side.
 pub const MAX_CELLS_SIDE: usize = 52;
 /// Coarse cells in all, stored `cells_wide` apart: the 40,000 px default grid

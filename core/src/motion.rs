@@ -41,6 +41,63 @@ impl Attitude {
     }
 }
 
+/// The camera's motion over the ground from the keyframe to now: the
+/// planar motion of the robot and the change of its body's attitude.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GroundMotion {
+    pub planar: Motion,
+    /// The body's attitude now, relative to the keyframe's.
+    pub attitude: Attitude,
+}
+
+impl GroundMotion {
+    /// Where the ground point that the fixed remap shows at (`x_mm`,
+    /// `z_mm`) now (it assumes the rig's nominal attitude) shows in the
+    /// keyframe, for a camera `height_mm` above the robot origin; see
+    /// [`GroundMap`]. None when the turned ray no longer meets the ground.
+    pub fn to_keyframe(&self, height_mm: f64, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+        GroundMap::new(self, height_mm).to_keyframe(x_mm, z_mm)
+    }
+}
+
+/// [`GroundMotion::to_keyframe`] with its sines worked out once, for the
+/// many points of one motion. The body turns about the robot origin on the
+/// ground, attitude = Rz(roll) Rx(pitch): the ray through the point is
+/// turned with it and met with the ground again, then moved back by the
+/// planar motion.
+#[derive(Clone, Copy, Debug)]
+pub struct GroundMap {
+    /// The turned camera centre and the turn of a body vector (rows).
+    centre: [f64; 3],
+    turn: [[f64; 3]; 3],
+    height_mm: f64,
+    planar: Motion,
+    heading: Rotation<f64>,
+}
+
+impl GroundMap {
+    pub fn new(motion: &GroundMotion, height_mm: f64) -> GroundMap {
+        let (sp, cp) = (sin(motion.attitude.pitch_deg.to_radians()), cos(motion.attitude.pitch_deg.to_radians()));
+        let (sr, cr) = (sin(motion.attitude.roll_deg.to_radians()), cos(motion.attitude.roll_deg.to_radians()));
+        // Rz(roll) Rx(pitch) of a body vector (x right, y up, z forward).
+        let turn = [[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [0.0, sp, cp]];
+        let centre = [turn[0][1] * height_mm, turn[1][1] * height_mm, turn[2][1] * height_mm];
+        GroundMap { centre, turn, height_mm, planar: motion.planar, heading: motion.planar.turn() }
+    }
+
+    pub fn to_keyframe(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+        let v = [x_mm, -self.height_mm, z_mm];
+        let ray = |row: &[f64; 3]| row[0] * v[0] + row[1] * v[1] + row[2] * v[2];
+        let (rx, ry, rz) = (ray(&self.turn[0]), ray(&self.turn[1]), ray(&self.turn[2]));
+        if ry >= -1e-9 {
+            return None;
+        }
+        let t = -self.centre[1] / ry;
+        let [x, z] = self.heading.place([self.planar.tx_mm, self.planar.tz_mm], [self.centre[0] + t * rx, self.centre[2] + t * rz]);
+        Some((x, z))
+    }
+}
+
 impl Motion {
     /// The odometry (Tx, Tz, dyaw) from `from` to `to`, in `from`'s robot frame.
     pub fn between(from: &Pose, to: &Pose) -> Motion {
@@ -170,6 +227,25 @@ mod tests {
         assert!((chained.tx_mm - direct.tx_mm).abs() < 1e-9 && (chained.tz_mm - direct.tz_mm).abs() < 1e-9);
         assert!((chained.dyaw_deg - direct.dyaw_deg).abs() < 1e-12);
         assert!((rx - wx).abs() < 1e-9 && (rz - wz).abs() < 1e-9);
+    }
+
+    #[test]
+    fn attitude_moves_far_ground_more_than_near() {
+        let level = GroundMotion::default();
+        assert_eq!(level.to_keyframe(400.0, 100.0, 800.0), Some((100.0, 800.0)));
+        // The front dips 0.5 deg: the camera looks further down, so a ground
+        // point the fixed remap places at z truly lies farther out.
+        let pitched = GroundMotion { attitude: Attitude { pitch_deg: 0.5, roll_deg: 0.0 }, ..level };
+        let (_, near) = pitched.to_keyframe(400.0, 0.0, 500.0).unwrap();
+        let (_, far) = pitched.to_keyframe(400.0, 0.0, 1500.0).unwrap();
+        assert!(near > 500.0 && far - 1500.0 > 3.0 * (near - 500.0), "{near} {far}");
+        // dz/dpitch = (H^2 + z^2) / H at the centre line.
+        let expected = (400.0f64.powi(2) + 1500.0f64.powi(2)) / 400.0 * 0.5f64.to_radians();
+        assert!((far - 1500.0 - expected).abs() < 0.05 * expected, "{far} {expected}");
+        // The right side dips: the camera sees the ground shifted to the right.
+        let rolled = GroundMotion { attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.5 }, ..level };
+        let (right, _) = rolled.to_keyframe(400.0, 0.0, 1000.0).unwrap();
+        assert!(right > 0.0, "{right}");
     }
 
     #[test]

@@ -262,7 +262,10 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         let mut report = self.gpa.end_frame();
         let gti_start = self.now();
         if let Some(gti) = self.gti.as_deref_mut() {
-            gti.end_frame(current.motion);
+            // GTI follows the motion seen on the ground when there was one to
+            // see (wheels slip), else the odometry.
+            let motion = if report.is_some() { Some(self.gpa.measured_step()) } else { current.motion };
+            gti.end_frame(motion);
             if let Some(report) = report.as_mut() {
                 gti.enrich(report);
             }

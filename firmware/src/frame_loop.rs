@@ -22,7 +22,7 @@ use flatland_core::fusion::GtiStage;
 use flatland_core::gpa::{Gpa, GpaConfig, GpaProfile};
 use flatland_core::grid::{GridConfig, KgGrid};
 #[cfg(feature = "full-frame")]
-use flatland_core::limits::{KEYFRAME_SPARE_ROWS, MAX_GRID_SIDE};
+use flatland_core::limits::MAX_GRID_SIDE;
 use flatland_core::pipeline::{FrameError, FrameTiming, Outcome, Pipeline, PoseSample};
 use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, RigRecord};
 use flatland_core::remap::{RemapError, RemapTable};
@@ -37,18 +37,17 @@ pub const MAX_CAMERA_WIDTH: usize = 640;
 /// (8 of a QVGA one). The bundled rigs need 2; steep tilts and strong
 /// distortion need more, and are refused at start-up if they need too many.
 pub const RING_CAPACITY: usize = 4 * MAX_CAMERA_WIDTH;
-/// Keyframe memory (`Gpa::keyframe_bytes`: grid plus 48 spare rows). 48 KiB
-/// holds every bundled rig's default grid (256x256 camera: 141x255, 42,723 B;
-/// QVGA: 179x220, 47,972 B) and the 256x256 rig at 5 mm/px (161x256,
-/// 48,944 B). Grids near the 40,000 px cap with a wide AOI need up to ~53 KB
-/// and are refused (`grid_too_large`): RAM is for GTI (README, Performance).
+/// Memory of each of GPA's two KG images (`Gpa::image_bytes`: one grid).
+/// 40,000 B holds a grid at the default 40,000 px cap: every bundled rig's
+/// default grid (256x256 camera: 141x255, 35,955 B; QVGA: 179x220, 39,380 B).
+/// One image sits in RAM, the other in the CCM (memory.x).
 #[cfg(not(feature = "full-frame"))]
-pub const KEYFRAME_CAPACITY: usize = 48 * 1024;
+pub const IMAGE_CAPACITY: usize = 40_000;
 /// With the `full-frame` feature (the worst-case benchmark, `cargo fw-bench
-/// --full-frame`): the 256x256 grid's keyframe, 77,824 B. It fits in 128 KB
-/// only without the GTI stage, which that build leaves out.
+/// --full-frame`): the 256x256 grid, 65,536 B. It fits only without the GTI
+/// stage, which that build leaves out, and takes all of the CCM.
 #[cfg(feature = "full-frame")]
-pub const KEYFRAME_CAPACITY: usize = MAX_GRID_SIDE * (MAX_GRID_SIDE + KEYFRAME_SPARE_ROWS);
+pub const IMAGE_CAPACITY: usize = MAX_GRID_SIDE * MAX_GRID_SIDE;
 
 static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
 static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
@@ -56,7 +55,26 @@ static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY
 /// The GTI stage (`size_of::<GtiStage>()`, 19.6 KB), configured in place.
 #[cfg(not(feature = "full-frame"))]
 static GTI: ConstStaticCell<GtiStage> = ConstStaticCell::new(GtiStage::UNCONFIGURED);
-static KEYFRAME: ConstStaticCell<[u8; KEYFRAME_CAPACITY]> = ConstStaticCell::new([0; KEYFRAME_CAPACITY]);
+static IMAGE: ConstStaticCell<[u8; IMAGE_CAPACITY]> = ConstStaticCell::new([0; IMAGE_CAPACITY]);
+/// The second image, in the CCM (not zeroed at reset; see [`ccm_image`]).
+#[link_section = ".ccm"]
+static mut CCM_IMAGE: core::mem::MaybeUninit<[u8; IMAGE_CAPACITY]> = core::mem::MaybeUninit::uninit();
+static CCM_IMAGE_TAKEN: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
+
+/// The CCM image, zeroed, once; None on a second call.
+fn ccm_image() -> Option<&'static mut [u8; IMAGE_CAPACITY]> {
+    use core::sync::atomic::Ordering;
+    if CCM_IMAGE_TAKEN.swap(true, Ordering::AcqRel) {
+        return None;
+    }
+    // SAFETY: the flag hands the buffer out once, so this is its only
+    // reference; it is written (zeroed) before it is read as bytes.
+    unsafe {
+        let image = &raw mut CCM_IMAGE;
+        core::ptr::write_bytes(image, 0, 1);
+        Some((*image).assume_init_mut())
+    }
+}
 
 /// Why a rig was refused at start-up. Each is logged and sent as `$FLERR`.
 #[derive(Clone, Copy, Debug, PartialEq, defmt::Format)]
@@ -68,7 +86,7 @@ pub enum SetupError {
     CameraTooWide { width: usize },
     /// The remap needs more than [`RING_CAPACITY`] bytes of camera rows.
     RingTooSmall { needed: usize },
-    /// The grid needs more than [`KEYFRAME_CAPACITY`] bytes of keyframe.
+    /// A KG image of the grid needs more than [`IMAGE_CAPACITY`] bytes.
     KeyframeTooLarge { needed: usize },
     Detector(flatland_core::gpa::GpaError),
     Gti(flatland_core::gti::GtiError),
@@ -199,8 +217,8 @@ fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Resu
         GridConfig { mm_per_px: options.mm_per_px, ..GridConfig::default() }
     };
     let grid = KgGrid::for_rig(&rig, &grid_config).map_err(SetupError::Grid)?;
-    let needed = Gpa::keyframe_bytes(&grid);
-    if needed > KEYFRAME_CAPACITY {
+    let needed = Gpa::image_bytes(&grid);
+    if needed > IMAGE_CAPACITY {
         return Err(SetupError::KeyframeTooLarge { needed });
     }
     table.build(&rig, &grid).map_err(SetupError::Table)?;
@@ -247,7 +265,7 @@ fn configure<S: Read + Write, C: CycleCounter>(
             table.ring_bytes(),
             RING_CAPACITY,
             Gpa::keyframe_bytes(&grid),
-            KEYFRAME_CAPACITY
+            2 * IMAGE_CAPACITY
         );
         if options.bench {
             defmt::println!("bench: table_build: {=u32}", build_instructions);
@@ -368,7 +386,8 @@ where
     let mut link = Link { serial, decoder: Decoder::new(), counters: LoopCounters::default() };
     let table: &'static mut RemapTable = TABLE.take();
     let ring: &'static mut [u8; RING_CAPACITY] = RING.take();
-    let keyframe: &'static mut [u8; KEYFRAME_CAPACITY] = KEYFRAME.take();
+    let image: &'static mut [u8; IMAGE_CAPACITY] = IMAGE.take();
+    let Some(ccm_image) = ccm_image() else { return link.finish() };
     let gpa: &'static mut Gpa<'static> = DETECTOR.take();
     let _ = alarm.set_low();
 
@@ -382,7 +401,7 @@ where
     let camera = (table.camera_width(), table.camera_height());
     // The detector lives in a static, initialised in place: by value LLVM
     // keeps stack temporaries of it, and it is kilobytes.
-    if let Err(error) = gpa.init(&rig, &grid, table, GpaConfig::default(), &mut keyframe[..]) {
+    if let Err(error) = gpa.init_split(&rig, &grid, table, GpaConfig::default(), &mut image[..], &mut ccm_image[..]) {
         defmt::error!("detector refused: {}", error);
         link.fault(SetupError::Detector(error).fault_code(), 0);
         return link.finish();

@@ -149,18 +149,18 @@ fn odometry_out_of_sequence_on_the_wire_resets_the_keyframe() {
 
 #[test]
 fn rig_that_does_not_fit_the_target_is_refused_with_a_typed_fault() {
-    // Widen the QVGA rig's AOI until its KG grid needs more keyframe memory
-    // than the firmware has (72 KiB); a valid rig, so only the capacity refuses it.
-    const KEYFRAME_CAPACITY: usize = 48 * 1024; // firmware/src/frame_loop.rs
+    // Widen the QVGA rig's AOI until a KG image of its grid needs more
+    // memory than the firmware has; a valid rig, so only the capacity refuses it.
+    const IMAGE_CAPACITY: usize = 40_000; // firmware/src/frame_loop.rs
     let base = Recording::open(data("qvga_curb")).unwrap();
     let mut record = RigRecord::from(&base.rig);
     let too_large = (200..1000).step_by(10).find_map(|half_width| {
         record.aoi_half_width_mm = f64::from(half_width);
         let rig = Rig::try_from(&record).ok()?;
         let grid = KgGrid::for_rig(&rig, &GridConfig::default()).ok()?;
-        (Gpa::keyframe_bytes(&grid) > KEYFRAME_CAPACITY).then_some(record)
+        (Gpa::image_bytes(&grid) > IMAGE_CAPACITY).then_some(record)
     });
-    let too_large = too_large.expect("some valid QVGA rig needs more than 48 KiB of keyframe");
+    let too_large = too_large.expect("some valid QVGA rig needs more than 40,000 B per image");
     let mut too_wide = RigRecord::from(&base.rig);
     too_wide.width = 800;
     too_wide.cx = 399.5;

@@ -39,6 +39,19 @@ pub struct GpaConfig {
     /// Heading error to tolerate over that step, degrees: it moves ground at
     /// distance z sideways by z * error.
     pub odometry_yaw_error_deg: f64,
+    /// The odometry prior of the motion estimate, one sigma per step:
+    /// this fraction of the step plus a constant, and a heading error.
+    pub odometry_sigma_fraction: f64,
+    pub odometry_sigma_mm: f64,
+    pub odometry_sigma_yaw_deg: f64,
+    /// Without odometry: the largest step (mm) and turn (degrees) between
+    /// frames the estimate searches for.
+    pub max_step_mm: f64,
+    pub max_step_yaw_deg: f64,
+    /// One sigma of an IMU's attitude change between two frames, degrees.
+    pub imu_sigma_deg: f64,
+    /// Without an IMU: the largest attitude change from the keyframe, degrees.
+    pub max_attitude_change_deg: f64,
 }
 
 impl Default for GpaConfig {
@@ -64,6 +77,13 @@ impl GpaConfig {
         min_obstacle_height_mm: 20.0,
         odometry_error_fraction: 0.05,
         odometry_yaw_error_deg: 0.1,
+        odometry_sigma_fraction: 0.1,
+        odometry_sigma_mm: 5.0,
+        odometry_sigma_yaw_deg: 0.5,
+        max_step_mm: 250.0,
+        max_step_yaw_deg: 24.0,
+        imu_sigma_deg: 0.1,
+        max_attitude_change_deg: 3.0,
     };
 
     /// [`GpaError::Config`] unless the search radius is in
@@ -79,6 +99,13 @@ impl GpaConfig {
             self.min_obstacle_height_mm,
             self.odometry_error_fraction,
             self.odometry_yaw_error_deg,
+            self.odometry_sigma_fraction,
+            self.odometry_sigma_mm,
+            self.odometry_sigma_yaw_deg,
+            self.max_step_mm,
+            self.max_step_yaw_deg,
+            self.imu_sigma_deg,
+            self.max_attitude_change_deg,
         ];
         if self.search_radius == 0 || self.search_radius > MAX_SEARCH_RADIUS || !finite.iter().all(|v| v.is_finite() && *v > 0.0) {
             return Err(GpaError::Config);

@@ -1,65 +1,54 @@
-//! The keyframe: the one stored KG image each frame is compared with, the
-//! last frame at least `keyframe_travel_mm` back (so slow steps still see
-//! parallax).
-//!
-//! A frame that becomes the new keyframe is written *in place* while the old
-//! one is still read, through a row-circular buffer with
-//! [`KEYFRAME_SPARE_ROWS`] spare rows (no second image): new row j goes that
-//! many slots before old row j, into rows the reads have left behind.
+//! The keyframe and the current frame: two KG images. The current frame's
+//! rows are stored as they stream in; at the frame's end the motion is
+//! measured between the two whole images and the rows are compared; a
+//! frame that becomes the keyframe just swaps halves (no copy).
 
 use super::config::GpaConfig;
 use super::kernels;
 use super::warp::{RowWarp, FRAC};
 use crate::grid::KgGrid;
-use crate::limits::KEYFRAME_SPARE_ROWS;
 use crate::motion::Motion;
 use core::ops::Range;
 
 pub(super) struct Keyframe<'b> {
-    data: &'b mut [u8],
+    /// Two images, `width * height` bytes each (a target may keep them
+    /// in different RAM banks).
+    images: [&'b mut [u8]; 2],
     width: usize,
     height: usize,
-    /// Slots of the ring: the grid's rows plus the spare rows.
-    rows: usize,
-    /// Slot of keyframe row 0.
-    base: usize,
+    /// Which half holds the keyframe (0 or 1); the other takes the current frame.
+    key_half: usize,
     /// Frame the keyframe was taken at; None: no keyframe, the next frame
     /// becomes one and reports nothing.
     taken_at: Option<u32>,
-    /// This frame replaces the keyframe...
+    /// The current frame replaces the keyframe at its end.
     replacing: bool,
-    /// ...with its row 0 at this slot.
-    new_base: usize,
 }
 
 impl<'b> Keyframe<'b> {
     pub(super) const EMPTY: Keyframe<'static> = Keyframe {
         // An empty slice: nothing to read or write until `init` gives the buffer.
         // SAFETY: a dangling, aligned, non-null pointer with length 0 is a valid slice.
-        data: unsafe { core::slice::from_raw_parts_mut(core::ptr::NonNull::<u8>::dangling().as_ptr(), 0) },
+        images: [
+            unsafe { core::slice::from_raw_parts_mut(core::ptr::NonNull::<u8>::dangling().as_ptr(), 0) },
+            // SAFETY: as above.
+            unsafe { core::slice::from_raw_parts_mut(core::ptr::NonNull::<u8>::dangling().as_ptr(), 0) },
+        ],
         width: 0,
         height: 0,
-        rows: 0,
-        base: 0,
+        key_half: 0,
         taken_at: None,
         replacing: false,
-        new_base: 0,
     };
 
-    /// Bytes the buffer needs for this grid.
-    pub(super) fn bytes(grid: &KgGrid) -> usize {
-        (grid.height() + KEYFRAME_SPARE_ROWS) * grid.width()
+    /// Bytes each of the two images needs for this grid.
+    pub(super) fn image_bytes(grid: &KgGrid) -> usize {
+        grid.len()
     }
 
-    /// Takes a buffer of at least [`Self::bytes`]; no keyframe yet.
-    pub(super) fn new(data: &'b mut [u8], grid: &KgGrid) -> Keyframe<'b> {
-        Keyframe {
-            data,
-            width: grid.width(),
-            height: grid.height(),
-            rows: grid.height() + KEYFRAME_SPARE_ROWS,
-            ..Keyframe::EMPTY
-        }
+    /// Takes two buffers of at least [`Self::image_bytes`]; no keyframe yet.
+    pub(super) fn new(first: &'b mut [u8], second: &'b mut [u8], grid: &KgGrid) -> Keyframe<'b> {
+        Keyframe { images: [first, second], width: grid.width(), height: grid.height(), ..Keyframe::EMPTY }
     }
 
     pub(super) fn taken_at(&self) -> Option<u32> {
@@ -71,47 +60,42 @@ impl<'b> Keyframe<'b> {
     }
 
     /// This frame starts afresh: no keyframe to compare with, and the frame
-    /// becomes the keyframe, written over the old one from its own base.
+    /// becomes the keyframe.
     pub(super) fn restart(&mut self) {
         self.taken_at = None;
         self.replacing = true;
-        self.new_base = self.base;
     }
 
-    /// This frame is compared with the keyframe, and replaces it if
-    /// `replace`: then its row 0 goes [`KEYFRAME_SPARE_ROWS`] slots before
-    /// the old row 0, so the write runs that far behind the reads.
+    /// Whether the current frame replaces the keyframe at its end.
     pub(super) fn plan(&mut self, replace: bool) {
         self.replacing = replace;
-        self.new_base = (self.base + self.rows - KEYFRAME_SPARE_ROWS) % self.rows;
     }
 
-    pub(super) fn replacing(&self) -> bool {
-        self.replacing
-    }
-
-    /// Stores row `j` of the frame that replaces the keyframe.
+    /// Stores row `j` of the current frame.
     pub(super) fn write_row(&mut self, j: usize, row: &[u8]) {
-        // Written S+2+lead rows behind the reads by construction of new_base.
-        let mut slot = self.new_base + j;
-        if slot >= self.rows {
-            slot -= self.rows;
-        }
-        self.data[slot * self.width..][..self.width].copy_from_slice(row);
+        let width = self.width;
+        self.images[1 - self.key_half][j * width..][..width].copy_from_slice(row);
     }
 
-    /// The frame that was replacing the keyframe stopped after writing
-    /// `rows_written` rows: a partly overwritten keyframe is gone.
-    pub(super) fn abort(&mut self, rows_written: usize) {
-        if self.replacing && rows_written > 0 {
-            self.taken_at = None;
-        }
+    /// Row `j` of the current frame.
+    pub(super) fn current_row(&self, j: usize) -> &[u8] {
+        &self.current_image()[j * self.width..][..self.width]
+    }
+
+    /// The whole current frame (rows written so far), row-major.
+    pub(super) fn current_image(&self) -> &[u8] {
+        &self.images[1 - self.key_half][..self.height * self.width]
+    }
+
+    /// The whole keyframe, row-major.
+    pub(super) fn keyframe_image(&self) -> &[u8] {
+        &self.images[self.key_half][..self.height * self.width]
     }
 
     /// The complete frame `frame` ends; returns whether it became the keyframe.
     pub(super) fn finish(&mut self, frame: u32) -> bool {
         if self.replacing {
-            self.base = self.new_base;
+            self.key_half = 1 - self.key_half;
             self.taken_at = Some(frame);
         }
         self.replacing
@@ -119,12 +103,7 @@ impl<'b> Keyframe<'b> {
 
     #[inline(always)]
     fn row(&self, j: usize) -> &[u8] {
-        // base < rows and j < height < rows: one subtraction replaces `%`.
-        let mut slot = self.base + j;
-        if slot >= self.rows {
-            slot -= self.rows;
-        }
-        &self.data[slot * self.width..][..self.width]
+        &self.images[self.key_half][j * self.width..][..self.width]
     }
 
     /// Whether the 2x2 neighbourhood of (i, j) Q16.16 lies in the grid.

@@ -30,6 +30,7 @@
 mod band;
 mod config;
 mod decision;
+mod estimate;
 mod keyframe;
 mod layout;
 mod obstacles;
@@ -43,7 +44,6 @@ mod warp;
 /// The difference kernels the stages run (one name to change with them).
 use crate::kernels;
 
-pub use crate::limits::KEYFRAME_SPARE_ROWS;
 pub use config::GpaConfig;
 pub use decision::AlarmSource;
 pub use obstacles::Blob;
@@ -53,11 +53,12 @@ pub use shift_search::{SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
 use crate::geometry::Rig;
 use crate::grid::KgGrid;
 use crate::limits::MAX_BLOBS;
-use crate::motion::{Attitude, Motion};
+use crate::motion::{Attitude, GroundMotion, Motion};
 use crate::remap::RemapTable;
-use crate::report::{FrameReport, MOTION_SCALE, SHIFT_SCALE};
+use crate::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE, SHIFT_SCALE};
 use band::Band;
 use decision::{Alarm, Noise};
+use estimate::{Estimator, Prior, Scene};
 use keyframe::Keyframe;
 use layout::Layout;
 use parallax::{Hypotheses, Parallax};
@@ -71,7 +72,7 @@ use warp::{Coverage, Warp};
 pub enum GpaError {
     /// search_radius is 0 or above [`crate::limits::MAX_SEARCH_RADIUS`], or a value is not finite/positive.
     Config,
-    /// The keyframe buffer is smaller than [`Gpa::keyframe_bytes`].
+    /// An image buffer is smaller than [`Gpa::image_bytes`].
     BufferTooSmall { needed: usize },
     /// The grid does not match the remap table.
     GridMismatch,
@@ -81,7 +82,7 @@ impl core::fmt::Display for GpaError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             GpaError::Config => f.write_str("GPA config: search radius out of range, or a value not finite and positive"),
-            GpaError::BufferTooSmall { needed } => write!(f, "keyframe buffer too small: {needed} bytes needed"),
+            GpaError::BufferTooSmall { needed } => write!(f, "image buffer too small: {needed} bytes needed"),
             GpaError::GridMismatch => f.write_str("the grid does not match the remap table"),
         }
     }
@@ -138,7 +139,17 @@ pub struct Gpa<'b> {
     coverage: Coverage,
     keyframe: Keyframe<'b>,
     prediction: Prediction,
-    /// This frame's prediction as a warp.
+    estimator: Estimator,
+    /// The odometry and IMU given for this frame (None: no such sensor).
+    odometry: Option<Motion>,
+    imu: Option<Attitude>,
+    /// The IMU's attitude when the keyframe was taken.
+    keyframe_imu: Option<Attitude>,
+    /// This frame's motion from the keyframe, as measured (or predicted).
+    measured: GroundMotion,
+    /// Whether this frame's odometry disagreed with the ground.
+    odometry_fault: Option<bool>,
+    /// This frame's motion as a warp.
     warp: Warp,
     band: Band,
     residue: Residue,
@@ -158,9 +169,15 @@ pub struct Gpa<'b> {
 }
 
 impl<'b> Gpa<'b> {
-    /// Bytes the keyframe buffer needs for this grid.
+    /// Bytes of image memory [`Gpa::new`] needs for this grid: the
+    /// keyframe and the current frame.
     pub fn keyframe_bytes(grid: &KgGrid) -> usize {
-        Keyframe::bytes(grid)
+        2 * Keyframe::image_bytes(grid)
+    }
+
+    /// Bytes of each of the two buffers [`Gpa::init_split`] takes.
+    pub fn image_bytes(grid: &KgGrid) -> usize {
+        Keyframe::image_bytes(grid)
     }
 
     /// A detector with no rig and no keyframe buffer: a constant, so a
@@ -172,6 +189,15 @@ impl<'b> Gpa<'b> {
         coverage: Coverage::EMPTY,
         keyframe: Keyframe::EMPTY,
         prediction: Prediction::START,
+        estimator: Estimator::EMPTY,
+        odometry: None,
+        imu: None,
+        keyframe_imu: None,
+        measured: GroundMotion {
+            planar: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
+            attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
+        },
+        odometry_fault: None,
         warp: Warp::NONE,
         band: Band::EMPTY,
         residue: Residue::EMPTY,
@@ -201,28 +227,38 @@ impl<'b> Gpa<'b> {
         Ok(gpa)
     }
 
-    /// (Re)initialises the detector in place for a rig; every earlier state
-    /// (keyframe, noise, obstacle) is forgotten. On error it is left unchanged.
-    pub fn init(
+    /// (Re)initialises the detector in place for a rig, its two images in
+    /// `images` ([`Gpa::keyframe_bytes`]); every earlier state (keyframe,
+    /// noise, obstacle) is forgotten. On error it is left unchanged.
+    pub fn init(&mut self, rig: &Rig, grid: &KgGrid, table: &RemapTable, config: GpaConfig, images: &'b mut [u8]) -> Result<(), GpaError> {
+        let half = images.len() / 2;
+        let (first, second) = images.split_at_mut(half);
+        self.init_split(rig, grid, table, config, first, second)
+    }
+
+    /// As [`Gpa::init`], with the two images in buffers of their own
+    /// ([`Gpa::image_bytes`] each), e.g. in two RAM banks.
+    pub fn init_split(
         &mut self,
         rig: &Rig,
         grid: &KgGrid,
         table: &RemapTable,
         config: GpaConfig,
-        keyframe: &'b mut [u8],
+        first: &'b mut [u8],
+        second: &'b mut [u8],
     ) -> Result<(), GpaError> {
         config.check()?;
         if table.grid_width() != grid.width() || table.grid_height() != grid.height() {
             return Err(GpaError::GridMismatch);
         }
-        let needed = Self::keyframe_bytes(grid);
-        if keyframe.len() < needed {
+        let needed = Self::image_bytes(grid);
+        if first.len() < needed || second.len() < needed {
             return Err(GpaError::BufferTooSmall { needed });
         }
         self.config = config;
         self.layout = Layout::new(rig, grid, config.cell_mm);
         self.coverage.init(grid, table, config.search_radius);
-        self.keyframe = Keyframe::new(keyframe, grid);
+        self.keyframe = Keyframe::new(first, second, grid);
         self.prediction = Prediction::START;
         self.warp = Warp::NONE;
         self.band.clear();
@@ -269,36 +305,23 @@ impl<'b> Gpa<'b> {
     /// previous frame and `attitude` the IMU's (None: no such sensor).
     /// A frame that does not follow the last one restarts the keyframe.
     pub fn begin_frame(&mut self, frame: u32, odometry: Option<Motion>, attitude: Option<Attitude>) {
-        let _ = attitude;
         self.profiler.profile = GpaProfile::default();
         self.band.forget();
         self.frame = frame;
         self.frame_active = true;
         self.rows_seen = 0;
-        let consecutive = self.keyframe.taken_at().is_some() && self.prediction.follows(frame);
-        if consecutive {
-            self.prediction.predict(&odometry.unwrap_or_default());
-        } else {
+        self.odometry = odometry;
+        self.imu = attitude;
+        self.odometry_fault = None;
+        if !(self.keyframe.taken_at().is_some() && self.prediction.follows(frame)) {
             self.keyframe.forget();
         }
         if self.keyframe.taken_at().is_none() {
             self.start_keyframe();
             return;
         }
-        let (predicted, step) = (self.prediction.predicted, self.prediction.step);
-        let grid = &self.layout.grid;
-        self.parallax.hypotheses = Hypotheses::plan(&predicted, &step, grid, &self.config);
-        let replace = keyframe::is_due(&predicted, &step, &self.config);
-        if replace && !self.parallax.hypotheses.keep_clear_of_update(&predicted, grid, self.config.search_radius) {
-            // Moved too far to compare in place: start afresh from this frame.
-            self.start_keyframe();
-            return;
-        }
-        self.keyframe.plan(replace);
-        self.warp = Warp::predicted(grid, &predicted);
-        self.search.clear();
-        self.residue.clear();
-        self.parallax.clear();
+        self.prediction.predict(odometry.as_ref());
+        self.keyframe.plan(false);
     }
 
     /// This frame has nothing to compare with: it only becomes the keyframe.
@@ -307,40 +330,28 @@ impl<'b> Gpa<'b> {
         self.prediction.start_keyframe();
     }
 
-    /// Feeds KG row `j` of the current frame (rows arrive in order 0..height).
+    /// Feeds KG row `j` of the current frame (rows arrive in order 0..height):
+    /// it is stored; the comparison runs at the frame's end, once the
+    /// motion has been measured on the whole image.
     pub fn on_kg_row(&mut self, j: usize, row: &[u8]) {
         let grid = &self.layout.grid;
         if !self.frame_active || j >= grid.height() || row.len() != grid.width() {
             return;
         }
         self.rows_seen = j + 1;
-        if self.keyframe.taken_at().is_some() && j < self.layout.analysis_rows {
-            #[cfg(test)]
-            if self.reference {
-                self.compare_row_reference(j, row);
-            } else {
-                self.compare_row(j, row);
-            }
-            #[cfg(not(test))]
-            self.compare_row(j, row);
-        }
-        if self.keyframe.replacing() {
-            let start = self.profiler.now();
-            self.keyframe.write_row(j, row);
-            self.profiler.charge(start, |p| &mut p.keyframe_update);
-        }
+        let start = self.profiler.now();
+        self.keyframe.write_row(j, row);
+        self.profiler.charge(start, |p| &mut p.keyframe_update);
     }
 
-    /// Abandons the current frame (dropped or broken mid-frame). If it was
-    /// overwriting the keyframe, the keyframe is gone too.
+    /// Abandons the current frame (dropped or broken mid-frame). The
+    /// keyframe is untouched, but the next frame does not follow this one.
     pub fn abort_frame(&mut self) {
-        if self.frame_active {
-            self.keyframe.abort(self.rows_seen);
-        }
         self.frame_active = false;
     }
 
-    /// Finishes the frame. Returns None for a frame that only (re)started the keyframe.
+    /// Finishes the frame: measures the motion, compares every row, decides.
+    /// Returns None for a frame that only (re)started the keyframe.
     pub fn end_frame(&mut self) -> Option<FrameReport> {
         if !self.frame_active {
             return None;
@@ -351,10 +362,99 @@ impl<'b> Gpa<'b> {
             // next one does not follow and restarts the keyframe.
             return None;
         }
-        let report = self.keyframe.taken_at().map(|keyframe_frame| self.decide(keyframe_frame));
+        let report = match self.keyframe.taken_at() {
+            Some(keyframe_frame) => self.compare(keyframe_frame),
+            None => None,
+        };
         let new_keyframe = self.keyframe.finish(self.frame);
+        if new_keyframe {
+            self.keyframe_imu = self.imu;
+        }
         self.prediction.finish(self.frame, new_keyframe);
         report
+    }
+
+    /// The prior for this frame's motion: the prediction, as sure as the
+    /// odometry (or, without it, the largest step the robot may make), and
+    /// the IMU's attitude change when there is one.
+    fn prior(&self) -> Prior {
+        let predicted = self.prediction.predicted;
+        let config = &self.config;
+        let (translation, yaw) = match self.odometry {
+            Some(step) => (config.odometry_sigma_fraction * step.distance_mm() + config.odometry_sigma_mm, config.odometry_sigma_yaw_deg + 0.2 * libm::fabs(step.dyaw_deg)),
+            None => (config.max_step_mm / 3.0, config.max_step_yaw_deg / 3.0),
+        };
+        let (attitude, tilt_sigma) = match (self.imu, self.keyframe_imu) {
+            (Some(now), Some(then)) => (now.since(&then), config.imu_sigma_deg),
+            _ => (Attitude::default(), config.max_attitude_change_deg / 3.0),
+        };
+        Prior { motion: GroundMotion { planar: predicted, attitude }, sigma: [translation, translation, yaw, tilt_sigma, tilt_sigma] }
+    }
+
+    /// Measures the motion, compares the stored rows with the keyframe and
+    /// decides; None when the motion cannot be known (no odometry and a
+    /// ground without texture): the frame restarts the keyframe instead.
+    fn compare(&mut self, keyframe_frame: u32) -> Option<FrameReport> {
+        let prior = self.prior();
+        let scene = Scene {
+            keyframe: self.keyframe.keyframe_image(),
+            current: self.keyframe.current_image(),
+            grid: &self.layout.grid,
+            coverage: &self.coverage,
+            height_mm: self.layout.camera_height_mm,
+        };
+        let estimate = self.estimator.estimate(&scene, &prior);
+        self.measured = match (estimate, self.odometry) {
+            (Some(estimate), _) => estimate,
+            (None, Some(_)) => prior.motion,
+            (None, None) => {
+                self.keyframe.restart();
+                self.prediction.start_keyframe();
+                return None;
+            }
+        };
+        let to_last = self.prediction.to_last();
+        let step = Motion {
+            tx_mm: self.measured.planar.tx_mm - to_last.tx_mm,
+            tz_mm: self.measured.planar.tz_mm - to_last.tz_mm,
+            dyaw_deg: self.measured.planar.dyaw_deg - to_last.dyaw_deg,
+        };
+        self.odometry_fault = self.odometry.map(|odometry| self.disagrees(&odometry, &step, estimate.is_some()));
+        let measured = self.measured.planar;
+        self.prediction.predicted = measured;
+        self.prediction.step = step;
+        let grid = &self.layout.grid;
+        self.parallax.hypotheses = Hypotheses::plan(&measured, &step, grid, &self.config);
+        self.keyframe.plan(keyframe::is_due(&measured, &step, &self.config));
+        self.warp = Warp::new(grid, &self.measured, self.layout.camera_height_mm);
+        self.search.clear();
+        self.residue.clear();
+        self.parallax.clear();
+        // The rows are read from the store while the stages write their sums.
+        let store = core::mem::replace(&mut self.keyframe, Keyframe::EMPTY);
+        for j in 0..self.layout.analysis_rows {
+            let row = store.current_row(j);
+            #[cfg(test)]
+            if self.reference {
+                self.compare_row_reference(&store, j, row);
+                continue;
+            }
+            self.compare_row(&store, j, row);
+        }
+        self.keyframe = store;
+        Some(self.decide(keyframe_frame))
+    }
+
+    /// Whether the odometry's step disagrees with the step seen on the
+    /// ground beyond their noise (slip, a wrong wheel size).
+    fn disagrees(&self, odometry: &Motion, seen: &Motion, measured: bool) -> bool {
+        if !measured {
+            return false;
+        }
+        let config = &self.config;
+        let apart = libm::hypot(odometry.tx_mm - seen.tx_mm, odometry.tz_mm - seen.tz_mm);
+        let allowed = 3.0 * (config.odometry_sigma_fraction * odometry.distance_mm() + config.odometry_sigma_mm);
+        apart > allowed || libm::fabs(odometry.dyaw_deg - seen.dyaw_deg) > 3.0 * config.odometry_sigma_yaw_deg + 0.6 * libm::fabs(odometry.dyaw_deg)
     }
 
     /// The frame's sums decide: refined motion, noise, obstacle, alarm.
@@ -371,6 +471,7 @@ impl<'b> Gpa<'b> {
         let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &self.residue, config);
         let obstacle = self.alarm.decide(parallax.map(|(footprint, _)| footprint), residue, short_baseline, &self.prediction.step);
         let motion = self.prediction.to_last();
+        let angle = |degrees: f64| libm::round(degrees * f64::from(ANGLE_SCALE)) as i32;
         FrameReport {
             frame: self.frame,
             ref_frame: keyframe_frame,
@@ -386,11 +487,17 @@ impl<'b> Gpa<'b> {
             tz: libm::round(motion.tz_mm * f64::from(MOTION_SCALE)) as i32,
             // A parallax obstacle always raises the alarm.
             obstacle_h_mm: parallax.map(|(_, height)| height),
-            dyaw: 0,
-            dpitch: 0,
-            droll: 0,
-            odometry_fault: None,
+            dyaw: angle(motion.dyaw_deg),
+            dpitch: angle(self.measured.attitude.pitch_deg),
+            droll: angle(self.measured.attitude.roll_deg),
+            odometry_fault: self.odometry_fault,
         }
+    }
+
+    /// The step from the last frame to this one as measured on the ground
+    /// (GTI's motion when the odometry is absent or wrong).
+    pub fn measured_step(&self) -> Motion {
+        self.prediction.step
     }
 
     /// Blobs found in the last frame (for pictures and tests).

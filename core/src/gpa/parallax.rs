@@ -10,7 +10,7 @@ use super::keyframe::Keyframe;
 use super::layout::Cells;
 use super::warp::{clip, to_q16, RowWarp};
 use crate::grid::{KgGrid, MAX_GRID_SIDE};
-use crate::limits::{KEYFRAME_SPARE_ROWS, MAX_CELLS, MAX_CELLS_SIDE};
+use crate::limits::{MAX_CELLS, MAX_CELLS_SIDE};
 use crate::motion::Motion;
 use crate::subpixel;
 use core::ops::Range;
@@ -56,22 +56,6 @@ impl Hypotheses {
         let baseline = predicted.distance_mm();
         let ground_like = HEIGHT_FRACTIONS.iter().take_while(|f| baseline * **f / (1.0 - **f) <= tolerance_mm).count().max(1);
         Hypotheses { offset, usable: HYPOTHESES, full_tolerance, ground_like }
-    }
-
-    /// For a frame that replaces the keyframe in place: the update runs
-    /// [`KEYFRAME_SPARE_ROWS`] ahead of the write position, so reads must
-    /// stay within that lead. Hypotheses that would reach further (at
-    /// `predicted`, search radius `s`) are left out for this frame; false
-    /// when none is left.
-    pub(super) fn keep_clear_of_update(&mut self, predicted: &Motion, grid: &KgGrid, s: usize) -> bool {
-        let dj = -predicted.tz_mm / grid.mm_per_px;
-        let yaw_rows = libm::fabs(libm::sin(predicted.dyaw_deg.to_radians())) * grid.width() as f64;
-        let base_lead = libm::fabs(dj) + yaw_rows + (s + 3) as f64;
-        self.usable = HEIGHT_FRACTIONS
-            .iter()
-            .take_while(|f| base_lead + libm::fabs(dj) * **f / (1.0 - **f) < KEYFRAME_SPARE_ROWS as f64)
-            .count();
-        self.usable > 0
     }
 
     /// How far (K, G) the ground hypothesis's residue of row `j` reaches: a

@@ -32,19 +32,23 @@ impl Prediction {
         frame == self.last_frame.wrapping_add(1)
     }
 
-    /// Predicts this frame from the last one moved by `odometry`.
-    pub(super) fn predict(&mut self, odometry: &Motion) {
-        self.step = Motion {
-            tx_mm: odometry.tx_mm * self.odometry_scale,
-            tz_mm: odometry.tz_mm * self.odometry_scale,
-            dyaw_deg: odometry.dyaw_deg,
-        };
+    /// Predicts this frame from the last one moved by `odometry`, or
+    /// without it by the step last measured (constant velocity).
+    pub(super) fn predict(&mut self, odometry: Option<&Motion>) {
+        if let Some(odometry) = odometry {
+            self.step = Motion {
+                tx_mm: odometry.tx_mm * self.odometry_scale,
+                tz_mm: odometry.tz_mm * self.odometry_scale,
+                dyaw_deg: odometry.dyaw_deg,
+            };
+        }
         self.predicted = self.to_last.then(&self.step);
     }
 
     /// No motion known: this frame starts a keyframe.
     pub(super) fn start_keyframe(&mut self) {
         self.predicted = Motion::default();
+        self.step = Motion::default();
     }
 
     /// The motion keyframe -> now: the shift search's `refined` one if it

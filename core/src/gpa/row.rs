@@ -1,6 +1,7 @@
 //! The row step: one KG row of the current frame through every stage, and
 //! its per-pixel reference (the tests' oracle for the whole-line passes).
 
+use super::keyframe::Keyframe;
 use super::warp::Runs;
 use super::Gpa;
 
@@ -10,7 +11,7 @@ impl Gpa<'_> {
     /// as whole-line passes: keyframe rows looked up once per line, constant
     /// bilinear weights on translation rows, per-cell sums over column
     /// segments, and the shift search as block kernels.
-    pub(super) fn compare_row(&mut self, j: usize, row: &[u8]) {
+    pub(super) fn compare_row(&mut self, keyframe: &Keyframe, j: usize, row: &[u8]) {
         let s = self.config.search_radius;
         let warp = self.warp.row(j);
         let Some(seen) = self.coverage.seen(j) else {
@@ -22,7 +23,7 @@ impl Gpa<'_> {
         let mut lap = self.profiler.now();
         let mut runs = Runs::new();
         self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
-        self.band.sample(&self.keyframe, j, warp, seen.clone(), s, grid.width());
+        self.band.sample(keyframe, j, warp, seen.clone(), s, grid.width());
         let band = self.band.rows(s);
         lap = self.profiler.charge(lap, |p| &mut p.warp);
 
@@ -35,7 +36,7 @@ impl Gpa<'_> {
         lap = self.profiler.charge(lap, |p| &mut p.residue);
 
         if in_cells {
-            self.parallax.add_row(&self.keyframe, warp, seen, &runs, row, cells);
+            self.parallax.add_row(keyframe, warp, seen, &runs, row, cells);
         }
         lap = self.profiler.charge(lap, |p| &mut p.parallax);
 
@@ -60,7 +61,7 @@ impl Gpa<'_> {
     #[cfg(test)]
     // Indexed loops on purpose: the reference is written pixel by pixel.
     #[allow(clippy::needless_range_loop)]
-    pub(super) fn compare_row_reference(&mut self, j: usize, row: &[u8]) {
+    pub(super) fn compare_row_reference(&mut self, keyframe: &Keyframe, j: usize, row: &[u8]) {
         use super::parallax::HYPOTHESES;
         use super::warp::FRAC;
         use crate::grid::MAX_GRID_SIDE;
@@ -84,7 +85,6 @@ impl Gpa<'_> {
             usable[c] = self.coverage.usable(warp, c, &grid);
         }
         // The search band: band[dg][c + MAX_SEARCH_RADIUS] = keyframe at warp(c) + (0, dg - S).
-        let keyframe = &self.keyframe;
         let band = self.band.unrolled();
         let first = cur_lo.saturating_sub(s);
         let last = (cur_hi + s).min(width);

@@ -4,7 +4,7 @@
 //! can be compared at all.
 
 use crate::grid::{KgGrid, MAX_GRID_SIDE};
-use crate::motion::Motion;
+use crate::motion::{GroundMap, GroundMotion};
 use crate::remap::RemapTable;
 use core::ops::Range;
 
@@ -49,28 +49,47 @@ impl RowWarp {
     }
 }
 
-/// The predicted motion as an affine map from current KG pixels to
-/// keyframe KG pixels (ground point, then back through the motion).
+/// The measured motion as a map from current KG pixels to keyframe KG
+/// pixels. Planar motion alone is affine; an attitude change bends it
+/// (each row stays a line, its spacing and slope change with distance),
+/// so then each row's line runs through its exact ends.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Warp {
+    /// The map through the attitude; None when level.
+    bent: Option<GroundMap>,
+    grid: KgGrid,
+    /// The planar part as an affine map (exact without attitude).
     origin: (f64, f64),
     column: (f64, f64),
     row: (f64, f64),
 }
 
-impl Warp {
-    pub(super) const NONE: Warp = Warp { origin: (0.0, 0.0), column: (0.0, 0.0), row: (0.0, 0.0) };
+/// Below this attitude change (degrees) a row's line is the affine one:
+/// the bend moves no column by 1/64 px on any grid we build.
+const LEVEL_DEG: f64 = 1e-4;
 
-    pub(super) fn predicted(grid: &KgGrid, predicted: &Motion) -> Warp {
+impl Warp {
+    pub(super) const NONE: Warp = Warp {
+        bent: None,
+        grid: KgGrid { mm_per_px: 1.0, x_left_mm: 0.0, z_far_mm: 0.0, width: 0, height: 0 },
+        origin: (0.0, 0.0),
+        column: (0.0, 0.0),
+        row: (0.0, 0.0),
+    };
+
+    pub(super) fn new(grid: &KgGrid, motion: &GroundMotion, height_mm: f64) -> Warp {
         let warp = |i: f64, j: f64| {
             let (x, z) = grid.pixel_to_ground(i, j);
-            let (xk, zk) = predicted.to_earlier_frame(x, z);
+            let (xk, zk) = motion.planar.to_earlier_frame(x, z);
             grid.ground_to_pixel(xk, zk)
         };
         let origin = warp(0.0, 0.0);
         let along = warp(1.0, 0.0);
         let down = warp(0.0, 1.0);
+        let level = libm::fabs(motion.attitude.pitch_deg) < LEVEL_DEG && libm::fabs(motion.attitude.roll_deg) < LEVEL_DEG;
         Warp {
+            bent: (!level).then(|| GroundMap::new(motion, height_mm)),
+            grid: *grid,
             origin,
             column: (along.0 - origin.0, along.1 - origin.1),
             row: (down.0 - origin.0, down.1 - origin.1),
@@ -80,6 +99,21 @@ impl Warp {
     /// The warp of current row `j`.
     pub(super) fn row(&self, j: usize) -> RowWarp {
         let jf = j as f64;
+        if let Some(bent) = &self.bent {
+            let last = (self.grid.width().max(2) - 1) as f64;
+            let at = |i: f64| {
+                let (x, z) = self.grid.pixel_to_ground(i, jf);
+                bent.to_keyframe(x, z).map(|(xk, zk)| self.grid.ground_to_pixel(xk, zk))
+            };
+            if let (Some(first), Some(end)) = (at(0.0), at(last)) {
+                return RowWarp {
+                    i_start: to_q16(first.0),
+                    i_step: to_q16((end.0 - first.0) / last),
+                    j_start: to_q16(first.1),
+                    j_step: to_q16((end.1 - first.1) / last),
+                };
+            }
+        }
         RowWarp {
             i_start: to_q16(self.origin.0 + self.row.0 * jf),
             i_step: to_q16(self.column.0),
@@ -133,6 +167,14 @@ impl Coverage {
             let (lo, hi) = (lo + reach, hi.saturating_sub(reach + 1));
             *slot = if hi > lo { (lo as u16, hi as u16) } else { (0, 0) };
         }
+    }
+
+    /// Every column of every row seen (the tests' synthetic images).
+    #[cfg(test)]
+    pub(super) fn full(grid: &KgGrid) -> Coverage {
+        let mut rows = [(0, 0); MAX_GRID_SIDE];
+        rows[..grid.height()].fill((0, grid.width() as u16));
+        Coverage { current: rows, reference: rows }
     }
 
     /// Columns of current row `j` that the camera sees, or None.

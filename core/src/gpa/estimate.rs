@@ -1,0 +1,666 @@
+//! Motion estimation: the camera's whole motion over the ground from the
+//! keyframe to now (Tx, Tz, yaw, and the body's pitch and roll change),
+//! measured between the two KG images. Odometry and IMU are priors.
+//!
+//! Coarse to fine, as PX4FLOW does on a downward camera:
+//! 1. `coarse`: both images box-averaged to cells of ~[`COARSE_CELL_MM`];
+//!    every yaw and translation within the prior's reach is scored (SAD
+//!    after a global gain match). Needed when there is no odometry or the
+//!    wheels slipped; with good odometry the reach is small.
+//! 2. `blocks`: blocks of the current image are matched in the keyframe
+//!    around where the model puts them (zero-mean normalised correlation,
+//!    so exposure steps and shading do not bias it), to sub-pixel.
+//! 3. `fit`: the five parameters from the block positions by robust least
+//!    squares (Tukey weights: obstacles, whose blocks move by parallax, are
+//!    outliers) with the priors as extra observations. Blocks are matched
+//!    again around the fitted model, and the fit repeated.
+//!
+//! The remap table stays fixed: an attitude change moves the ground in the
+//! KG plane non-uniformly (see [`GroundMotion::to_keyframe`]), which the
+//! model carries into the warp of the comparison.
+
+use super::warp::Coverage;
+use crate::grid::KgGrid;
+use crate::limits::{MAX_BLOCK_MATCHES, MAX_COARSE_CELLS};
+use crate::motion::{Attitude, GroundMap, GroundMotion, Motion, Rotation};
+
+/// Ground side of a coarse cell, mm: coarse enough that the widest search
+/// stays small, fine enough for floor texture to survive.
+pub const COARSE_CELL_MM: f64 = 25.0;
+/// Block side, KG pixels, and its search reach around the model.
+const BLOCK_PX: usize = 16;
+const BLOCK_REACH: i32 = 3;
+/// A block's patch: the block and the reach on each side.
+const PATCH: usize = BLOCK_PX + 2 * BLOCK_REACH as usize;
+/// Fewest inlier blocks that measure all five parameters.
+const MIN_INLIERS: usize = 8;
+
+/// Parameters: tx mm, tz mm, yaw deg, pitch deg, roll deg.
+type Params = [f64; 5];
+
+fn params(motion: &GroundMotion) -> Params {
+    [motion.planar.tx_mm, motion.planar.tz_mm, motion.planar.dyaw_deg, motion.attitude.pitch_deg, motion.attitude.roll_deg]
+}
+
+fn motion(p: &Params) -> GroundMotion {
+    GroundMotion {
+        planar: Motion { tx_mm: p[0], tz_mm: p[1], dyaw_deg: p[2] },
+        attitude: Attitude { pitch_deg: p[3], roll_deg: p[4] },
+    }
+}
+
+/// What the estimate starts from: a motion and how far off it may be
+/// (one sigma per parameter, same units).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Prior {
+    pub(super) motion: GroundMotion,
+    pub(super) sigma: Params,
+}
+
+/// One block's match: where the current block's centre lies in the keyframe.
+#[derive(Clone, Copy, Debug, Default)]
+struct BlockMatch {
+    current: (f64, f64),
+    keyframe: (f64, f64),
+}
+
+/// The two images and their geometry, for one frame's estimate.
+pub(super) struct Scene<'a> {
+    pub(super) keyframe: &'a [u8],
+    pub(super) current: &'a [u8],
+    pub(super) grid: &'a KgGrid,
+    pub(super) coverage: &'a Coverage,
+    pub(super) height_mm: f64,
+}
+
+impl Scene<'_> {
+    /// The map of the motion `p`.
+    fn ground_map(&self, p: &Params) -> GroundMap {
+        GroundMap::new(&motion(p), self.height_mm)
+    }
+
+    /// Keyframe pixel of current pixel (i, j) under `map`.
+    fn map(&self, map: &GroundMap, i: f64, j: f64) -> Option<(f64, f64)> {
+        let (x, z) = self.grid.pixel_to_ground(i, j);
+        let (xk, zk) = map.to_keyframe(x, z)?;
+        Some(self.grid.ground_to_pixel(xk, zk))
+    }
+
+    /// Whether pixel (i, j) of either image is in the camera's view.
+    fn seen(&self, i: usize, j: usize) -> bool {
+        j < self.grid.height() && self.coverage.seen(j).is_some_and(|columns| columns.contains(&i))
+    }
+
+    /// Bilinear keyframe sample at (i, j), None off the camera's view.
+    fn keyframe_at(&self, i: f64, j: f64) -> Option<f32> {
+        // (Also refuses NaN.)
+        if !(i >= 0.0 && j >= 0.0 && i < self.grid.width() as f64 && j < self.grid.height() as f64) {
+            return None;
+        }
+        let (i0, j0) = (i as usize, j as usize);
+        if !(self.seen(i0, j0) && self.seen(i0 + 1, j0) && self.seen(i0, j0 + 1) && self.seen(i0 + 1, j0 + 1)) {
+            return None;
+        }
+        let w = self.grid.width();
+        let (fx, fy) = ((i - i0 as f64) as f32, (j - j0 as f64) as f32);
+        let at = |ii: usize, jj: usize| f32::from(self.keyframe[jj * w + ii]);
+        let top = at(i0, j0) * (1.0 - fx) + at(i0 + 1, j0) * fx;
+        let bottom = at(i0, j0 + 1) * (1.0 - fx) + at(i0 + 1, j0 + 1) * fx;
+        Some(top * (1.0 - fy) + bottom * fy)
+    }
+}
+
+/// The yaw step that moves the grid's farthest corner by half a cell.
+fn yaw_step(grid: &KgGrid, cell_mm: f64) -> f64 {
+    let far_mm = libm::hypot(grid.x_left_mm, grid.z_far_mm).max(1.0);
+    (0.5 * cell_mm / far_mm).to_degrees()
+}
+
+/// A box-averaged image: `side` px cells, valid where the camera saw all of it.
+struct Coarse {
+    cells: [u8; MAX_COARSE_CELLS],
+    valid: [bool; MAX_COARSE_CELLS],
+    wide: usize,
+    high: usize,
+    side: usize,
+}
+
+impl Coarse {
+    const EMPTY: Coarse = Coarse { cells: [0; MAX_COARSE_CELLS], valid: [false; MAX_COARSE_CELLS], wide: 0, high: 0, side: 1 };
+
+    /// Averages `image` over cells of `side` px (more if the grid would need too many).
+    fn build(&mut self, image: &[u8], scene: &Scene, side: usize) {
+        let grid = scene.grid;
+        let (w, h) = (grid.width(), grid.height());
+        let mut side = side;
+        while w.div_ceil(side) * h.div_ceil(side) > MAX_COARSE_CELLS {
+            side += 1;
+        }
+        self.side = side;
+        self.wide = w / side;
+        self.high = h / side;
+        for cj in 0..self.high {
+            for ci in 0..self.wide {
+                let (mut sum, mut valid) = (0u32, true);
+                for j in cj * side..(cj + 1) * side {
+                    let row = &image[j * w..][..w];
+                    valid &= scene.seen(ci * side, j) && scene.seen((ci + 1) * side - 1, j);
+                    sum += row[ci * side..(ci + 1) * side].iter().map(|&v| u32::from(v)).sum::<u32>();
+                }
+                let k = cj * self.wide + ci;
+                self.cells[k] = (sum / (side * side) as u32) as u8;
+                self.valid[k] = valid;
+            }
+        }
+    }
+
+    fn mean(&self) -> f64 {
+        let (mut sum, mut count) = (0u64, 0u64);
+        for k in 0..self.wide * self.high {
+            if self.valid[k] {
+                sum += u64::from(self.cells[k]);
+                count += 1;
+            }
+        }
+        if count == 0 {
+            0.0
+        } else {
+            sum as f64 / count as f64
+        }
+    }
+
+    /// Bilinear sample at cell coordinates (u, v) (cell centres at integers).
+    fn at(&self, u: f32, v: f32) -> Option<f32> {
+        if !(u >= 0.0 && v >= 0.0) {
+            return None;
+        }
+        let (u0, v0) = (u as usize, v as usize);
+        if u0 + 1 >= self.wide || v0 + 1 >= self.high {
+            return None;
+        }
+        let k = v0 * self.wide + u0;
+        let corners = [k, k + 1, k + self.wide, k + self.wide + 1];
+        if !corners.iter().all(|&c| self.valid[c]) {
+            return None;
+        }
+        let (fu, fv) = (u - u0 as f32, v - v0 as f32);
+        let c = |i: usize| f32::from(self.cells[corners[i]]);
+        Some((c(0) * (1.0 - fu) + c(1) * fu) * (1.0 - fv) + (c(2) * (1.0 - fu) + c(3) * fu) * fv)
+    }
+}
+
+/// The estimator's memory: the coarse images and the block matches.
+pub(super) struct Estimator {
+    coarse_keyframe: Coarse,
+    coarse_current: Coarse,
+    matches: heapless::Vec<BlockMatch, MAX_BLOCK_MATCHES>,
+}
+
+impl Estimator {
+    pub(super) const EMPTY: Estimator =
+        Estimator { coarse_keyframe: Coarse::EMPTY, coarse_current: Coarse::EMPTY, matches: heapless::Vec::new() };
+
+    /// The motion keyframe -> now, or None when the ground does not show
+    /// enough texture in both images to measure it. `prior.sigma` sets the
+    /// coarse search's reach (3 sigma); a reach of more than a few cells is
+    /// searched on cells twice as large first.
+    pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior) -> Option<GroundMotion> {
+        let fine_mm = COARSE_CELL_MM.max(2.0 * scene.grid.mm_per_px);
+        let reach = |sigma: f64, unit: f64| 3.0 * sigma / unit;
+        let mut p = params(&prior.motion);
+        let mut sigma = prior.sigma;
+        if reach(sigma[0].max(sigma[1]), fine_mm) > 3.0 {
+            p = self.coarse_search(scene, &p, &sigma, 2.0 * fine_mm);
+            // What is left: about a large cell, and its yaw step.
+            sigma[0] = 2.0 * fine_mm / 3.0;
+            sigma[1] = sigma[0];
+            sigma[2] = sigma[2].min(yaw_step(scene.grid, 2.0 * fine_mm));
+        }
+        p = self.coarse_search(scene, &p, &sigma, fine_mm);
+        // The coarse search moves level images: its translation is the one
+        // that best explains the attitude change too, so the blocks start
+        // from it level (the fit then splits the two, with the prior).
+        p[3] = 0.0;
+        p[4] = 0.0;
+        let mut estimate = None;
+        for _ in 0..2 {
+            self.match_blocks(scene, &p);
+            let fitted = fit(scene, &self.matches, &p, prior)?;
+            p = params(&fitted);
+            estimate = Some(fitted);
+        }
+        estimate
+    }
+
+    /// Step 1: the planar motion (tx, tz, yaw) on images of `cell_mm`
+    /// cells, searched over 3 `sigma` around `start`.
+    fn coarse_search(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f64) -> Params {
+        let mut p = *start;
+        let side = ((cell_mm / scene.grid.mm_per_px) as usize).max(2);
+        self.coarse_keyframe.build(scene.keyframe, scene, side);
+        self.coarse_current.build(scene.current, scene, side);
+        let (key, cur) = (&self.coarse_keyframe, &self.coarse_current);
+        let (key_mean, cur_mean) = (key.mean(), cur.mean());
+        if key_mean < 1.0 || cur_mean < 1.0 {
+            return p;
+        }
+        let gain = (cur_mean / key_mean) as f32;
+        let grid = scene.grid;
+        let cell_mm = grid.mm_per_px * cur.side as f64;
+        let reach_cells = |sigma_mm: f64| (libm::ceil(3.0 * sigma_mm / cell_mm) as i32).clamp(1, 8);
+        let (reach_x, reach_z) = (reach_cells(sigma[0]), reach_cells(sigma[1]));
+        let yaw_step = yaw_step(grid, cell_mm);
+        let yaw_reach = (libm::ceil(3.0 * sigma[2] / yaw_step) as i32).clamp(0, 16);
+        let counted = (0..cur.wide * cur.high).filter(|&k| cur.valid[k]).count();
+        // A planar motion moves coarse cells affinely: keyframe cell =
+        // rotation * cell + offset, in cell units (G runs against z).
+        // Cell (0, 0)'s centre on the ground, in cells.
+        let centre = 0.5 * (cur.side as f64 - 1.0) / cur.side as f64;
+        let (origin_u, origin_v) = (grid.x_left_mm / cell_mm + centre, grid.z_far_mm / cell_mm - centre);
+        let score_at = |yaw_deg: f64, tx_mm: f64, tz_mm: f64| -> f64 {
+            let heading = Rotation::from_degrees(yaw_deg).to_f32();
+            let [au, av] = heading.to_world([1.0, 0.0]);
+            let [bu, bv] = heading.to_world([0.0, -1.0]);
+            let [ou, ov] = heading.place([(tx_mm / cell_mm) as f32, (tz_mm / cell_mm) as f32], [origin_u as f32, origin_v as f32]);
+            let (ou, ov) = (ou - origin_u as f32, origin_v as f32 - ov);
+            let (mut sum, mut count) = (0f32, 0usize);
+            for cj in 0..cur.high {
+                for ci in 0..cur.wide {
+                    let k = cj * cur.wide + ci;
+                    if !cur.valid[k] {
+                        continue;
+                    }
+                    let (u, v) = (ci as f32, cj as f32);
+                    let Some(value) = key.at(au * u + bu * v + ou, -(av * u + bv * v) + ov) else {
+                        continue;
+                    };
+                    sum += libm::fabsf(f32::from(cur.cells[k]) - gain * value);
+                    count += 1;
+                }
+            }
+            // Too little overlap is no measurement.
+            if count * 3 < counted || count < 12 {
+                f64::MAX
+            } else {
+                f64::from(sum) / count as f64
+            }
+        };
+        let at = |dyaw: i32, dx: i32, dz: i32| {
+            score_at(p[2] + f64::from(dyaw) * yaw_step, p[0] + f64::from(dx) * cell_mm, p[1] + f64::from(dz) * cell_mm)
+        };
+        let mut best = (f64::MAX, 0i32, 0i32, 0i32);
+        for dyaw in -yaw_reach..=yaw_reach {
+            for dz in -reach_z..=reach_z {
+                for dx in -reach_x..=reach_x {
+                    let score = at(dyaw, dx, dz);
+                    if score < best.0 {
+                        best = (score, dyaw, dx, dz);
+                    }
+                }
+            }
+        }
+        let (centre, by, bx, bz) = best;
+        if centre == f64::MAX {
+            return p;
+        }
+        // Sub-cell: a parabola along each axis through the best.
+        let offset = |minus: f64, plus: f64| {
+            if minus == f64::MAX || plus == f64::MAX {
+                0.0
+            } else {
+                crate::subpixel::minimum_offset(minus, centre, plus).clamp(-0.5, 0.5)
+            }
+        };
+        let yaw = f64::from(by) + offset(at(by - 1, bx, bz), at(by + 1, bx, bz));
+        let x = f64::from(bx) + offset(at(by, bx - 1, bz), at(by, bx + 1, bz));
+        let z = f64::from(bz) + offset(at(by, bx, bz - 1), at(by, bx, bz + 1));
+        p[2] += yaw * yaw_step;
+        p[0] += x * cell_mm;
+        p[1] += z * cell_mm;
+        p
+    }
+
+    /// Step 2: every textured block of the current image, matched in the
+    /// keyframe around where `p` puts it.
+    fn match_blocks(&mut self, scene: &Scene, p: &Params) {
+        self.matches.clear();
+        let map = scene.ground_map(p);
+        let (w, h) = (scene.grid.width(), scene.grid.height());
+        let half = (BLOCK_PX / 2) as f64;
+        let mut bj = 0;
+        while bj + BLOCK_PX <= h {
+            let mut bi = 0;
+            while bi + BLOCK_PX <= w {
+                if let Some(found) = match_block(scene, &map, bi, bj) {
+                    let centre = (bi as f64 + half - 0.5, bj as f64 + half - 0.5);
+                    if self.matches.push(BlockMatch { current: centre, keyframe: found }).is_err() {
+                        return;
+                    }
+                }
+                bi += BLOCK_PX;
+            }
+            bj += BLOCK_PX;
+        }
+    }
+}
+
+/// The keyframe position of the centre of the block at (`bi`, `bj`), or
+/// None when it is off the view, flat, or ambiguous.
+fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Option<(f64, f64)> {
+    let w = scene.grid.width();
+    if !(bj..bj + BLOCK_PX).all(|j| scene.seen(bi, j) && scene.seen(bi + BLOCK_PX - 1, j)) {
+        return None;
+    }
+    // The current block, zero-mean; flat blocks measure nothing.
+    let mut block = [[0f32; BLOCK_PX]; BLOCK_PX];
+    let mut mean = 0f32;
+    for (v, row) in block.iter_mut().enumerate() {
+        for (u, value) in row.iter_mut().enumerate() {
+            *value = f32::from(scene.current[(bj + v) * w + bi + u]);
+            mean += *value;
+        }
+    }
+    mean /= (BLOCK_PX * BLOCK_PX) as f32;
+    let mut energy = 0f32;
+    for value in block.iter_mut().flatten() {
+        *value -= mean;
+        energy += *value * *value;
+    }
+    // Below ~3 gray levels RMS it is sensor noise, not texture.
+    if energy < 9.0 * (BLOCK_PX * BLOCK_PX) as f32 {
+        return None;
+    }
+    // The keyframe patch around the model's footprint: the model as an
+    // affine map about the block's centre.
+    let half = (BLOCK_PX / 2) as f64;
+    let (ci, cj) = (bi as f64 + half - 0.5, bj as f64 + half - 0.5);
+    let origin = scene.map(map, ci, cj)?;
+    let along = scene.map(map, ci + 1.0, cj)?;
+    let down = scene.map(map, ci, cj + 1.0)?;
+    let (du, dv) = ((along.0 - origin.0, along.1 - origin.1), (down.0 - origin.0, down.1 - origin.1));
+    let mut patch = [[0f32; PATCH]; PATCH];
+    let first = -(half - 0.5) - f64::from(BLOCK_REACH);
+    for (v, row) in patch.iter_mut().enumerate() {
+        for (u, value) in row.iter_mut().enumerate() {
+            let (a, b) = (first + u as f64, first + v as f64);
+            *value = scene.keyframe_at(origin.0 + a * du.0 + b * dv.0, origin.1 + a * du.1 + b * dv.1)?;
+        }
+    }
+    // Zero-mean normalised correlation at every shift.
+    let reach = BLOCK_REACH as usize;
+    let window = 2 * reach + 1;
+    let mut scores = [[0f32; 2 * BLOCK_REACH as usize + 1]; 2 * BLOCK_REACH as usize + 1];
+    let n = (BLOCK_PX * BLOCK_PX) as f32;
+    for (sv, score_row) in scores.iter_mut().enumerate().take(window) {
+        for (su, score) in score_row.iter_mut().enumerate().take(window) {
+            let (mut sum, mut squares, mut cross) = (0f32, 0f32, 0f32);
+            for (v, row) in block.iter().enumerate() {
+                let keyframe = &patch[v + sv][su..su + BLOCK_PX];
+                for (&c, &k) in row.iter().zip(keyframe) {
+                    sum += k;
+                    squares += k * k;
+                    cross += c * k;
+                }
+            }
+            let variance = squares - sum * sum / n;
+            *score = if variance > 1.0 { cross / libm::sqrtf(energy * variance) } else { -1.0 };
+        }
+    }
+    let (mut best_u, mut best_v) = (reach, reach);
+    for (sv, row) in scores.iter().enumerate().take(window) {
+        for (su, &score) in row.iter().enumerate().take(window) {
+            if score > scores[best_v][best_u] {
+                best_u = su;
+                best_v = sv;
+            }
+        }
+    }
+    let best = scores[best_v][best_u];
+    // On the reach's edge, weakly correlated, or as good a step away: no measurement.
+    if best_u == 0 || best_v == 0 || best_u == window - 1 || best_v == window - 1 || best < 0.6 {
+        return None;
+    }
+    for (sv, row) in scores.iter().enumerate().take(window) {
+        for (su, &score) in row.iter().enumerate().take(window) {
+            let apart = sv.abs_diff(best_v).max(su.abs_diff(best_u)) >= 2;
+            if apart && score > best - 0.02 {
+                return None;
+            }
+        }
+    }
+    let peak = |minus: f32, centre: f32, plus: f32| crate::subpixel::maximum_offset(minus, centre, plus);
+    let su = best_u as f64 - reach as f64 + f64::from(peak(scores[best_v][best_u - 1], best, scores[best_v][best_u + 1]));
+    let sv = best_v as f64 - reach as f64 + f64::from(peak(scores[best_v - 1][best_u], best, scores[best_v + 1][best_u]));
+    Some((origin.0 + su * du.0 + sv * dv.0, origin.1 + su * du.1 + sv * dv.1))
+}
+
+/// Step 3: the parameters that put the blocks where they were found,
+/// robustly (Tukey), with the prior as five more observations.
+fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> Option<GroundMotion> {
+    if matches.len() < MIN_INLIERS {
+        return None;
+    }
+    let prior_p = params(&prior.motion);
+    // Finite-difference steps per parameter.
+    const STEP: Params = [0.5, 0.5, 0.02, 0.01, 0.01];
+    let mut p = *start;
+    let mut scale = 1.0f64;
+    let mut residuals = [0f64; MAX_BLOCK_MATCHES];
+    for iteration in 0..8 {
+        // Residual sizes and their robust scale (MAD), floored: sub-pixel matches are not better than ~0.1 px.
+        let map = scene.ground_map(&p);
+        let mut moved_maps = [map; 5];
+        for (k, moved_map) in moved_maps.iter_mut().enumerate() {
+            let mut moved = p;
+            moved[k] += STEP[k];
+            *moved_map = scene.ground_map(&moved);
+        }
+        let mut count = 0;
+        for (m, r) in matches.iter().zip(residuals.iter_mut()) {
+            *r = match scene.map(&map, m.current.0, m.current.1) {
+                Some(at) => libm::hypot(at.0 - m.keyframe.0, at.1 - m.keyframe.1),
+                None => f64::MAX,
+            };
+            count += 1;
+        }
+        let mut sorted = residuals;
+        let sorted = &mut sorted[..count];
+        sorted.sort_unstable_by(|a, b| a.total_cmp(b));
+        let median = sorted[count / 2];
+        scale = (1.4826 * median).max(0.15);
+        // Huber first (wide basin), Tukey after (rejects obstacles).
+        let weight = |r: f64| -> f64 {
+            if iteration < 3 {
+                let k = 2.0 * scale;
+                if r <= k { 1.0 } else { k / r }
+            } else {
+                let c = 4.685 * scale;
+                if r >= c { 0.0 } else { { let u = 1.0 - (r / c) * (r / c); u * u } }
+            }
+        };
+        let mut normal = [[0f64; 5]; 5];
+        let mut gradient = [0f64; 5];
+        for (m, &r) in matches.iter().zip(residuals.iter()) {
+            let w = weight(r) / (scale * scale);
+            if w == 0.0 {
+                continue;
+            }
+            let Some(at) = scene.map(&map, m.current.0, m.current.1) else { continue };
+            let error = [at.0 - m.keyframe.0, at.1 - m.keyframe.1];
+            let mut jacobian = [[0f64; 5]; 2];
+            for k in 0..5 {
+                let Some(there) = scene.map(&moved_maps[k], m.current.0, m.current.1) else { continue };
+                jacobian[0][k] = (there.0 - at.0) / STEP[k];
+                jacobian[1][k] = (there.1 - at.1) / STEP[k];
+            }
+            for axis in 0..2 {
+                for a in 0..5 {
+                    gradient[a] += w * jacobian[axis][a] * error[axis];
+                    for b in 0..5 {
+                        normal[a][b] += w * jacobian[axis][a] * jacobian[axis][b];
+                    }
+                }
+            }
+        }
+        for k in 0..5 {
+            let precision = 1.0 / (prior.sigma[k] * prior.sigma[k]);
+            normal[k][k] += precision;
+            gradient[k] += precision * (p[k] - prior_p[k]);
+        }
+        let delta = solve(normal, gradient)?;
+        for k in 0..5 {
+            p[k] -= delta[k];
+        }
+        if delta.iter().zip(STEP).all(|(d, s)| libm::fabs(*d) < 0.05 * s) {
+            break;
+        }
+    }
+    // Inliers: within 3 scales of the final model.
+    let map = scene.ground_map(&p);
+    let inliers = matches
+        .iter()
+        .filter_map(|m| scene.map(&map, m.current.0, m.current.1).map(|at| libm::hypot(at.0 - m.keyframe.0, at.1 - m.keyframe.1)))
+        .filter(|&r| r < 3.0 * scale)
+        .count();
+    // A model most blocks disagree with is a wrong one (or the view is mostly obstacle).
+    if inliers < MIN_INLIERS || 3 * inliers < matches.len() {
+        return None;
+    }
+    Some(motion(&p))
+}
+
+/// Solves the 5x5 symmetric positive definite system (Cholesky); None if singular.
+fn solve(a: [[f64; 5]; 5], b: [f64; 5]) -> Option<[f64; 5]> {
+    let mut l = [[0f64; 5]; 5];
+    for i in 0..5 {
+        for j in 0..=i {
+            let mut sum = a[i][j];
+            for k in 0..j {
+                sum -= l[i][k] * l[j][k];
+            }
+            if i == j {
+                if sum <= 0.0 {
+                    return None;
+                }
+                l[i][i] = libm::sqrt(sum);
+            } else {
+                l[i][j] = sum / l[j][j];
+            }
+        }
+    }
+    let mut y = [0f64; 5];
+    for i in 0..5 {
+        let mut sum = b[i];
+        for k in 0..i {
+            sum -= l[i][k] * y[k];
+        }
+        y[i] = sum / l[i][i];
+    }
+    let mut x = [0f64; 5];
+    for i in (0..5).rev() {
+        let mut sum = y[i];
+        for k in i + 1..5 {
+            sum -= l[k][i] * x[k];
+        }
+        x[i] = sum / l[i][i];
+    }
+    Some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::vec::Vec;
+
+    /// Value noise: a hashed lattice of `cell_mm`, bilinear between.
+    fn noise(x: f64, z: f64, cell_mm: f64, seed: u32) -> f64 {
+        let lattice = |i: i64, k: i64| {
+            let mut h = (i as u32).wrapping_mul(0x9E37_79B1) ^ (k as u32).wrapping_mul(0x85EB_CA77) ^ seed;
+            h ^= h >> 15;
+            h = h.wrapping_mul(0x2C1B_3C6D);
+            h ^= h >> 12;
+            f64::from(h & 0xFFFF) / 65535.0 - 0.5
+        };
+        let (u, v) = (x / cell_mm, z / cell_mm);
+        let (i, k) = (libm::floor(u), libm::floor(v));
+        let (fu, fv) = (u - i, v - k);
+        let (i, k) = (i as i64, k as i64);
+        let top = lattice(i, k) * (1.0 - fu) + lattice(i + 1, k) * fu;
+        let bottom = lattice(i, k + 1) * (1.0 - fu) + lattice(i + 1, k + 1) * fu;
+        top * (1.0 - fv) + bottom * fv
+    }
+
+    /// A textured floor, no two places alike (as gravel): noise of three sizes.
+    fn floor(x: f64, z: f64) -> f64 {
+        128.0 + 90.0 * noise(x, z, 60.0, 1) + 70.0 * noise(x, z, 21.0, 2) + 50.0 * noise(x, z, 9.0, 3)
+    }
+
+    fn grid() -> KgGrid {
+        KgGrid { mm_per_px: 5.0, x_left_mm: -350.0, z_far_mm: 1600.0, width: 141, height: 255 }
+    }
+
+    /// The KG image of the floor seen from a robot that moved by `motion`
+    /// from the keyframe's pose; `raised` marks ground the box covers (it
+    /// shows a texture of its own that does not move like the floor).
+    fn render(motion: &GroundMotion, raised: impl Fn(f64, f64) -> bool) -> Vec<u8> {
+        let grid = grid();
+        let map = GroundMap::new(motion, 400.0);
+        let mut image = Vec::new();
+        for j in 0..grid.height() {
+            for i in 0..grid.width() {
+                let (x, z) = grid.pixel_to_ground(i as f64, j as f64);
+                let (xk, zk) = map.to_keyframe(x, z).unwrap();
+                let value = if raised(x, z) { floor(3.0 * x + 500.0, 2.0 * z) } else { floor(xk, zk) };
+                image.push(value.clamp(0.0, 255.0) as u8);
+            }
+        }
+        image
+    }
+
+    fn estimate_of(motion: &GroundMotion, prior: &Prior, raised: impl Fn(f64, f64) -> bool) -> GroundMotion {
+        let grid = grid();
+        let keyframe = render(&GroundMotion::default(), |_, _| false);
+        let current = render(motion, raised);
+        let coverage = Coverage::full(&grid);
+        let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0 };
+        let mut estimator = std::boxed::Box::new(Estimator::EMPTY);
+        estimator.estimate(&scene, prior).expect("a textured floor is measured")
+    }
+
+    fn assert_close(found: &GroundMotion, truth: &GroundMotion) {
+        let (f, t) = (params(found), params(truth));
+        let tolerance = [1.0, 1.0, 0.05, 0.05, 0.05];
+        for k in 0..5 {
+            assert!(libm::fabs(f[k] - t[k]) < tolerance[k], "parameter {k}: {} vs {} ({found:?})", f[k], t[k]);
+        }
+    }
+
+    const TRUTH: GroundMotion = GroundMotion {
+        planar: Motion { tx_mm: 12.0, tz_mm: 90.0, dyaw_deg: 2.0 },
+        attitude: Attitude { pitch_deg: 0.6, roll_deg: -0.4 },
+    };
+
+    #[test]
+    fn measures_pitch_roll_and_planar_motion_from_a_rough_prior() {
+        // Odometry 20 % short and a degree off, no IMU.
+        let prior = Prior {
+            motion: GroundMotion { planar: Motion { tx_mm: 0.0, tz_mm: 72.0, dyaw_deg: 1.0 }, attitude: Attitude::default() },
+            sigma: [12.0, 12.0, 1.0, 1.0, 1.0],
+        };
+        assert_close(&estimate_of(&TRUTH, &prior, |_, _| false), &TRUTH);
+    }
+
+    #[test]
+    fn without_odometry_the_wide_search_finds_the_step() {
+        let prior = Prior { motion: GroundMotion::default(), sigma: [83.0, 83.0, 8.0, 1.0, 1.0] };
+        assert_close(&estimate_of(&TRUTH, &prior, |_, _| false), &TRUTH);
+    }
+
+    #[test]
+    fn an_obstacle_in_view_does_not_bend_the_estimate() {
+        let prior = Prior { motion: TRUTH, sigma: [12.0, 12.0, 1.0, 1.0, 1.0] };
+        // A box a fifth as wide as the view, from 900 to 1200 mm.
+        let found = estimate_of(&TRUTH, &prior, |x, z| (-60.0..80.0).contains(&x) && (900.0..1200.0).contains(&z));
+        assert_close(&found, &TRUTH);
+    }
+}
