@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 use flatland_core::protocol::{encode_line, Decoder, LinkStats, Message, Odometry, RigRecord};
 
-use crate::recording::{PoseRow, Recording};
+use crate::recording::Recording;
 
 pub const TARGET: &str = "thumbv7em-none-eabihf";
 pub const DEFAULT_RECORDING: &str = "host-tests/data/flat_marks";
@@ -125,9 +125,8 @@ pub fn build_full_frame_firmware() -> Result<PathBuf> {
 
 // ------------------------------------------------------------------ what is sent
 
-/// Which of a robot's sensors `$FLODO` carries. `cargo fw REC --odometry
-/// none` / `--imu none` leave the wheels' pose / the IMU's attitude out, as
-/// `flatland detect` then ignores those poses.csv columns.
+/// Which of a recording's sensors a run uses: `cargo fw REC --odometry
+/// none` / `--imu none`, with the meaning they have on `flatland detect`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Sensors {
     pub odometry: bool,
@@ -137,23 +136,24 @@ pub struct Sensors {
 impl Sensors {
     /// Every sensor the recording has.
     pub const ALL: Sensors = Sensors { odometry: true, imu: true };
+
+    /// Forgets the poses.csv columns of the sensors left out, as `flatland
+    /// detect` does: their `$FLODO` fields are then absent.
+    pub fn apply(self, recording: &mut Recording) {
+        if !self.odometry {
+            recording.ignore_odometry();
+        }
+        if !self.imu {
+            recording.ignore_imu();
+        }
+    }
 }
 
-/// The `$FLODO` a robot controller with `sensors` sends for a poses.csv row.
-pub fn odometry_message(row: &PoseRow, sensors: Sensors) -> Message {
-    let odometry = Odometry::from(row);
-    Message::Odometry(Odometry {
-        pose: odometry.pose.filter(|_| sensors.odometry),
-        attitude: odometry.attitude.filter(|_| sensors.imu),
-        ..odometry
-    })
-}
-
-/// The messages a robot controller with `sensors` sends for a recording:
-/// the rig, one `$FLODO` per poses.csv row, `$FLEND`.
-pub fn host_messages(recording: &Recording, sensors: Sensors) -> Vec<Message> {
+/// The messages a robot controller sends for a recording: the rig, one
+/// `$FLODO` per poses.csv row (with the fields of the sensors it has), `$FLEND`.
+pub fn host_messages(recording: &Recording) -> Vec<Message> {
     let mut messages = vec![Message::Rig(RigRecord::from(&recording.rig))];
-    messages.extend(recording.poses.iter().map(|row| odometry_message(row, sensors)));
+    messages.extend(recording.poses.iter().map(|row| Message::Odometry(Odometry::from(row))));
     messages.push(Message::End);
     messages
 }
@@ -168,9 +168,9 @@ pub fn encode_script(messages: &[Message]) -> Result<Vec<u8>> {
     Ok(bytes)
 }
 
-/// The script of a robot with `sensors` for a recording.
-pub fn host_script(recording: &Recording, sensors: Sensors) -> Result<Vec<u8>> {
-    encode_script(&host_messages(recording, sensors))
+/// The normal script for a recording.
+pub fn host_script(recording: &Recording) -> Result<Vec<u8>> {
+    encode_script(&host_messages(recording))
 }
 
 // ------------------------------------------------------------------ QEMU
@@ -426,16 +426,25 @@ pub fn memory_use(elf: &Path) -> Result<(u64, u64)> {
 mod tests {
     use super::*;
 
-    /// `--odometry none` leaves x_mm,z_mm,yaw_deg out of `$FLODO`; `--imu
-    /// none` on a recording without IMU columns changes nothing.
+    /// `--odometry none` leaves x_mm,z_mm,yaw_deg out of `$FLODO`, `--imu
+    /// none` pitch_deg,roll_deg.
     #[test]
     fn sensors_choose_the_odometry_fields() {
-        let recording = Recording::open(workspace_root().join(DEFAULT_RECORDING)).unwrap();
-        let row = &recording.poses[1];
-        let line = |odometry, imu| encode_line(&odometry_message(row, Sensors { odometry, imu })).unwrap();
-        assert_eq!(line(true, true).as_str(), "$FLODO,1,0.1,0,100,0*4D\r\n");
-        assert_eq!(line(true, false), line(true, true));
-        assert_eq!(line(false, true).as_str(), "$FLODO,1,0.1*50\r\n");
-        assert_eq!(line(false, false), line(false, true));
+        let line = |odometry, imu| {
+            let mut recording = Recording::open(workspace_root().join("host-tests/data/bumpy_marks")).unwrap();
+            Sensors { odometry, imu }.apply(&mut recording);
+            encode_line(&host_messages(&recording)[2]).unwrap()
+        };
+        let poses = std::fs::read_to_string(workspace_root().join("host-tests/data/bumpy_marks/poses.csv")).unwrap();
+        assert!(poses.starts_with("frame,t_s,x_mm,z_mm,yaw_deg,pitch_deg,roll_deg\n"), "{poses}");
+        let row: Vec<&str> = poses.lines().nth(2).unwrap().split(',').collect();
+        let expected = |fields: &[usize]| {
+            let body = format!("FLODO,{}", fields.iter().map(|&i| row[i].parse::<f64>().unwrap().to_string()).collect::<Vec<_>>().join(","));
+            format!("${body}*{:02X}\r\n", flatland_core::protocol::checksum(body.as_bytes()))
+        };
+        assert_eq!(line(true, true).as_str(), expected(&[0, 1, 2, 3, 4, 5, 6]));
+        assert_eq!(line(true, false).as_str(), expected(&[0, 1, 2, 3, 4]));
+        assert_eq!(line(false, true).as_str(), expected(&[0, 1, 5, 6]));
+        assert_eq!(line(false, false).as_str(), expected(&[0, 1]));
     }
 }

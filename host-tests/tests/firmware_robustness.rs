@@ -123,10 +123,10 @@ fn odometry_out_of_sequence_on_the_wire_resets_the_keyframe() {
     // The poses arrive with one frame's message lost on the link, and one
     // duplicated: no report may compare across the loss, with or without
     // the wheels' fields (a robot without odometry has gaps too).
-    let recording = Recording::open(data("flat_marks")).unwrap();
+    let dir = data("flat_marks");
     for odometry in [true, false] {
         let mut script = Vec::new();
-        for message in qemu::host_messages(&recording, Sensors { odometry, imu: true }) {
+        for message in messages_with(&dir, Sensors { odometry, imu: true }) {
             if let Message::Odometry(Odometry { frame: 4, .. }) = message {
                 continue;
             }
@@ -135,7 +135,7 @@ fn odometry_out_of_sequence_on_the_wire_resets_the_keyframe() {
                 script.extend_from_slice(encode_line(&message).unwrap().as_bytes());
             }
         }
-        let outcome = run(&recording.dir, script);
+        let outcome = run(&dir, script);
         let (csv, summary) = decoded(&outcome);
         // 5 follows 3 and the repeated 6 follows 6: both restart; 7 follows 6 again.
         assert_eq!(row_frames(&csv), [1, 2, 3, 6, 7], "odometry {odometry}: {csv}");

@@ -144,6 +144,7 @@ fn describe(message: &Message) -> Option<String> {
 /// Returns the decoded log.
 fn run_recording(args: &Args, elf: &Path) -> Result<String> {
     let mut recording = Recording::open(&args.recording).map_err(|e| e.to_string())?;
+    args.sensors.apply(&mut recording);
     let mut mm_per_px = args.mm_per_px;
     if args.full_frame {
         let full = FullFrame::for_rig(&recording.rig, mm_per_px)?;
@@ -154,7 +155,7 @@ fn run_recording(args: &Args, elf: &Path) -> Result<String> {
     let request = RunRequest {
         elf,
         dir: &args.recording,
-        script: qemu::host_script(&recording, args.sensors)?,
+        script: qemu::host_script(&recording)?,
         bench: args.mode == Mode::Bench,
         bench_mm_per_px: mm_per_px,
         bench_no_margins: args.full_frame,
