@@ -57,11 +57,13 @@ struct Args {
     sensors: Sensors,
 }
 
-/// `--odometry none` / `--imu none`: `none` is the one value.
-fn parse_none(option: &str, value: Option<String>) -> Result<bool> {
+/// `--odometry poses|none`, `--imu poses|none`, as on `flatland detect`:
+/// whether the run uses that sensor's poses.csv columns.
+fn parse_source(option: &str, value: Option<String>) -> Result<bool> {
     match value.as_deref() {
+        Some("poses") => Ok(true),
         Some("none") => Ok(false),
-        _ => Err(format!("{option} takes `none` (leave those fields out)")),
+        _ => Err(format!("{option} takes `poses` (the default) or `none` (leave those fields out)")),
     }
 }
 
@@ -80,8 +82,8 @@ fn parse_args() -> Result<Args> {
             "--selftest" => mode = Mode::SelfTest,
             "--bench" => mode = Mode::Bench,
             "--full-frame" => full_frame = true,
-            "--odometry" => sensors.odometry = parse_none("--odometry", args.next())?,
-            "--imu" => sensors.imu = parse_none("--imu", args.next())?,
+            "--odometry" => sensors.odometry = parse_source("--odometry", args.next())?,
+            "--imu" => sensors.imu = parse_source("--imu", args.next())?,
             "--elf" => elf = Some(PathBuf::from(args.next().ok_or("--elf needs a path")?)),
             "--timeout" => {
                 let secs = args.next().and_then(|s| s.parse().ok()).ok_or("--timeout needs seconds")?;
