@@ -61,6 +61,20 @@ pub struct Aoi {
     pub far_mm: f64,
 }
 
+/// An edge of the AOI rectangle: what a refused AOI names.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AoiEdge {
+    /// z = near_mm.
+    Near,
+    /// z = far_mm.
+    Far,
+    /// x = -half_width_mm.
+    Left,
+    /// x = +half_width_mm.
+    Right,
+}
+
 /// Why a rig was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -83,10 +97,12 @@ pub enum RigError {
     AoiEmpty,
     /// Part of the AOI is behind the camera (near edge not ahead of the robot).
     AoiBehindCamera,
-    /// Part of the AOI lies at or beyond the horizon.
+    /// The AOI's far edge lies at or beyond the horizon.
     AoiBeyondHorizon,
-    /// Part of the AOI projects outside the image.
-    AoiOutsideImage,
+    /// Part of the AOI projects outside the image, across the image border
+    /// that this edge faces (near: the bottom, far: the top, left and right:
+    /// the sides).
+    AoiOutsideImage(AoiEdge),
 }
 
 impl core::fmt::Display for RigError {
@@ -101,8 +117,11 @@ impl core::fmt::Display for RigError {
             RigError::Distortion => "lens distortion cannot be inverted over the image",
             RigError::AoiEmpty => "AOI must have positive half width and far > near",
             RigError::AoiBehindCamera => "AOI near edge must be ahead of the robot (near > 0)",
-            RigError::AoiBeyondHorizon => "AOI reaches the horizon",
-            RigError::AoiOutsideImage => "AOI is not entirely inside the image",
+            RigError::AoiBeyondHorizon => "AOI far edge (far_mm) reaches the horizon",
+            RigError::AoiOutsideImage(AoiEdge::Near) => "AOI near edge (near_mm) lies below the bottom of the image",
+            RigError::AoiOutsideImage(AoiEdge::Far) => "AOI far edge (far_mm) lies above the top of the image",
+            RigError::AoiOutsideImage(AoiEdge::Left) => "AOI left edge (half_width_mm) lies beyond the left of the image",
+            RigError::AoiOutsideImage(AoiEdge::Right) => "AOI right edge (half_width_mm) lies beyond the right of the image",
         })
     }
 }
@@ -285,8 +304,10 @@ impl Rig {
         self.mount.height_mm
     }
 
-    /// The AOI's four corners (and edge midpoints, which matter with distortion)
-    /// must project inside the image, ahead of the camera and below the horizon.
+    /// The AOI's four edges, sampled (edge midpoints matter with distortion),
+    /// must project inside the image, ahead of the camera and below the
+    /// horizon. A point outside the image names the AOI edge that faces the
+    /// image border it crosses most.
     fn check_aoi_in_view(&self) -> Result<(), RigError> {
         let a = &self.aoi;
         // Every finite ground point ahead lies below the horizon, so "beyond
@@ -309,13 +330,25 @@ impl Rig {
                 if z_cam <= 0.0 || y_cam / z_cam >= self.sin_tilt / self.cos_tilt - horizon_margin {
                     return Err(RigError::AoiBeyondHorizon);
                 }
-                let pixel = self.point_to_pixel(Point3 { x: px, y: 0.0, z: pz }).ok_or(RigError::AoiOutsideImage)?;
-                if !self.pixel_in_image(pixel) {
-                    return Err(RigError::AoiOutsideImage);
-                }
+                let edge = match self.ground_to_pixel(px, pz) {
+                    Some(pixel) if self.pixel_in_image(pixel) => continue,
+                    Some(pixel) => self.edge_facing(pixel),
+                    // Beyond the lens's reach: the pinhole pixel tells the side.
+                    None => self.ground_to_undistorted_pixel(px, pz).map_or(AoiEdge::Far, |p| self.edge_facing(p)),
+                };
+                return Err(RigError::AoiOutsideImage(edge));
             }
         }
         Ok(())
+    }
+
+    /// The AOI edge that faces the image border a pixel lies farthest beyond
+    /// (or, inside the image, nearest to): the bottom of the image sees the
+    /// near edge, the top the far edge, the sides the left and right edges.
+    fn edge_facing(&self, p: Pixel) -> AoiEdge {
+        let (last_u, last_v) = (f64::from(self.camera.width) - 1.0, f64::from(self.camera.height) - 1.0);
+        let beyond = [(p.v - last_v, AoiEdge::Near), (-p.v, AoiEdge::Far), (-p.u, AoiEdge::Left), (p.u - last_u, AoiEdge::Right)];
+        beyond.into_iter().max_by(|a, b| a.0.total_cmp(&b.0)).map_or(AoiEdge::Far, |(_, edge)| edge)
     }
 
     /// True if the pixel lies inside the image (pixel centres span 0..=w-1).

@@ -60,12 +60,26 @@ impl Default for GridConfig {
     }
 }
 
+/// One of the grid's margins around the AOI ([`GridConfig`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum GridMargin {
+    /// Beyond the left and right AOI edges.
+    Lateral,
+    /// Beyond the far AOI edge.
+    Far,
+    /// Before the near AOI edge.
+    Near,
+}
+
 /// Why no grid could be chosen for a rig.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum GridError {
-    /// A margin is negative or not finite, or `mm_per_px` is not positive.
-    Config,
+    /// This margin is negative or not finite.
+    Margin(GridMargin),
+    /// `mm_per_px` is not positive and finite, or `max_pixels` is 0.
+    Resolution,
     /// The requested resolution gives a grid side above [`MAX_GRID_SIDE`].
     TooLarge,
     /// The near AOI row is not in view, so no resolution can be derived.
@@ -75,9 +89,12 @@ pub enum GridError {
 impl core::fmt::Display for GridError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(match self {
-            GridError::Config => "grid margins must be finite and >= 0, mm_per_px > 0",
+            GridError::Margin(GridMargin::Lateral) => "the grid's lateral margin must be finite and >= 0",
+            GridError::Margin(GridMargin::Far) => "the grid's far margin must be finite and >= 0",
+            GridError::Margin(GridMargin::Near) => "the grid's near margin must be finite and >= 0",
+            GridError::Resolution => "grid mm_per_px must be finite and > 0, max_pixels > 0",
             GridError::TooLarge => "grid would exceed 256x256 at this resolution",
-            GridError::NotInView => "the near AOI edge is not in view",
+            GridError::NotInView => "the AOI's near edge (near_mm) is not in view",
         })
     }
 }
@@ -105,9 +122,16 @@ impl KgGrid {
     pub fn for_rig(rig: &Rig, config: &GridConfig) -> Result<KgGrid, GridError> {
         let aoi = rig.aoi();
         let margin_far = config.margin_far_mm.unwrap_or(TRAVEL_MARGIN_MM + LOOK_BEYOND_FRACTION * aoi.far_mm);
-        let margins = [config.margin_lateral_mm, margin_far, config.margin_near_mm];
-        if !margins.iter().all(|m| m.is_finite() && *m >= 0.0) || config.max_pixels == 0 {
-            return Err(GridError::Config);
+        let margins = [
+            (config.margin_lateral_mm, GridMargin::Lateral),
+            (margin_far, GridMargin::Far),
+            (config.margin_near_mm, GridMargin::Near),
+        ];
+        if let Some(&(_, margin)) = margins.iter().find(|(mm, _)| !(mm.is_finite() && *mm >= 0.0)) {
+            return Err(GridError::Margin(margin));
+        }
+        if config.max_pixels == 0 {
+            return Err(GridError::Resolution);
         }
         let extent_x = 2.0 * (aoi.half_width_mm + config.margin_lateral_mm);
         let z_near = aoi.near_mm - config.margin_near_mm;
@@ -116,7 +140,7 @@ impl KgGrid {
         let mm_per_px = match config.mm_per_px {
             Some(fixed) => {
                 if !(fixed.is_finite() && fixed > 0.0) {
-                    return Err(GridError::Config);
+                    return Err(GridError::Resolution);
                 }
                 // Give up far margin before refusing the resolution.
                 z_far = z_far.min(z_near + cap * fixed);
@@ -244,6 +268,19 @@ mod tests {
         let grid = KgGrid::for_rig(&rig, &config).unwrap();
         assert!(grid.height() <= MAX_GRID_SIDE && grid.z_far_mm >= 1400.0);
         let config = GridConfig { mm_per_px: Some(f64::NAN), ..GridConfig::default() };
-        assert_eq!(KgGrid::for_rig(&rig, &config), Err(GridError::Config));
+        assert_eq!(KgGrid::for_rig(&rig, &config), Err(GridError::Resolution));
+    }
+
+    #[test]
+    fn a_bad_margin_is_named() {
+        let rig = rig();
+        let cases = [
+            (GridConfig { margin_lateral_mm: -1.0, ..GridConfig::default() }, GridMargin::Lateral),
+            (GridConfig { margin_far_mm: Some(f64::INFINITY), ..GridConfig::default() }, GridMargin::Far),
+            (GridConfig { margin_near_mm: f64::NAN, ..GridConfig::default() }, GridMargin::Near),
+        ];
+        for (config, margin) in cases {
+            assert_eq!(KgGrid::for_rig(&rig, &config), Err(GridError::Margin(margin)));
+        }
     }
 }

@@ -182,7 +182,7 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
                 });
             }
         }
-        let follows = matches!((self.previous, pose), (Some(previous), Some(_)) if previous.frame.checked_add(1) == Some(frame));
+        let follows = pose.is_some() && self.follows(frame);
         let motion = match (self.previous, pose) {
             (Some(previous), Some(sample)) if follows => match (previous.sample.pose, sample.pose) {
                 (Some(from), Some(to)) => Some(Motion::between(&from, &to)),
@@ -198,6 +198,13 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         self.timing = FrameTiming::default();
         self.current = Some(Current { frame, pose, motion, kg_rows: 0, begun_at });
         Ok(motion)
+    }
+
+    /// Whether `frame` is the one after the last frame finished: begun
+    /// with a pose sample, it continues on the keyframe instead of
+    /// restarting it.
+    pub fn follows(&self, frame: u32) -> bool {
+        self.previous.is_some_and(|previous| previous.frame.checked_add(1) == Some(frame))
     }
 
     /// Pushes the frame's next camera row through the remap into the stages.

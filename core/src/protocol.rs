@@ -21,7 +21,7 @@ use core::fmt::{self, Write};
 
 use crate::geometry::{Aoi, Distortion, Intrinsics, Mount, Rig, RigError};
 use crate::limits::MAX_LINE;
-use crate::motion::Pose;
+use crate::motion::{Attitude, Pose};
 use crate::pipeline::PoseSample;
 use crate::report::FrameReport;
 
@@ -90,21 +90,24 @@ impl TryFrom<&RigRecord> for Rig {
     }
 }
 
-/// The robot's world-frame pose when frame `frame` was captured (a poses.csv row).
+/// What the robot's sensors said when frame `frame` was captured (a
+/// poses.csv row): the time, and the wheels' pose and the IMU's attitude
+/// when the robot has them.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Odometry {
     pub frame: u32,
     pub t_s: f64,
-    pub x_mm: f64,
-    pub z_mm: f64,
-    pub yaw_deg: f64,
+    /// The wheel odometry's world-frame pose; None: no motion fields.
+    pub pose: Option<Pose>,
+    /// The IMU's body attitude; None: no IMU fields.
+    pub attitude: Option<Attitude>,
 }
 
-/// The pipeline's view of an odometry message: when, and where.
+/// The pipeline's view of an odometry message: when, and what the sensors said.
 impl From<Odometry> for PoseSample {
     fn from(odometry: Odometry) -> Self {
-        let Odometry { frame: _, t_s, x_mm, z_mm, yaw_deg } = odometry;
-        PoseSample { t_s, pose: Some(Pose { x_mm, z_mm, yaw_deg }), attitude: None }
+        let Odometry { frame: _, t_s, pose, attitude } = odometry;
+        PoseSample { t_s, pose, attitude }
     }
 }
 
@@ -382,8 +385,16 @@ fn write_body<W: Write>(out: &mut W, message: &Message) -> Result<(), EncodeErro
         Message::Hello(rig) | Message::Rig(rig) => write_rig(out, rig)?,
         Message::Odometry(odometry) => {
             write!(out, ",{}", odometry.frame)?;
-            for value in [odometry.t_s, odometry.x_mm, odometry.z_mm, odometry.yaw_deg] {
-                write_f64(out, value)?;
+            write_f64(out, odometry.t_s)?;
+            if let Some(pose) = odometry.pose {
+                for value in [pose.x_mm, pose.z_mm, pose.yaw_deg] {
+                    write_f64(out, value)?;
+                }
+            }
+            if let Some(attitude) = odometry.attitude {
+                for value in [attitude.pitch_deg, attitude.roll_deg] {
+                    write_f64(out, value)?;
+                }
             }
         }
         Message::Frame(r) => {
@@ -489,6 +500,11 @@ impl<'a> Fields<'a> {
         }
     }
 
+    /// How many fields are left.
+    fn remaining(&self) -> usize {
+        self.rest.clone().count()
+    }
+
     fn finish(mut self) -> Result<(), DecodeError> {
         match self.rest.next() {
             None => Ok(()),
@@ -547,6 +563,31 @@ fn decode_rig(fields: &mut Fields) -> Result<RigRecord, DecodeError> {
     })
 }
 
+/// `frame,t_s`, then the motion (3 fields) and the attitude (2) when the
+/// robot has them: 2, 4, 5 or 7 fields.
+fn decode_odometry(fields: &mut Fields) -> Result<Odometry, DecodeError> {
+    let (has_pose, has_attitude) = match fields.remaining() {
+        2 => (false, false),
+        4 => (false, true),
+        5 => (true, false),
+        7 => (true, true),
+        _ => return Err(DecodeError::FieldCount),
+    };
+    let frame = fields.integer()?;
+    let t_s = fields.float()?;
+    let pose = if has_pose {
+        Some(Pose { x_mm: fields.float()?, z_mm: fields.float()?, yaw_deg: fields.float()? })
+    } else {
+        None
+    };
+    let attitude = if has_attitude {
+        Some(Attitude { pitch_deg: fields.float()?, roll_deg: fields.float()? })
+    } else {
+        None
+    };
+    Ok(Odometry { frame, t_s, pose, attitude })
+}
+
 fn decode_body(body: &str) -> Result<Message, DecodeError> {
     let mut split = body.split(',');
     let tag = split.next().unwrap_or("");
@@ -558,13 +599,7 @@ fn decode_body(body: &str) -> Result<Message, DecodeError> {
         }
         "FLHEL" => Message::Hello(decode_rig(&mut fields)?),
         "FLRIG" => Message::Rig(decode_rig(&mut fields)?),
-        "FLODO" => Message::Odometry(Odometry {
-            frame: fields.integer()?,
-            t_s: fields.float()?,
-            x_mm: fields.float()?,
-            z_mm: fields.float()?,
-            yaw_deg: fields.float()?,
-        }),
+        "FLODO" => Message::Odometry(decode_odometry(&mut fields)?),
         "FLFRM" => Message::Frame(FrameReport {
             frame: fields.integer()?,
             ref_frame: fields.integer()?,
@@ -776,6 +811,11 @@ pub mod checks {
 
     use crate::report::sample_report;
 
+    /// Frame 3's odometry message with these sensors' fields.
+    fn sample_odometry(pose: Option<Pose>, attitude: Option<Attitude>) -> Odometry {
+        Odometry { frame: 3, t_s: 0.3, pose, attitude }
+    }
+
     /// Every decoded message of `bytes`, in order; errors are dropped (and counted).
     fn decode_all(decoder: &mut Decoder, bytes: &[u8]) -> heapless::Vec<Message, 16> {
         let mut messages = heapless::Vec::new();
@@ -812,7 +852,13 @@ pub mod checks {
             Message::Ready,
             Message::Hello(sample_rig(None)),
             Message::Rig(sample_rig(Some([-0.28, 0.07, 1e-4, -2.5e-4, 0.0]))),
-            Message::Odometry(Odometry { frame: 3, t_s: 0.3, x_mm: -0.1, z_mm: 19.43, yaw_deg: -0.0477 }),
+            Message::Odometry(sample_odometry(Some(Pose { x_mm: -0.1, z_mm: 19.43, yaw_deg: -0.0477 }), None)),
+            Message::Odometry(sample_odometry(None, Some(Attitude { pitch_deg: 0.83, roll_deg: -0.0 }))),
+            Message::Odometry(sample_odometry(
+                Some(Pose { x_mm: 2.5, z_mm: -7.0, yaw_deg: 359.9 }),
+                Some(Attitude { pitch_deg: -1.25, roll_deg: 0.004 }),
+            )),
+            Message::Odometry(sample_odometry(None, None)),
             Message::Frame(sample_report()),
             Message::Frame(FrameReport::default()),
             Message::Stats(stats),
@@ -854,9 +900,12 @@ pub mod checks {
     pub fn floats_round_trip_bit_for_bit() -> Check {
         let awkward = [0.1, 1.0 / 3.0, 301.70001220703125, 1e-300, -1.7976931348623157e308, 5e-324, 123456789.125];
         for value in awkward {
-            let message = Message::Odometry(Odometry { frame: 0, t_s: value, x_mm: -value, z_mm: value, yaw_deg: 0.0 });
+            let pose = Pose { x_mm: -value, z_mm: value, yaw_deg: 0.0 };
+            let attitude = Attitude { pitch_deg: value, roll_deg: -value };
+            let message = Message::Odometry(Odometry { frame: 0, t_s: value, pose: Some(pose), attitude: Some(attitude) });
             let line = encode_line(&message).map_err(|_| "encode failed")?;
-            ensure(line.len() < 120, "float encoding is unbounded")?;
+            // Six floats of at most 26 characters each, and the frame.
+            ensure(line.len() < 180, "float encoding is unbounded")?;
             round_trip(message)?;
         }
         Ok(())
@@ -881,16 +930,34 @@ pub mod checks {
         round_trip(Message::Rig(rig))
     }
 
-    pub fn known_line_matches_documentation() -> Check {
-        // The example in firmware/PROTOCOL.md.
-        let line = encode_line(&Message::Odometry(Odometry { frame: 1, t_s: 0.1, x_mm: 0.0, z_mm: 100.0, yaw_deg: 0.0 }))
-            .map_err(|_| "encode failed")?;
-        ensure(line.as_str() == "$FLODO,1,0.1,0,100,0*4D\r\n", "odometry line differs from PROTOCOL.md")
+    pub fn known_lines_match_documentation() -> Check {
+        // The odometry examples in firmware/PROTOCOL.md: wheels and IMU, wheels, IMU, neither.
+        let pose = Some(Pose { x_mm: 0.0, z_mm: 100.0, yaw_deg: 0.0 });
+        let attitude = Some(Attitude { pitch_deg: 0.25, roll_deg: -0.5 });
+        let documented = [
+            (pose, attitude, "$FLODO,1,0.1,0,100,0,0.25,-0.5*52\r\n"),
+            (pose, None, "$FLODO,1,0.1,0,100,0*4D\r\n"),
+            (None, attitude, "$FLODO,1,0.1,0.25,-0.5*4F\r\n"),
+            (None, None, "$FLODO,1,0.1*50\r\n"),
+        ];
+        for (pose, attitude, expected) in documented {
+            let line = encode_line(&Message::Odometry(Odometry { frame: 1, t_s: 0.1, pose, attitude }))
+                .map_err(|_| "encode failed")?;
+            ensure(line.as_str() == expected, "odometry line differs from PROTOCOL.md")?;
+        }
+        Ok(())
     }
 
     pub fn non_finite_is_refused_by_encoder() -> Check {
-        let message = Message::Odometry(Odometry { frame: 0, t_s: f64::NAN, x_mm: 0.0, z_mm: 0.0, yaw_deg: 0.0 });
-        ensure(encode_line(&message) == Err(EncodeError::NonFinite), "NaN was encoded")
+        let refused = [
+            Odometry { frame: 0, t_s: f64::NAN, pose: None, attitude: None },
+            Odometry { frame: 0, t_s: 0.0, pose: Some(Pose { yaw_deg: f64::INFINITY, ..Pose::default() }), attitude: None },
+            Odometry { frame: 0, t_s: 0.0, pose: None, attitude: Some(Attitude { pitch_deg: 0.0, roll_deg: f64::NAN }) },
+        ];
+        for odometry in refused {
+            ensure(encode_line(&Message::Odometry(odometry)) == Err(EncodeError::NonFinite), "NaN or infinity was encoded")?;
+        }
+        Ok(())
     }
 
     fn first_error(bytes: &[u8]) -> Option<DecodeError> {
@@ -902,13 +969,18 @@ pub mod checks {
     }
 
     pub fn malformed_lines_give_typed_errors() -> Check {
-        let cases: [(&[u8], DecodeError); 10] = [
+        let cases: [(&[u8], DecodeError); 14] = [
             (b"$FLEND*00\r\n", DecodeError::BadChecksum),
             (b"$FLEND\r\n", DecodeError::MissingChecksum),
             (b"$FLEND*G1\r\n", DecodeError::MissingChecksum),
             (b"$FLXYZ*51\r\n", DecodeError::UnknownType),
             (b"$FLEND,1*58\r\n", DecodeError::FieldCount),
-            (b"$FLODO,1,2*4D\r\n", DecodeError::FieldCount),
+            // Odometry has 2, 4, 5 or 7 fields; absent sensors leave theirs out, never empty.
+            (b"$FLODO*4E\r\n", DecodeError::FieldCount),
+            (b"$FLODO,1,2,3*52\r\n", DecodeError::FieldCount),
+            (b"$FLODO,1,0.1,0,100,0,0*51\r\n", DecodeError::FieldCount),
+            (b"$FLODO,1,0.1,,,,0.25,-0.5*63\r\n", DecodeError::BadField { index: 3 }),
+            (b"$FLODO,1,0.1,0.25,x*31\r\n", DecodeError::BadField { index: 4 }),
             (b"$FLODO,x,0,0,0,0*1A\r\n", DecodeError::BadField { index: 1 }),
             (b"$FLODO,1,0,inf,0,0*02\r\n", DecodeError::BadField { index: 3 }),
             (b"$FLRIG,9,1,1,1,1,1,1,,,,,,1,1,1,1,1*72\r\n", DecodeError::UnsupportedVersion),

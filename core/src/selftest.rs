@@ -56,7 +56,7 @@ checks! {
         rig_converts_both_ways,
         floats_round_trip_bit_for_bit,
         longest_rig_fits_a_line,
-        known_line_matches_documentation,
+        known_lines_match_documentation,
         non_finite_is_refused_by_encoder,
         malformed_lines_give_typed_errors,
         decoder_resynchronises_after_garbage,

@@ -7,7 +7,7 @@ use flatland_core::geometry::{Aoi, Distortion, Intrinsics, Mount, Pixel, Rig};
 use flatland_core::gpa::{Gpa, GpaConfig, SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::limits::MAX_SEARCH_RADIUS;
-use flatland_core::motion::Motion;
+use flatland_core::motion::{Attitude, Motion, Pose};
 use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, Odometry, RigRecord};
 use flatland_core::remap::{remap_frame, RemapTable, StreamingRemap};
 use flatland_core::report::{FrameReport, SHIFT_SCALE};
@@ -366,6 +366,17 @@ fn frame_report() -> impl Strategy<Value = FrameReport> {
         })
 }
 
+/// With and without each sensor's fields.
+fn odometry() -> impl Strategy<Value = Odometry> {
+    (any::<u32>(), finite(), proptest::option::of([finite(), finite(), finite()]), proptest::option::of([finite(), finite()]))
+        .prop_map(|(frame, t_s, pose, attitude)| Odometry {
+            frame,
+            t_s,
+            pose: pose.map(|[x_mm, z_mm, yaw_deg]| Pose { x_mm, z_mm, yaw_deg }),
+            attitude: attitude.map(|[pitch_deg, roll_deg]| Attitude { pitch_deg, roll_deg }),
+        })
+}
+
 fn message() -> impl Strategy<Value = Message> {
     let codes = FaultCode::ALL;
     prop_oneof![
@@ -373,8 +384,7 @@ fn message() -> impl Strategy<Value = Message> {
         Just(Message::End),
         rig_record().prop_map(Message::Rig),
         rig_record().prop_map(Message::Hello),
-        (any::<u32>(), finite(), finite(), finite(), finite())
-            .prop_map(|(frame, t_s, x_mm, z_mm, yaw_deg)| Message::Odometry(Odometry { frame, t_s, x_mm, z_mm, yaw_deg })),
+        odometry().prop_map(Message::Odometry),
         frame_report().prop_map(Message::Frame),
         any::<[u32; 10]>().prop_map(|c| Message::Stats(LinkStats {
             frames: c[0], garbage_bytes: c[1], truncated: c[2], too_long: c[3], bad_checksum: c[4],
@@ -393,7 +403,12 @@ fn same_bits(a: &Message, b: &Message) -> bool {
                 v.extend(r.distortion.iter().flatten().map(|x| x.to_bits()));
                 v
             }
-            Message::Odometry(o) => [o.t_s, o.x_mm, o.z_mm, o.yaw_deg].iter().map(|x| x.to_bits()).collect(),
+            Message::Odometry(o) => {
+                let mut v = vec![o.t_s.to_bits()];
+                v.extend(o.pose.iter().flat_map(|p| [p.x_mm, p.z_mm, p.yaw_deg]).map(f64::to_bits));
+                v.extend(o.attitude.iter().flat_map(|a| [a.pitch_deg, a.roll_deg]).map(f64::to_bits));
+                v
+            }
             _ => Vec::new(),
         }
     };

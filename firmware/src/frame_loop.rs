@@ -1,5 +1,6 @@
 //! The frame loop: the board side of the pipeline. Rig in, remap table and
-//! stages built (in statics), then per frame: pose in from the serial link,
+//! stages built (in statics), then per frame: the sensors' sample in from the
+//! serial link (time, and the wheels' pose and IMU attitude when present),
 //! camera rows from the row source fed to `flatland_core::pipeline`, one
 //! report or fault out, the alarm pin set.
 //!
@@ -430,17 +431,15 @@ where
         };
         let cycle_start = counter.now();
         let frame = odometry.frame;
-        let motion = match pipeline.begin(frame, Some(PoseSample::from(odometry))) {
-            Ok(motion) => motion,
-            Err(error) => {
-                // The pose cannot be trusted: the frame is skipped and the next one restarts.
-                defmt::warn!("frame {=u32} skipped: {}", frame, error);
-                let _ = alarm.set_low();
-                continue;
-            }
-        };
-        if motion.is_none() && started {
-            defmt::warn!("frame {=u32}: no odometry from the frame before; keyframe restarts", frame);
+        let follows = pipeline.follows(frame);
+        if let Err(error) = pipeline.begin(frame, Some(PoseSample::from(odometry))) {
+            // The pose cannot be trusted: the frame is skipped and the next one restarts.
+            defmt::warn!("frame {=u32} skipped: {}", frame, error);
+            let _ = alarm.set_low();
+            continue;
+        }
+        if !follows && started {
+            defmt::warn!("frame {=u32}: the frame before was not processed; keyframe restarts", frame);
             bump(&mut link.counters.frame_gaps);
         }
         started = true;

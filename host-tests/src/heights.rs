@@ -9,7 +9,8 @@ use crate::detect::{DetectConfig, Detector, FrameOutcome};
 use crate::images::RgbImage;
 use crate::recording::{Frame, Recording};
 use flatland_core::grid::KgGrid;
-use flatland_core::gti::{Gti, HeightPoint, TrackView};
+use flatland_core::gti::{Gti, GtiConfig, HeightPoint, TrackView};
+use flatland_core::motion::Motion;
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;
@@ -116,21 +117,87 @@ fn height_colour(h_mm: f32, full_mm: f32) -> [u8; 3] {
     }
 }
 
+/// What GTI saw over a run, to say why it found no point.
+#[derive(Default)]
+struct Coverage {
+    frames: usize,
+    /// Frames each track was matched in, by track id.
+    matched: BTreeMap<u32, usize>,
+    config: GtiConfig,
+}
+
+impl Coverage {
+    fn record(&mut self, gti: &Gti) {
+        self.frames += 1;
+        self.config = *gti.config();
+        for track in gti.tracks().filter(|t| t.observed_row.is_some()) {
+            *self.matched.entry(track.id).or_default() += 1;
+        }
+    }
+
+    /// Why a run over `recording` that gave no point gave none.
+    fn why_no_points(&self, recording: &Recording, grid: &KgGrid) -> String {
+        let config = &self.config;
+        let steps: Vec<Motion> = recording
+            .poses
+            .windows(2)
+            .filter(|w| w[1].frame == w[0].frame + 1)
+            .filter_map(|w| Some(Motion::between(&w[0].pose?, &w[1].pose?)))
+            .collect();
+        let needed = config.min_observations;
+        let longest = self.matched.values().copied().max().unwrap_or(0);
+        let long_enough = self.matched.values().filter(|&&n| n >= needed).count();
+        if steps.is_empty() {
+            return "no odometry between consecutive frames (poses.csv has no x_mm,z_mm,yaw_deg, or --odometry none): \
+                    GTI measures heights against the distance travelled"
+                .into();
+        }
+        if self.frames < needed {
+            return format!("{} frames were processed; a height needs a feature followed over {needed}", self.frames);
+        }
+        if long_enough > 0 {
+            return format!(
+                "{long_enough} features were followed over {needed} frames or more, but none fits a height well enough \
+                 (quality >= {})",
+                config.min_point_quality
+            );
+        }
+        let mut why = format!("no feature stayed on a GT line for the {needed} frames a height needs (the longest: {longest})");
+        // GT lines run along the straight direction of travel (the seed's
+        // GTI); a turn sweeps the floor across them.
+        let turn_deg = steps.iter().map(|m| m.dyaw_deg.abs()).sum::<f64>() / steps.len() as f64;
+        let far_mm = recording.rig.aoi().far_mm;
+        let drift_mm = far_mm * turn_deg.to_radians();
+        if drift_mm > grid.mm_per_px {
+            why += &format!(
+                ": the path turns {turn_deg:.1} deg per frame, which moves a point {far_mm:.0} mm ahead {drift_mm:.0} mm \
+                 sideways per frame (a KG pixel is {:.1} mm), off GTI's lines, which follow straight travel",
+                grid.mm_per_px
+            );
+        }
+        why
+    }
+}
+
 /// Runs GTI and writes the CSV to `out`; with `png_dir`, also writes
 /// `gt_line_NN.png` (GT-images, time to the right, KG row down, observed
 /// edges as dots and fitted loci as lines, coloured by height) and
 /// `map.png` (top view of the final frame's points, coloured by height).
-pub fn run_heights(recording: &Recording, png_dir: Option<&Path>, out: &mut impl Write) -> Result<(), Box<dyn std::error::Error>> {
+/// Returns, when no frame gave a point, why not.
+pub fn run_heights(recording: &Recording, png_dir: Option<&Path>, out: &mut impl Write) -> Result<Option<String>, Box<dyn std::error::Error>> {
     let mut drawing = Drawing::default();
+    let mut coverage = Coverage::default();
     let mut rows = Vec::new();
     let grid = run_gti(recording, |frame, gti| {
         for p in gti.points() {
             rows.push(csv_row(frame, &p));
         }
+        coverage.record(gti);
         if png_dir.is_some() {
             drawing.record(gti);
         }
     })?;
+    let no_points = rows.is_empty().then(|| coverage.why_no_points(recording, &grid));
     writeln!(out, "{CSV_HEADER}")?;
     for row in rows {
         writeln!(out, "{row}")?;
@@ -140,7 +207,7 @@ pub fn run_heights(recording: &Recording, png_dir: Option<&Path>, out: &mut impl
         draw_gt_images(&drawing, &grid, recording.rig.height_mm() as f32, dir)?;
         draw_map(&drawing.last_points, recording, dir)?;
     }
-    Ok(())
+    Ok(no_points)
 }
 
 /// Pixels per frame in the GT-images (frames are few, rows many).

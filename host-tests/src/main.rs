@@ -1,6 +1,6 @@
 //! `flatland`: the host CLI. Runs the same core as the firmware on recordings.
 
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 use flatland_core::grid::GridConfig;
 use flatland_core::report::{FrameReport, CSV_HEADER, MOTION_SCALE, SHIFT_SCALE};
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
@@ -56,6 +56,8 @@ enum Command {
         /// Say on stderr which evidence decided each frame.
         #[arg(long)]
         verbose: bool,
+        #[command(flatten)]
+        sensors: Sensors,
     },
     /// Heights from motion (GTI): points (x, z, h) per frame as CSV on stdout.
     Heights {
@@ -67,6 +69,8 @@ enum Command {
         /// Also write GT-images with fitted loci and a top-view height map here.
         #[arg(long)]
         png: Option<PathBuf>,
+        #[command(flatten)]
+        sensors: Sensors,
     },
     /// Time one detection cycle per stage (remap, GPA rows, decision): medians in us.
     Bench {
@@ -93,6 +97,41 @@ enum SerialCommand {
     /// Decode the firmware's serial output (FILE, or stdin when absent or `-`)
     /// into the csv of `flatland detect`.
     Decode { file: Option<PathBuf> },
+}
+
+/// Which of poses.csv's sensors a run uses; `t_s` always orders the frames.
+#[derive(Args)]
+struct Sensors {
+    /// Wheel odometry, poses.csv's x_mm,z_mm,yaw_deg: `poses` uses them
+    /// where the file has them; `none` ignores them (motion from the images alone).
+    #[arg(long, value_enum, default_value_t = Source::Poses)]
+    odometry: Source,
+    /// IMU attitude, poses.csv's pitch_deg,roll_deg: `poses` uses them where
+    /// the file has them; `none` ignores them.
+    #[arg(long, value_enum, default_value_t = Source::Poses)]
+    imu: Source,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Source {
+    /// poses.csv's columns, where present.
+    Poses,
+    /// Ignored.
+    None,
+}
+
+impl Sensors {
+    /// Opens a recording without the sensors this run ignores.
+    fn open(&self, path: &Path) -> Result<Recording, flatland_host::recording::RecordingError> {
+        let mut recording = Recording::open(path)?;
+        if self.odometry == Source::None {
+            recording.ignore_odometry();
+        }
+        if self.imu == Source::None {
+            recording.ignore_imu();
+        }
+        Ok(recording)
+    }
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -217,8 +256,9 @@ fn run_detect(
     truth: bool,
     perturbation: Option<Perturbation>,
     verbose: bool,
+    sensors: &Sensors,
 ) -> ExitCode {
-    let mut recording = match Recording::open(path) {
+    let mut recording = match sensors.open(path) {
         Ok(r) => r,
         Err(e) => return fatal(e),
     };
@@ -329,8 +369,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Kg { recording, frames, out, mm_per_px } => run_kg(&recording, frames, &out, mm_per_px),
-        Command::Detect { recording, format, png, truth, perturb, verbose } => {
-            run_detect(&recording, format, png.as_deref(), truth, perturb, verbose)
+        Command::Detect { recording, format, png, truth, perturb, verbose, sensors } => {
+            run_detect(&recording, format, png.as_deref(), truth, perturb, verbose, &sensors)
         }
         Command::Bench { recording, mm_per_px, search, full_frame } => {
             let recording = match Recording::open(&recording) {
@@ -346,14 +386,19 @@ fn main() -> ExitCode {
             }
         }
         Command::Serial(SerialCommand::Decode { file }) => run_serial_decode(file.as_deref()),
-        Command::Heights { recording, format: HeightsFormat::Csv, png } => {
-            let recording = match Recording::open(&recording) {
+        Command::Heights { recording, format: HeightsFormat::Csv, png, sensors } => {
+            let recording = match sensors.open(&recording) {
                 Ok(r) => r,
                 Err(e) => return fatal(e),
             };
             let mut out = std::io::BufWriter::new(std::io::stdout().lock());
             match flatland_host::heights::run_heights(&recording, png.as_deref(), &mut out) {
-                Ok(()) => ExitCode::SUCCESS,
+                Ok(no_points) => {
+                    if let Some(why) = no_points {
+                        eprintln!("flatland heights: no points: {why}");
+                    }
+                    ExitCode::SUCCESS
+                }
                 Err(e) => fatal(e),
             }
         }

@@ -68,7 +68,10 @@ impl Perturbation {
         let mut rng = SplitMix::new(self.seed ^ 0x0D0);
         let truth = recording.poses.clone();
         for n in 1..truth.len() {
-            let (before, after) = (truth[n - 1].pose, truth[n].pose);
+            // Rows without odometry have none to disturb.
+            let (Some(before), Some(after), Some(previous)) = (truth[n - 1].pose, truth[n].pose, recording.poses[n - 1].pose) else {
+                continue;
+            };
             let step = flatland_core::motion::Motion::between(&before, &after);
             let scale = 1.0 + self.odometry_scale_bias + self.odometry_scale_sigma * rng.gaussian();
             let noisy = flatland_core::motion::Motion {
@@ -76,10 +79,9 @@ impl Perturbation {
                 tz_mm: step.tz_mm * scale,
                 dyaw_deg: step.dyaw_deg + self.yaw_sigma_deg * rng.gaussian(),
             };
-            let previous = recording.poses[n - 1].pose;
             let (x_mm, z_mm) = previous.robot_to_world(noisy.tx_mm, noisy.tz_mm);
             recording.poses[n].pose =
-                flatland_core::motion::Pose { x_mm, z_mm, yaw_deg: previous.yaw_deg + noisy.dyaw_deg };
+                Some(flatland_core::motion::Pose { x_mm, z_mm, yaw_deg: previous.yaw_deg + noisy.dyaw_deg });
         }
     }
 }

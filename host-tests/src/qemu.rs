@@ -125,8 +125,32 @@ pub fn build_full_frame_firmware() -> Result<PathBuf> {
 
 // ------------------------------------------------------------------ what is sent
 
+/// Which of a recording's sensors a run uses: `cargo fw REC --odometry
+/// none` / `--imu none`, with the meaning they have on `flatland detect`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sensors {
+    pub odometry: bool,
+    pub imu: bool,
+}
+
+impl Sensors {
+    /// Every sensor the recording has.
+    pub const ALL: Sensors = Sensors { odometry: true, imu: true };
+
+    /// Forgets the poses.csv columns of the sensors left out, as `flatland
+    /// detect` does: their `$FLODO` fields are then absent.
+    pub fn apply(self, recording: &mut Recording) {
+        if !self.odometry {
+            recording.ignore_odometry();
+        }
+        if !self.imu {
+            recording.ignore_imu();
+        }
+    }
+}
+
 /// The messages a robot controller sends for a recording: the rig, one
-/// `$FLODO` per poses.csv row, `$FLEND`.
+/// `$FLODO` per poses.csv row (with the fields of the sensors it has), `$FLEND`.
 pub fn host_messages(recording: &Recording) -> Vec<Message> {
     let mut messages = vec![Message::Rig(RigRecord::from(&recording.rig))];
     messages.extend(recording.poses.iter().map(|row| Message::Odometry(Odometry::from(row))));
@@ -396,4 +420,31 @@ pub fn memory_use(elf: &Path) -> Result<(u64, u64)> {
         }
     }
     Ok((flash, ram))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--odometry none` leaves x_mm,z_mm,yaw_deg out of `$FLODO`, `--imu
+    /// none` pitch_deg,roll_deg.
+    #[test]
+    fn sensors_choose_the_odometry_fields() {
+        let line = |odometry, imu| {
+            let mut recording = Recording::open(workspace_root().join("host-tests/data/bumpy_marks")).unwrap();
+            Sensors { odometry, imu }.apply(&mut recording);
+            encode_line(&host_messages(&recording)[2]).unwrap()
+        };
+        let poses = std::fs::read_to_string(workspace_root().join("host-tests/data/bumpy_marks/poses.csv")).unwrap();
+        assert!(poses.starts_with("frame,t_s,x_mm,z_mm,yaw_deg,pitch_deg,roll_deg\n"), "{poses}");
+        let row: Vec<&str> = poses.lines().nth(2).unwrap().split(',').collect();
+        let expected = |fields: &[usize]| {
+            let body = format!("FLODO,{}", fields.iter().map(|&i| row[i].parse::<f64>().unwrap().to_string()).collect::<Vec<_>>().join(","));
+            format!("${body}*{:02X}\r\n", flatland_core::protocol::checksum(body.as_bytes()))
+        };
+        assert_eq!(line(true, true).as_str(), expected(&[0, 1, 2, 3, 4, 5, 6]));
+        assert_eq!(line(true, false).as_str(), expected(&[0, 1, 2, 3, 4]));
+        assert_eq!(line(false, true).as_str(), expected(&[0, 1, 5, 6]));
+        assert_eq!(line(false, false).as_str(), expected(&[0, 1]));
+    }
 }

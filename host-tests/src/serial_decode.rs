@@ -123,8 +123,20 @@ mod tests {
     use flatland_core::protocol::{encode_line, FaultCode};
     use flatland_core::report::FrameReport;
 
+    /// Frame 2 raises the alarm; frame 1 has odometry that agrees, frame 2 none.
     fn report(frame: u32) -> FrameReport {
-        FrameReport { frame, ref_frame: frame.saturating_sub(1), alarm: frame == 2, nearest_mm: Some(900), tz: 1000, ..FrameReport::default() }
+        FrameReport {
+            frame,
+            ref_frame: frame.saturating_sub(1),
+            alarm: frame == 2,
+            nearest_mm: Some(900),
+            tz: 1000,
+            dyaw: -1500,
+            dpitch: 85,
+            droll: -7,
+            odometry_fault: (frame == 1).then_some(false),
+            ..FrameReport::default()
+        }
     }
 
     #[test]
@@ -144,7 +156,23 @@ mod tests {
             expected += &format!("{row}\n");
         }
         assert_eq!(text, expected);
-        assert!(text.contains("\n2,1,1,900,"));
+        assert!(text.contains("\n1,0,0,900,,,0,0,0.00,0.00,0.0,100.0,,-1.500,0.085,-0.007,0\n"), "{text}");
+        assert!(text.contains("\n2,1,1,900,,,0,0,0.00,0.00,0.0,100.0,,-1.500,0.085,-0.007,\n"), "{text}");
+    }
+
+    /// firmware/PROTOCOL.md's example session decodes to the csv it shows
+    /// (its checksums and field counts are right).
+    #[test]
+    fn documented_example_decodes_to_the_documented_csv() {
+        let doc = include_str!("../../firmware/PROTOCOL.md");
+        let examples = doc.split_once("## Examples").expect("PROTOCOL.md has examples").1;
+        // Text, session, text, csv, ...: the code blocks are the odd pieces.
+        let pieces: Vec<&str> = examples.split("```").collect();
+        let (session, csv) = (pieces[1].trim_start(), pieces[3].trim_start());
+        let mut out = Vec::new();
+        let summary = run_serial_decode(&mut session.as_bytes(), &mut out).unwrap();
+        assert_eq!((summary.rows, summary.stats.map(|s| s.frames)), (2, Some(3)));
+        assert_eq!(String::from_utf8(out).unwrap(), csv);
     }
 
     #[test]

@@ -10,7 +10,7 @@ use flatland_core::gpa::Gpa;
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::geometry::Rig;
 use flatland_core::protocol::{checksum, encode_line, FaultCode, Message, Odometry, RigRecord};
-use flatland_host::qemu;
+use flatland_host::qemu::{self, Sensors};
 use flatland_host::recording::Recording;
 
 /// A line with a correct checksum around `body`.
@@ -29,7 +29,7 @@ fn garbage_truncated_and_oversized_serial_input_is_counted_not_fatal() {
             script.extend_from_slice(b"$FLEND*00\r\n"); // wrong checksum
             script.extend_from_slice(&line("FLXYZ,1")); // unknown type
             script.extend_from_slice(&line("FLODO,3,0.3,x,0,0")); // bad field
-            script.extend_from_slice(&line("FLODO,3,0.3,0,0")); // too few fields
+            script.extend_from_slice(&line("FLODO,3,0.3,0,0,0,0")); // 6 fields: neither 5 nor 7
             script.extend_from_slice(&line("FLRDY,9")); // wrong version
             // A well-formed message out of place: the host sending a report.
             script.extend_from_slice(encode_line(&Message::Frame(Default::default())).unwrap().as_bytes());
@@ -121,25 +121,30 @@ fn gaps_in_frames_poses_or_time_reset_the_keyframe() {
 #[test]
 fn odometry_out_of_sequence_on_the_wire_resets_the_keyframe() {
     // The poses arrive with one frame's message lost on the link, and one
-    // duplicated: no report may compare across the loss.
+    // duplicated: no report may compare across the loss, with or without
+    // the wheels' fields (a robot without odometry has gaps too).
     let dir = data("flat_marks");
-    let mut script = Vec::new();
-    for message in messages(&dir) {
-        if let Message::Odometry(Odometry { frame: 4, .. }) = message {
-            continue;
-        }
-        script.extend_from_slice(encode_line(&message).unwrap().as_bytes());
-        if let Message::Odometry(Odometry { frame: 6, .. }) = message {
+    for odometry in [true, false] {
+        let mut script = Vec::new();
+        for message in messages_with(&dir, Sensors { odometry, imu: true }) {
+            if let Message::Odometry(Odometry { frame: 4, .. }) = message {
+                continue;
+            }
             script.extend_from_slice(encode_line(&message).unwrap().as_bytes());
+            if let Message::Odometry(Odometry { frame: 6, .. }) = message {
+                script.extend_from_slice(encode_line(&message).unwrap().as_bytes());
+            }
         }
+        let outcome = run(&dir, script);
+        let (csv, summary) = decoded(&outcome);
+        // 5 follows 3 and the repeated 6 follows 6: both restart; 7 follows 6 again.
+        assert_eq!(row_frames(&csv), [1, 2, 3, 6, 7], "odometry {odometry}: {csv}");
+        if odometry {
+            assert!(csv.lines().skip(1).all(|l| l.split(',').nth(2) == Some("0")), "no false alarm: {csv}");
+        }
+        let stats = summary.stats.expect("$FLSTA");
+        assert_eq!(stats.frame_gaps, 2, "odometry {odometry}: frame 5 and the repeated 6: {stats:?}");
     }
-    let outcome = run(&dir, script);
-    let (csv, summary) = decoded(&outcome);
-    // 5 follows 3 and the repeated 6 follows 6: both restart; 7 follows 6 again.
-    assert_eq!(row_frames(&csv), [1, 2, 3, 6, 7], "{csv}");
-    assert!(csv.lines().skip(1).all(|l| l.split(',').nth(2) == Some("0")), "no false alarm: {csv}");
-    let stats = summary.stats.expect("$FLSTA");
-    assert_eq!(stats.frame_gaps, 2, "frame 5 and the repeated 6: {stats:?}");
 }
 
 #[test]

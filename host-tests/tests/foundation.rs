@@ -1,6 +1,6 @@
 //! Foundation checks on the bundled recordings (issue: foundation §8).
 
-use flatland_core::geometry::{Pixel, RigError};
+use flatland_core::geometry::{AoiEdge, Pixel, RigError};
 use flatland_core::grid::GridConfig;
 use flatland_core::motion::Motion;
 use flatland_host::kg::KgFrontEnd;
@@ -32,7 +32,7 @@ fn marking_size_in_kg_matches_truth() {
     let mut front_end = KgFrontEnd::new(&recording.rig, &GridConfig::default()).unwrap();
     let grid = front_end.grid;
     let kg = front_end.remap(&recording.load_frame(0).unwrap()).unwrap();
-    let pose = recording.pose(0).unwrap().pose;
+    let pose = recording.pose(0).unwrap().pose.unwrap();
     // The A4 sheet: the biggest marking, fully in view in frame 0.
     let marking = truth.marking.iter().find(|m| m.width_mm == 210.0).unwrap();
     let (x, z) = pose.world_to_robot(marking.x_mm, marking.z_mm);
@@ -67,7 +67,7 @@ fn consecutive_kg_images_agree_after_odometry_shift() {
         let (a, b) = (pair[0], pair[1]);
         let first = front_end.remap(&recording.load_frame(a).unwrap()).unwrap();
         let second = front_end.remap(&recording.load_frame(b).unwrap()).unwrap();
-        let motion = Motion::between(&recording.pose(a).unwrap().pose, &recording.pose(b).unwrap().pose);
+        let motion = Motion::between(&recording.pose(a).unwrap().pose.unwrap(), &recording.pose(b).unwrap().pose.unwrap());
         let (mut shifted_sum, mut plain_sum, mut count) = (0.0, 0.0, 0.0);
         for j in aoi.top..aoi.bottom {
             for i in aoi.left..aoi.right {
@@ -144,7 +144,9 @@ fn bad_rig_toml_gives_each_error() {
         ("near_mm = 450.0", "near_mm = 1500.0", RigError::AoiEmpty),
         ("near_mm = 450.0", "near_mm = -100.0", RigError::AoiBehindCamera),
         ("far_mm = 1400.0", "far_mm = 1.0e9", RigError::AoiBeyondHorizon),
-        ("half_width_mm = 250.0", "half_width_mm = 900.0", RigError::AoiOutsideImage),
+        ("far_mm = 1400.0", "far_mm = 8000.0", RigError::AoiOutsideImage(AoiEdge::Far)),
+        ("near_mm = 450.0", "near_mm = 150.0", RigError::AoiOutsideImage(AoiEdge::Near)),
+        ("half_width_mm = 250.0", "half_width_mm = 900.0", RigError::AoiOutsideImage(AoiEdge::Left)),
     ];
     for (from, to, expected) in cases {
         assert!(good.contains(from), "{from}");
@@ -152,7 +154,10 @@ fn bad_rig_toml_gives_each_error() {
         match parse_rig(path, &text) {
             Err(RecordingError::Rig { error, line, .. }) => {
                 assert_eq!(error, *expected, "{to}");
-                assert!(line.is_some(), "{to}: no line");
+                // The line of the value at fault.
+                let key = to.lines().last().and_then(|l| l.split('=').next()).unwrap().trim();
+                let line = line.unwrap_or_else(|| panic!("{to}: no line"));
+                assert!(text.lines().nth(line - 1).unwrap().starts_with(key), "{to}: line {line}");
                 let message = parse_rig(path, &text).unwrap_err().to_string();
                 assert!(message.starts_with("rig.toml:"), "{message}");
             }
@@ -182,5 +187,5 @@ fn every_bundled_recording_opens_and_remaps() {
         assert!(recording.truth.is_some());
         seen += 1;
     }
-    assert_eq!(seen, 8);
+    assert_eq!(seen, 12);
 }

@@ -18,7 +18,7 @@ fn data(name: &str) -> PathBuf {
 /// Footprint of a rectangle (world frame) in the robot frame of `frame`,
 /// grown by `margin_mm` (bounds of the rotated rectangle).
 fn footprint(recording: &Recording, centre: (f64, f64), size: (f64, f64), frame: u32, margin_mm: f32) -> RegionMm {
-    let pose = recording.pose(frame).unwrap().pose;
+    let pose = recording.pose(frame).unwrap().pose.unwrap();
     let (hw, hd) = (size.0 / 2.0, size.1 / 2.0);
     let corners = [(-hw, -hd), (hw, -hd), (-hw, hd), (hw, hd)].map(|(dx, dz)| pose.world_to_robot(centre.0 + dx, centre.1 + dz));
     let xs = corners.map(|c| c.0 as f32);

@@ -1,5 +1,7 @@
 //! Parity: the firmware in QEMU gives exactly the csv of `flatland detect`
-//! on the same recording, field for field (the same core, the same integers).
+//! on the same recording, field for field (the same core, the same integers),
+//! also without odometry (`cargo fw --odometry none` against `flatland
+//! detect --odometry none`).
 //! Needs qemu-system-arm and defmt-print (`.ci/ensure-tools`); fails, never
 //! skips, without them.
 
@@ -7,11 +9,19 @@ mod common;
 
 use common::*;
 use flatland_core::report::CSV_HEADER;
+use flatland_host::qemu::Sensors;
+
+/// `$FLODO` with the time (and IMU attitude, if any) alone.
+const WITHOUT_ODOMETRY: Sensors = Sensors { odometry: false, imu: true };
 
 fn parity(name: &str) {
+    parity_with(name, Sensors::ALL);
+}
+
+fn parity_with(name: &str, sensors: Sensors) {
     let dir = data(name);
-    let expected = detect_csv(&dir);
-    let outcome = run(&dir, script(&dir));
+    let expected = detect_csv_with(&dir, sensors);
+    let outcome = run(&dir, script_with(&dir, sensors));
     let (csv, summary) = decoded(&outcome);
     assert!(summary.frame_faults.is_empty(), "{name}: firmware skipped frames: {:?}", summary.frame_faults);
     // A row-level diff names the first differing frame and field.
@@ -69,4 +79,44 @@ fn parity_approach_box() {
 #[test]
 fn parity_noisy_approach() {
     parity("noisy_approach");
+}
+
+#[test]
+fn parity_flat_marks_without_odometry() {
+    parity_with("flat_marks", WITHOUT_ODOMETRY);
+}
+
+#[test]
+fn parity_approach_box_without_odometry() {
+    parity_with("approach_box", WITHOUT_ODOMETRY);
+}
+
+#[test]
+fn parity_bumpy_marks() {
+    parity("bumpy_marks");
+}
+
+#[test]
+fn parity_bumpy_marks_imu_only() {
+    parity_with("bumpy_marks", WITHOUT_ODOMETRY);
+}
+
+#[test]
+fn parity_bumpy_marks_without_imu() {
+    parity_with("bumpy_marks", Sensors { odometry: true, imu: false });
+}
+
+#[test]
+fn parity_bumpy_approach() {
+    parity("bumpy_approach");
+}
+
+#[test]
+fn parity_exposure_rolling() {
+    parity("exposure_rolling");
+}
+
+#[test]
+fn parity_slip() {
+    parity("slip");
 }

@@ -10,8 +10,13 @@ fuzz_target!(|data: &[u8]| {
         Ok(rows) => {
             assert!(!rows.is_empty());
             for row in &rows {
-                assert!(row.t_s.is_finite() && row.pose.x_mm.is_finite());
-                assert!(row.pose.z_mm.is_finite() && row.pose.yaw_deg.is_finite());
+                assert!(row.t_s.is_finite());
+                if let Some(pose) = row.pose {
+                    assert!(pose.x_mm.is_finite() && pose.z_mm.is_finite() && pose.yaw_deg.is_finite());
+                }
+                if let Some(attitude) = row.attitude {
+                    assert!(attitude.pitch_deg.is_finite() && attitude.roll_deg.is_finite());
+                }
             }
             assert!(rows.windows(2).all(|w| w[0].frame < w[1].frame));
         }

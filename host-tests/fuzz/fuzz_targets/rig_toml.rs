@@ -9,7 +9,7 @@ use std::path::Path;
 
 fuzz_target!(|data: &[u8]| {
     let Ok(text) = std::str::from_utf8(data) else { return };
-    let Ok(rig) = flatland_host::recording::parse_rig(Path::new("rig.toml"), text) else { return };
+    let Ok((rig, _)) = flatland_host::recording::parse_rig(Path::new("rig.toml"), text) else { return };
     if let Ok(grid) = KgGrid::for_rig(&rig, &GridConfig::default()) {
         let _ = RemapTable::new(&rig, &grid);
     }

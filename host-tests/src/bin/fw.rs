@@ -13,6 +13,9 @@
 //!   256x256 without margins (`bench::FullFrame`, as `flatland bench
 //!   --full-frame`), on the `full-frame` firmware build (no GTI stage).
 //!
+//! - `--odometry none`, `--imu none`: the poses go without the wheels' pose
+//!   / the IMU's attitude (`$FLODO`'s optional fields), as `flatland detect`
+//!   ignores them with the same options.
 //! - `--elf PATH`: runs that firmware ELF instead of building one; the
 //!   thumb target's cargo runner (`cargo run --target thumbv7em-none-eabihf`
 //!   in .cargo/config.toml). An ELF named `selftest` gets `--selftest`'s
@@ -28,7 +31,7 @@ use std::time::Duration;
 
 use flatland_core::protocol::Message;
 use flatland_host::bench::FullFrame;
-use flatland_host::qemu::{self, RunRequest, DEFAULT_RECORDING};
+use flatland_host::qemu::{self, RunRequest, Sensors, DEFAULT_RECORDING};
 use flatland_host::recording::Recording;
 use flatland_host::serial_decode;
 
@@ -50,6 +53,18 @@ struct Args {
     timeout: Duration,
     mm_per_px: Option<f64>,
     full_frame: bool,
+    /// What `$FLODO` carries (`--odometry none`, `--imu none`).
+    sensors: Sensors,
+}
+
+/// `--odometry poses|none`, `--imu poses|none`, as on `flatland detect`:
+/// whether the run uses that sensor's poses.csv columns.
+fn parse_source(option: &str, value: Option<String>) -> Result<bool> {
+    match value.as_deref() {
+        Some("poses") => Ok(true),
+        Some("none") => Ok(false),
+        _ => Err(format!("{option} takes `poses` (the default) or `none` (leave those fields out)")),
+    }
 }
 
 fn parse_args() -> Result<Args> {
@@ -59,6 +74,7 @@ fn parse_args() -> Result<Args> {
     let mut timeout = Duration::from_secs(300);
     let mut mm_per_px = None;
     let mut full_frame = false;
+    let mut sensors = Sensors::ALL;
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         match arg.as_str() {
@@ -66,6 +82,8 @@ fn parse_args() -> Result<Args> {
             "--selftest" => mode = Mode::SelfTest,
             "--bench" => mode = Mode::Bench,
             "--full-frame" => full_frame = true,
+            "--odometry" => sensors.odometry = parse_source("--odometry", args.next())?,
+            "--imu" => sensors.imu = parse_source("--imu", args.next())?,
             "--elf" => elf = Some(PathBuf::from(args.next().ok_or("--elf needs a path")?)),
             "--timeout" => {
                 let secs = args.next().and_then(|s| s.parse().ok()).ok_or("--timeout needs seconds")?;
@@ -75,7 +93,8 @@ fn parse_args() -> Result<Args> {
                 mm_per_px = Some(args.next().and_then(|s| s.parse().ok()).ok_or("--mm-per-px needs a number")?);
             }
             "-h" | "--help" => {
-                println!("usage: cargo fw [RECORDING] [--csv] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame]");
+                println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame]");
+                println!("       --odometry none / --imu none: $FLODO leaves the wheels' pose / the IMU's attitude out");
                 println!("       fw --elf PATH [same options]: run that firmware ELF (the thumb target's cargo runner)");
                 std::process::exit(0);
             }
@@ -93,7 +112,7 @@ fn parse_args() -> Result<Args> {
     if mode == Mode::Run && elf.as_deref().and_then(Path::file_name).is_some_and(|name| name == "selftest") {
         mode = Mode::SelfTest;
     }
-    Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame })
+    Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame, sensors })
 }
 
 fn describe(message: &Message) -> Option<String> {
@@ -127,6 +146,7 @@ fn describe(message: &Message) -> Option<String> {
 /// Returns the decoded log.
 fn run_recording(args: &Args, elf: &Path) -> Result<String> {
     let mut recording = Recording::open(&args.recording).map_err(|e| e.to_string())?;
+    args.sensors.apply(&mut recording);
     let mut mm_per_px = args.mm_per_px;
     if args.full_frame {
         let full = FullFrame::for_rig(&recording.rig, mm_per_px)?;

@@ -10,7 +10,7 @@ use std::time::Duration;
 use flatland_core::protocol::{Fault, Message};
 use flatland_core::report::CSV_HEADER;
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
-use flatland_host::qemu::{self, RunOutcome, RunRequest};
+use flatland_host::qemu::{self, RunOutcome, RunRequest, Sensors};
 use flatland_host::recording::Recording;
 use flatland_host::serial_decode::{run_serial_decode, DecodeSummary};
 
@@ -55,7 +55,13 @@ pub fn decoded(outcome: &RunOutcome) -> (String, DecodeSummary) {
 
 /// `flatland detect <dir> --format csv` (stdout), computed in-process.
 pub fn detect_csv(dir: &Path) -> String {
-    let recording = Recording::open(dir).unwrap_or_else(|e| panic!("{e}"));
+    detect_csv_with(dir, Sensors::ALL)
+}
+
+/// As [`detect_csv`], with `--odometry none` / `--imu none` as `sensors` says.
+pub fn detect_csv_with(dir: &Path, sensors: Sensors) -> String {
+    let mut recording = Recording::open(dir).unwrap_or_else(|e| panic!("{e}"));
+    sensors.apply(&mut recording);
     let mut detector = Detector::new(&recording.rig, &DetectConfig::default()).unwrap_or_else(|e| panic!("{e}"));
     let mut csv = format!("{CSV_HEADER}\n");
     detector
@@ -71,12 +77,25 @@ pub fn detect_csv(dir: &Path) -> String {
 
 /// The normal host script for a recording (rig, poses, end).
 pub fn script(dir: &Path) -> Vec<u8> {
-    let recording = Recording::open(dir).unwrap_or_else(|e| panic!("{e}"));
+    script_with(dir, Sensors::ALL)
+}
+
+/// The host script of a robot with only `sensors` (`cargo fw --odometry none` ...).
+pub fn script_with(dir: &Path, sensors: Sensors) -> Vec<u8> {
+    let mut recording = Recording::open(dir).unwrap_or_else(|e| panic!("{e}"));
+    sensors.apply(&mut recording);
     qemu::host_script(&recording).unwrap_or_else(|e| panic!("{e}"))
 }
 
 pub fn messages(dir: &Path) -> Vec<Message> {
-    qemu::host_messages(&Recording::open(dir).unwrap_or_else(|e| panic!("{e}")))
+    messages_with(dir, Sensors::ALL)
+}
+
+/// The messages of a robot with only `sensors`.
+pub fn messages_with(dir: &Path, sensors: Sensors) -> Vec<Message> {
+    let mut recording = Recording::open(dir).unwrap_or_else(|e| panic!("{e}"));
+    sensors.apply(&mut recording);
+    qemu::host_messages(&recording)
 }
 
 pub fn faults(outcome: &RunOutcome) -> Vec<Fault> {
