@@ -369,7 +369,7 @@ impl Rig {
     }
 
     /// Normalised (x right, y down) undistorted coordinates -> pixel, with distortion.
-    fn normalised_to_pixel(&self, xn: f64, yn: f64) -> Option<Pixel> {
+    pub fn normalised_to_pixel(&self, xn: f64, yn: f64) -> Option<Pixel> {
         let (xd, yd) = match &self.camera.distortion {
             None => (xn, yn),
             Some(d) => {
@@ -383,7 +383,7 @@ impl Rig {
     }
 
     /// Pixel -> normalised undistorted coordinates (x right, y down).
-    fn pixel_to_normalised(&self, p: Pixel) -> Option<(f64, f64)> {
+    pub fn pixel_to_normalised(&self, p: Pixel) -> Option<(f64, f64)> {
         let xd = (p.u - self.camera.cx) / self.camera.fx;
         let yd = (p.v - self.camera.cy) / self.camera.fy;
         match &self.camera.distortion {

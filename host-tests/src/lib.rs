@@ -12,3 +12,4 @@ pub mod kg;
 pub mod perturb;
 pub mod qemu;
 pub mod recording;
+pub mod trial;

@@ -49,10 +49,23 @@ enum Command {
         /// Compare with truth.toml and print a confusion table (stderr).
         #[arg(long)]
         truth: bool,
-        /// Perturb the recording first (testing robustness), e.g.
-        /// `noise=3,flicker=0.02,odometry=0.03,bias=0.04,yaw=0.1,seed=7`.
-        #[arg(long, value_parser = parse_perturbation)]
-        perturb: Option<Perturbation>,
+        /// Perturb the recording first (testing robustness): KEY=VALUE,... e.g.
+        /// `pitch-jitter=0.3,roll-jitter=0.2,seed=7`, `exposure=6:1.25,exposure=12:0.8`,
+        /// `vignette=0.7`, `slip=6-9`.
+        ///
+        /// noise=SIGMA (gray levels), flicker=F (gain within +-F per frame);
+        /// odometry=F (per-step scale error sigma), bias=F (constant scale
+        /// error), yaw=DEG (per-step sigma); pitch-jitter=DEG, roll-jitter=DEG
+        /// (body attitude sigma, white per frame), pitch=FRAME:DEG,
+        /// roll=FRAME:DEG (sustained from FRAME on; repeatable, steps add up);
+        /// exposure=FRAME:FACTOR (linear-light gain from FRAME on; repeatable,
+        /// factors multiply), vignette=F (linear light left at the corners);
+        /// slip=A-B (the images stand in pairs A..=B while poses.csv advances;
+        /// later images come B-A+1 frames late and the truth follows them);
+        /// seed=N. README.md describes the models.
+        // Boxed: a Perturbation is large beside the other commands' arguments.
+        #[arg(long, value_parser = |text: &str| text.parse::<Perturbation>().map(Box::new))]
+        perturb: Option<Box<Perturbation>>,
         /// Say on stderr which evidence decided each frame.
         #[arg(long)]
         verbose: bool,
@@ -231,30 +244,12 @@ fn json_row(report: &FrameReport) -> String {
     )
 }
 
-fn parse_perturbation(text: &str) -> Result<Perturbation, String> {
-    let mut p = Perturbation::default();
-    for item in text.split(',') {
-        let (key, value) = item.split_once('=').ok_or_else(|| format!("{item:?} is not key=value"))?;
-        let number: f64 = value.parse().map_err(|_| format!("{value:?} is not a number"))?;
-        match key {
-            "noise" => p.noise_sigma = number,
-            "flicker" => p.gain_flicker = number,
-            "odometry" => p.odometry_scale_sigma = number,
-            "bias" => p.odometry_scale_bias = number,
-            "yaw" => p.yaw_sigma_deg = number,
-            "seed" => p.seed = number as u64,
-            _ => return Err(format!("unknown perturbation {key:?} (noise, flicker, odometry, bias, yaw, seed)")),
-        }
-    }
-    Ok(p)
-}
-
 fn run_detect(
     path: &Path,
     format: Format,
     png: Option<&Path>,
     truth: bool,
-    perturbation: Option<Perturbation>,
+    perturbation: Option<Box<Perturbation>>,
     verbose: bool,
     sensors: &Sensors,
 ) -> ExitCode {
@@ -262,9 +257,7 @@ fn run_detect(
         Ok(r) => r,
         Err(e) => return fatal(e),
     };
-    if let Some(p) = perturbation {
-        p.poses(&mut recording);
-    }
+    let mut perturber = perturbation.map(|p| p.apply(&mut recording));
     let mut detector = match Detector::new(&recording.rig, &DetectConfig::default()) {
         Ok(d) => d,
         Err(e) => return fatal(format!("{}: {e}", path.display())),
@@ -283,7 +276,7 @@ fn run_detect(
         let _ = writeln!(out, "{CSV_HEADER}");
     }
     let mut picture_error = None;
-    let result = detector.run_with(&recording, |index, frame| if let Some(p) = perturbation { p.frame(index, frame) }, |outcome, pipeline| match outcome {
+    let result = detector.run_with(&recording, |index, frame| if let Some(p) = perturber.as_mut() { p.alter(index, frame) }, |outcome, pipeline| match outcome {
         FrameOutcome::Report { report, kg } => {
             let gpa = pipeline.gpa();
             let line = match format {
