@@ -66,8 +66,8 @@ fn write_png(path: &Path, width: usize, height: usize, color: png::ColorType, da
 use flatland_core::geometry::Rig;
 use flatland_core::gpa::Gpa;
 use flatland_core::grid::KgGrid;
-use flatland_core::motion::Motion;
-use flatland_core::report::{FrameReport, MOTION_SCALE};
+use flatland_core::motion::{Attitude, GroundMap, GroundMotion, Motion};
+use flatland_core::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE};
 
 const GREEN: [u8; 3] = [40, 220, 60];
 const RED: [u8; 3] = [255, 40, 40];
@@ -79,19 +79,26 @@ const MAGENTA: [u8; 3] = [230, 60, 230];
 /// residue blobs in orange, cells whose parallax puts them 20 mm or more
 /// above the ground in magenta (on the difference), and the obstacle that
 /// raised the alarm as a red line at its nearest point, across its width.
-pub fn detect_picture(rig: &Rig, grid: &KgGrid, reference: &[u8], current: &[u8], report: &FrameReport, gpa: &Gpa) -> RgbImage {
+/// `attitude`: align with the measured pitch and roll change too (false
+/// shows what the attitude compensation removes).
+pub fn detect_picture(rig: &Rig, grid: &KgGrid, reference: &[u8], current: &[u8], report: &FrameReport, gpa: &Gpa, attitude: bool) -> RgbImage {
     let (w, h) = (grid.width(), grid.height());
-    let motion = Motion {
-        tx_mm: f64::from(report.tx) / f64::from(MOTION_SCALE),
-        tz_mm: f64::from(report.tz) / f64::from(MOTION_SCALE),
-        dyaw_deg: gpa.predicted().dyaw_deg,
+    let angle = |scaled: i32| f64::from(scaled) / f64::from(ANGLE_SCALE);
+    let motion = GroundMotion {
+        planar: Motion {
+            tx_mm: f64::from(report.tx) / f64::from(MOTION_SCALE),
+            tz_mm: f64::from(report.tz) / f64::from(MOTION_SCALE),
+            dyaw_deg: angle(report.dyaw),
+        },
+        attitude: if attitude { Attitude { pitch_deg: angle(report.dpitch), roll_deg: angle(report.droll) } } else { Attitude::default() },
     };
+    let map = GroundMap::new(&motion, rig.height_mm());
     let mut aligned = vec![0u8; w * h];
     let mut diff = vec![0u8; w * h];
     for j in 0..h {
         for i in 0..w {
             let (x, z) = grid.pixel_to_ground(i as f64, j as f64);
-            let (xk, zk) = motion.to_earlier_frame(x, z);
+            let Some((xk, zk)) = map.to_keyframe(x, z) else { continue };
             let (fi, fj) = grid.ground_to_pixel(xk, zk);
             if fi < 0.0 || fj < 0.0 || fi >= (w - 1) as f64 || fj >= (h - 1) as f64 {
                 continue;

@@ -46,6 +46,10 @@ enum Command {
         /// Write one picture per frame into this directory.
         #[arg(long)]
         png: Option<PathBuf>,
+        /// Align the pictures by the planar motion only, ignoring the measured
+        /// pitch and roll change (shows what attitude compensation removes).
+        #[arg(long, requires = "png")]
+        png_level: bool,
         /// Compare with truth.toml and print a confusion table (stderr).
         #[arg(long)]
         truth: bool,
@@ -244,10 +248,16 @@ fn json_row(report: &FrameReport) -> String {
     )
 }
 
+/// Where `detect` writes its pictures, and whether they compensate the attitude.
+struct Pictures<'a> {
+    dir: &'a Path,
+    attitude: bool,
+}
+
 fn run_detect(
     path: &Path,
     format: Format,
-    png: Option<&Path>,
+    png: Option<Pictures>,
     truth: bool,
     perturbation: Option<Box<Perturbation>>,
     verbose: bool,
@@ -262,9 +272,9 @@ fn run_detect(
         Ok(d) => d,
         Err(e) => return fatal(format!("{}: {e}", path.display())),
     };
-    if let Some(dir) = png {
-        if let Err(e) = std::fs::create_dir_all(dir) {
-            return fatal(format!("{}: {e}", dir.display()));
+    if let Some(pictures) = &png {
+        if let Err(e) = std::fs::create_dir_all(pictures.dir) {
+            return fatal(format!("{}: {e}", pictures.dir.display()));
         }
     }
     let grid = detector.grid();
@@ -291,9 +301,9 @@ fn run_detect(
             if verbose {
                 eprintln!("frame {}: {:?}", report.frame, gpa.alarm_source());
             }
-            if let (Some(dir), Some(reference)) = (png, previous_kg.as_ref()) {
-                let path = dir.join(format!("{:06}.png", report.frame));
-                if let Err(e) = detect_picture(&recording.rig, &grid, reference, &kg, &report, gpa).save(&path) {
+            if let (Some(pictures), Some(reference)) = (png.as_ref(), previous_kg.as_ref()) {
+                let path = pictures.dir.join(format!("{:06}.png", report.frame));
+                if let Err(e) = detect_picture(&recording.rig, &grid, reference, &kg, &report, gpa, pictures.attitude).save(&path) {
                     picture_error.get_or_insert(format!("{}: {e}", path.display()));
                 }
             }
@@ -362,8 +372,9 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Kg { recording, frames, out, mm_per_px } => run_kg(&recording, frames, &out, mm_per_px),
-        Command::Detect { recording, format, png, truth, perturb, verbose, sensors } => {
-            run_detect(&recording, format, png.as_deref(), truth, perturb, verbose, &sensors)
+        Command::Detect { recording, format, png, png_level, truth, perturb, verbose, sensors } => {
+            let pictures = png.as_deref().map(|dir| Pictures { dir, attitude: !png_level });
+            run_detect(&recording, format, pictures, truth, perturb, verbose, &sensors)
         }
         Command::Bench { recording, mm_per_px, search, full_frame } => {
             let recording = match Recording::open(&recording) {

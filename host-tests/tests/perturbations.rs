@@ -253,8 +253,8 @@ fn slip_holds_the_images_while_the_poses_advance() {
     }
     // poses.csv goes on at the wheels' step.
     for (n, w) in recording.poses.windows(2).enumerate() {
-        let step = Motion::between(&w[0].pose, &w[1].pose);
-        let usual = Motion::between(&original.poses[n].pose, &original.poses[n + 1].pose);
+        let step = Motion::between(&w[0].pose.unwrap(), &w[1].pose.unwrap());
+        let usual = Motion::between(&original.poses[n].pose.unwrap(), &original.poses[n + 1].pose.unwrap());
         assert!((step.tz_mm - usual.tz_mm).abs() < 1e-9 && step.tx_mm.abs() < 1e-9, "step {n}: {step:?}");
     }
     // Each frame's truth is its image's: the alarm starts 4 frames late.
@@ -277,7 +277,8 @@ fn imu_columns_carry_the_applied_attitude() {
     for (line, row) in lines.zip(&recording.poses) {
         let fields: Vec<f64> = line.split(',').map(|f| f.parse().unwrap()).collect();
         let attitude = p.attitude(row.frame);
-        assert_eq!(fields, [f64::from(row.frame), row.t_s, row.pose.x_mm, row.pose.z_mm, row.pose.yaw_deg, attitude.pitch_deg, attitude.roll_deg]);
+        let pose = row.pose.unwrap();
+        assert_eq!(fields, [f64::from(row.frame), row.t_s, pose.x_mm, pose.z_mm, pose.yaw_deg, attitude.pitch_deg, attitude.roll_deg]);
     }
 }
 

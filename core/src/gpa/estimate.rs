@@ -27,6 +27,10 @@ use crate::motion::{Attitude, GroundMap, GroundMotion, Motion, Rotation};
 /// Ground side of a coarse cell, mm: coarse enough that the widest search
 /// stays small, fine enough for floor texture to survive.
 pub const COARSE_CELL_MM: f64 = 25.0;
+/// How much a coarse candidate's score grows per squared prior sigma from
+/// the start: enough to break near-ties toward the prior (3 sigma: +9 %),
+/// not enough to hide a clear minimum elsewhere within reach.
+const COARSE_PRIOR_WEIGHT: f64 = 0.01;
 /// Block side, KG pixels, and its search reach around the model.
 const BLOCK_PX: usize = 16;
 const BLOCK_REACH: i32 = 3;
@@ -288,21 +292,34 @@ impl Estimator {
         let at = |dyaw: i32, dx: i32, dz: i32| {
             score_at(p[2] + f64::from(dyaw) * yaw_step, p[0] + f64::from(dx) * cell_mm, p[1] + f64::from(dz) * cell_mm)
         };
+        // The prior breaks near-ties: a candidate's score grows by
+        // PRIOR_WEIGHT per squared sigma it lies from the start (a floor
+        // with little texture at this scale, or one edge across the view,
+        // scores alike along a whole line of candidates).
+        let squared_sigmas = |dyaw: i32, dx: i32, dz: i32| {
+            let scaled = |steps: i32, unit: f64, sigma: f64| {
+                let sigmas = f64::from(steps) * unit / sigma.max(1e-9);
+                sigmas * sigmas
+            };
+            scaled(dx, cell_mm, sigma[0]) + scaled(dz, cell_mm, sigma[1]) + scaled(dyaw, yaw_step, sigma[2])
+        };
         let mut best = (f64::MAX, 0i32, 0i32, 0i32);
         for dyaw in -yaw_reach..=yaw_reach {
             for dz in -reach_z..=reach_z {
                 for dx in -reach_x..=reach_x {
                     let score = at(dyaw, dx, dz);
-                    if score < best.0 {
-                        best = (score, dyaw, dx, dz);
+                    let cost = score * (1.0 + COARSE_PRIOR_WEIGHT * squared_sigmas(dyaw, dx, dz));
+                    if cost < best.0 {
+                        best = (cost, dyaw, dx, dz);
                     }
                 }
             }
         }
-        let (centre, by, bx, bz) = best;
-        if centre == f64::MAX {
+        let (cost, by, bx, bz) = best;
+        if cost == f64::MAX {
             return p;
         }
+        let centre = at(by, bx, bz);
         // Sub-cell: a parabola along each axis through the best.
         let offset = |minus: f64, plus: f64| {
             if minus == f64::MAX || plus == f64::MAX {

@@ -45,10 +45,11 @@ impl Prediction {
         self.predicted = self.to_last.then(&self.step);
     }
 
-    /// No motion known: this frame starts a keyframe.
+    /// No motion known: this frame starts a keyframe. The step is kept:
+    /// without odometry it is the velocity the next frame predicts from,
+    /// and a robot does not stop because an estimate failed.
     pub(super) fn start_keyframe(&mut self) {
         self.predicted = Motion::default();
-        self.step = Motion::default();
     }
 
     /// The motion keyframe -> now: the shift search's `refined` one if it
