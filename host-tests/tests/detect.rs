@@ -8,11 +8,33 @@ use flatland_host::perturb::Perturbation;
 use flatland_host::recording::Recording;
 use std::path::Path;
 
+/// Every bundled recording.
+const ALL_RECORDINGS: [&str; 12] = [
+    "flat_marks",
+    "stool_bags",
+    "approach_box",
+    "diagonal",
+    "turn",
+    "qvga_curb",
+    "noisy_marks",
+    "noisy_approach",
+    "bumpy_marks",
+    "bumpy_approach",
+    "exposure_rolling",
+    "slip",
+];
+
+/// The recordings rendered level, without noise or exposure effects of
+/// their own: the perturbation sweeps below add theirs to these.
 const RECORDINGS: [&str; 8] =
     ["flat_marks", "stool_bags", "approach_box", "diagonal", "turn", "qvga_curb", "noisy_marks", "noisy_approach"];
 
 fn detect(name: &str, perturbation: Option<Perturbation>) -> (Confusion, Vec<FrameReport>) {
-    let mut recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)).unwrap();
+    let recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)).unwrap();
+    detect_recording(recording, perturbation)
+}
+
+fn detect_recording(mut recording: Recording, perturbation: Option<Perturbation>) -> (Confusion, Vec<FrameReport>) {
     if let Some(p) = perturbation {
         p.poses(&mut recording);
     }
@@ -39,13 +61,56 @@ fn detect(name: &str, perturbation: Option<Perturbation>) -> (Confusion, Vec<Fra
 
 #[test]
 fn every_bundled_recording_has_no_errors_outside_grace_frames() {
-    for name in RECORDINGS {
+    for name in ALL_RECORDINGS {
         let (confusion, reports) = detect(name, None);
         println!("{name}: {confusion:?}");
         assert_eq!(confusion.errors(), 0, "{name}: {confusion:?}");
         // Every frame after the first gets a report (no keyframe restarts here).
         assert_eq!(reports.len() + 1, confusion.true_alarm as usize + confusion.missed as usize + confusion.false_alarm as usize + confusion.true_clear as usize + confusion.grace_right as usize + confusion.grace_wrong as usize + 1);
     }
+}
+
+/// `--odometry none`: the motion from the images alone.
+fn without_odometry(name: &str) {
+    let mut recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)).unwrap();
+    recording.ignore_odometry();
+    let frames = recording.frames.len();
+    let (confusion, reports) = detect_recording(recording, None);
+    println!("{name} without odometry: {confusion:?}, {} reports", reports.len());
+    assert_eq!(confusion.errors(), 0, "{name} without odometry: {confusion:?}");
+    // A frame without a report (the estimate failed) is no answer either.
+    assert_eq!(reports.len() + 1, frames, "{name}: every frame after the first gets a report");
+    assert!(reports.iter().all(|report| report.odometry_fault.is_none()), "{name}: no odometry, no odometry fault");
+}
+
+/// One test per recording without odometry, so that each can be marked on its own.
+macro_rules! without_odometry {
+    ($($(#[$attribute:meta])* $recording:ident),* $(,)?) => {
+        mod without_odometry {
+            $(#[test] $(#[$attribute])* fn $recording() { super::without_odometry(stringify!($recording)) })*
+        }
+        const WITHOUT_ODOMETRY: &[&str] = &[$(stringify!($recording)),*];
+    };
+}
+
+without_odometry! {
+    flat_marks,
+    #[ignore = "issue 13: the estimate fails on frame 5 (keyframe restart, no report)"] stool_bags,
+    approach_box,
+    diagonal,
+    turn,
+    #[ignore = "issue 13: the curb that fills the view is taken for ground (4 misses)"] qvga_curb,
+    noisy_marks,
+    noisy_approach,
+    bumpy_marks,
+    bumpy_approach,
+    exposure_rolling,
+    slip,
+}
+
+#[test]
+fn every_recording_is_tried_without_odometry() {
+    assert_eq!(WITHOUT_ODOMETRY, ALL_RECORDINGS);
 }
 
 /// Errors outside grace frames per recording under one perturbation.
@@ -179,4 +244,29 @@ fn moving_object_raises_the_alarm() {
     let centres: Vec<i32> = reports.iter().map(|r| (r.left_mm.unwrap() + r.right_mm.unwrap()) / 2).collect();
     println!("ball centre x per frame: {centres:?}");
     assert!(centres.windows(2).all(|w| w[1] > w[0]), "the extent follows the ball: {centres:?}");
+}
+
+/// Issue 13's attitude accuracy: on bumpy_marks with the IMU ignored
+/// (`--imu none`), the estimated dpitch and droll track the IMU's own change
+/// between the two frames within 0.15 deg RMS (its bias cancels in the
+/// difference; its noise, sigma 0.05 deg per reading, does not).
+#[test]
+fn attitude_from_the_images_tracks_the_imu_on_bumpy_marks() {
+    let original = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join("bumpy_marks")).unwrap();
+    let mut recording = original.clone();
+    recording.ignore_imu();
+    let (_, reports) = detect_recording(recording, None);
+    let imu = |frame: u32| original.pose(frame).and_then(|row| row.attitude).expect("bumpy_marks has IMU columns");
+    let scale = f64::from(flatland_core::report::ANGLE_SCALE);
+    let (mut pitch, mut roll) = (0.0, 0.0);
+    for report in &reports {
+        let change = imu(report.frame).since(&imu(report.ref_frame));
+        pitch += (f64::from(report.dpitch) / scale - change.pitch_deg).powi(2);
+        roll += (f64::from(report.droll) / scale - change.roll_deg).powi(2);
+    }
+    let n = reports.len() as f64;
+    let (pitch, roll) = ((pitch / n).sqrt(), (roll / n).sqrt());
+    println!("bumpy_marks --imu none: dpitch RMS {pitch:.3} deg, droll RMS {roll:.3} deg over {n} pairs");
+    assert!(reports.len() >= 14, "{} reports", reports.len());
+    assert!(pitch <= 0.15 && roll <= 0.15, "RMS pitch {pitch:.3} roll {roll:.3} deg");
 }

@@ -66,6 +66,8 @@ pub(super) struct Prior {
 struct BlockMatch {
     current: (f64, f64),
     keyframe: (f64, f64),
+    /// Mean brightness of the current block over the keyframe's at the match.
+    gain: f32,
 }
 
 /// The two images and their geometry, for one frame's estimate.
@@ -203,6 +205,20 @@ pub(super) struct Estimator {
 impl Estimator {
     pub(super) const EMPTY: Estimator =
         Estimator { coarse_keyframe: Coarse::EMPTY, coarse_current: Coarse::EMPTY, matches: heapless::Vec::new() };
+
+    /// The brightness of the current frame over the keyframe's (auto
+    /// exposure), the median over the last estimate's block matches; 1
+    /// without matches.
+    pub(super) fn gain(&self) -> f32 {
+        let mut gains = [0f32; MAX_BLOCK_MATCHES];
+        let count = self.matches.len();
+        for (gain, m) in gains.iter_mut().zip(&self.matches) {
+            *gain = m.gain;
+        }
+        let gains = &mut gains[..count];
+        gains.sort_unstable_by(|a, b| a.total_cmp(b));
+        gains.get(count / 2).copied().unwrap_or(1.0)
+    }
 
     /// The motion keyframe -> now, or None when the ground does not show
     /// enough texture in both images to measure it. `prior.sigma` sets the
@@ -348,9 +364,9 @@ impl Estimator {
         while bj + BLOCK_PX <= h {
             let mut bi = 0;
             while bi + BLOCK_PX <= w {
-                if let Some(found) = match_block(scene, &map, bi, bj) {
+                if let Some((found, gain)) = match_block(scene, &map, bi, bj) {
                     let centre = (bi as f64 + half - 0.5, bj as f64 + half - 0.5);
-                    if self.matches.push(BlockMatch { current: centre, keyframe: found }).is_err() {
+                    if self.matches.push(BlockMatch { current: centre, keyframe: found, gain }).is_err() {
                         return;
                     }
                 }
@@ -361,9 +377,10 @@ impl Estimator {
     }
 }
 
-/// The keyframe position of the centre of the block at (`bi`, `bj`), or
-/// None when it is off the view, flat, or ambiguous.
-fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Option<(f64, f64)> {
+/// The keyframe position of the centre of the block at (`bi`, `bj`) and
+/// the brightness gain there, or None when it is off the view, flat, or
+/// ambiguous.
+fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Option<((f64, f64), f32)> {
     let w = scene.grid.width();
     if !(bj..bj + BLOCK_PX).all(|j| scene.seen(bi, j) && scene.seen(bi + BLOCK_PX - 1, j)) {
         return None;
@@ -448,7 +465,9 @@ fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Option<(
     let peak = |minus: f32, centre: f32, plus: f32| crate::subpixel::maximum_offset(minus, centre, plus);
     let su = best_u as f64 - reach as f64 + f64::from(peak(scores[best_v][best_u - 1], best, scores[best_v][best_u + 1]));
     let sv = best_v as f64 - reach as f64 + f64::from(peak(scores[best_v - 1][best_u], best, scores[best_v + 1][best_u]));
-    Some((origin.0 + su * du.0 + sv * dv.0, origin.1 + su * du.1 + sv * dv.1))
+    let keyframe_sum: f32 = (0..BLOCK_PX).map(|v| patch[v + best_v][best_u..best_u + BLOCK_PX].iter().sum::<f32>()).sum();
+    let gain = (mean + 1.0) / (keyframe_sum / n + 1.0);
+    Some(((origin.0 + su * du.0 + sv * dv.0, origin.1 + su * du.1 + sv * dv.1), gain))
 }
 
 /// Step 3: the parameters that put the blocks where they were found,

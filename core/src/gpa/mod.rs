@@ -51,7 +51,7 @@ pub use parallax::HEIGHT_FRACTIONS;
 pub use shift_search::{SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
 
 use crate::geometry::Rig;
-use crate::grid::KgGrid;
+use crate::grid::{KgGrid, MAX_GRID_SIDE};
 use crate::limits::MAX_BLOBS;
 use crate::motion::{Attitude, GroundMotion, Motion};
 use crate::remap::RemapTable;
@@ -430,10 +430,22 @@ impl<'b> Gpa<'b> {
         self.search.clear();
         self.residue.clear();
         self.parallax.clear();
+        // An exposure step between the frames: the current rows are
+        // brought to the keyframe's brightness, or every textured pixel
+        // would differ. (Within 1 % a gain is left alone: noise.)
+        let gain = if estimate.is_some() { self.estimator.gain() } else { 1.0 };
+        let exposure = (libm::fabsf(gain - 1.0) > 0.01).then(|| exposure_table(gain));
+        let mut adjusted = [0u8; MAX_GRID_SIDE];
         // The rows are read from the store while the stages write their sums.
         let store = core::mem::replace(&mut self.keyframe, Keyframe::EMPTY);
         for j in 0..self.layout.analysis_rows {
-            let row = store.current_row(j);
+            let mut row = store.current_row(j);
+            if let Some(table) = &exposure {
+                for (out, &value) in adjusted.iter_mut().zip(row) {
+                    *out = table[usize::from(value)];
+                }
+                row = &adjusted[..row.len()];
+            }
             #[cfg(test)]
             if self.reference {
                 self.compare_row_reference(&store, j, row);
@@ -532,4 +544,10 @@ impl<'b> Gpa<'b> {
     pub fn predicted(&self) -> Motion {
         self.prediction.predicted
     }
+}
+
+/// Maps a current gray level to the keyframe's brightness under `gain`
+/// (current over keyframe).
+fn exposure_table(gain: f32) -> [u8; 256] {
+    core::array::from_fn(|level| libm::roundf(level as f32 / gain).clamp(0.0, 255.0) as u8)
 }
