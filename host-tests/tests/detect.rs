@@ -29,8 +29,13 @@ const ALL_RECORDINGS: [&str; 12] = [
 const RECORDINGS: [&str; 8] =
     ["flat_marks", "stool_bags", "approach_box", "diagonal", "turn", "qvga_curb", "noisy_marks", "noisy_approach"];
 
+/// A bundled recording.
+fn open(name: &str) -> Recording {
+    Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)).unwrap()
+}
+
 fn detect(name: &str, perturbation: Option<Perturbation>) -> (Confusion, Vec<FrameReport>) {
-    let recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)).unwrap();
+    let recording = open(name);
     detect_recording(recording, perturbation)
 }
 
@@ -72,7 +77,7 @@ fn every_bundled_recording_has_no_errors_outside_grace_frames() {
 
 /// `--odometry none`: the motion from the images alone.
 fn without_odometry(name: &str) {
-    let mut recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)).unwrap();
+    let mut recording = open(name);
     recording.ignore_odometry();
     let frames = recording.frames.len();
     let (confusion, reports) = detect_recording(recording, None);
@@ -165,7 +170,7 @@ fn clean_recordings_made_noisy() {
 #[test]
 fn obstacle_distance_follows_truth() {
     for name in ["stool_bags", "approach_box", "qvga_curb", "noisy_approach"] {
-        let recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)).unwrap();
+        let recording = open(name);
         let truth = recording.truth.as_ref().unwrap();
         let (_, reports) = detect(name, None);
         let mut errors: Vec<f64> = reports
@@ -218,7 +223,7 @@ fn gti_alarm_covers_gpa_under_odometry_bias() {
 /// and the reported extent must follow it across.
 #[test]
 fn moving_object_raises_the_alarm() {
-    let recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join("flat_marks")).unwrap();
+    let recording = open("flat_marks");
     let mut detector = Detector::new(&recording.rig, &DetectConfig::default()).unwrap();
     let mut reports = Vec::new();
     let paint_ball = |index: u32, frame: &mut flatland_host::recording::Frame| {
@@ -252,7 +257,7 @@ fn moving_object_raises_the_alarm() {
 /// difference; its noise, sigma 0.05 deg per reading, does not).
 #[test]
 fn attitude_from_the_images_tracks_the_imu_on_bumpy_marks() {
-    let original = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join("bumpy_marks")).unwrap();
+    let original = open("bumpy_marks");
     let mut recording = original.clone();
     recording.ignore_imu();
     let (_, reports) = detect_recording(recording, None);

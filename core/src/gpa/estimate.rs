@@ -566,6 +566,8 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> 
 }
 
 /// Solves the 5x5 symmetric positive definite system (Cholesky); None if singular.
+// Indexed loops on purpose: the factorisation is written as in the textbook.
+#[allow(clippy::needless_range_loop)]
 fn solve(a: [[f64; 5]; 5], b: [f64; 5]) -> Option<[f64; 5]> {
     let mut l = [[0f64; 5]; 5];
     for i in 0..5 {
