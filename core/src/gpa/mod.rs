@@ -140,6 +140,9 @@ pub struct Gpa<'b> {
     keyframe: Keyframe<'b>,
     prediction: Prediction,
     estimator: Estimator,
+    /// The seed's search around the prediction, when the measured motion
+    /// differs from it (the report's shift and statistics).
+    seed: ShiftSearch,
     /// The odometry and IMU given for this frame (None: no such sensor).
     odometry: Option<Motion>,
     imu: Option<Attitude>,
@@ -190,6 +193,7 @@ impl<'b> Gpa<'b> {
         keyframe: Keyframe::EMPTY,
         prediction: Prediction::START,
         estimator: Estimator::EMPTY,
+        seed: ShiftSearch::EMPTY,
         odometry: None,
         imu: None,
         keyframe_imu: None,
@@ -404,7 +408,7 @@ impl<'b> Gpa<'b> {
             height_mm: self.layout.camera_height_mm,
         };
         let estimate = self.estimator.estimate(&scene, &prior);
-        self.measured = match (estimate, self.odometry) {
+        let measured = match (estimate, self.odometry) {
             (Some(estimate), _) => estimate,
             (None, Some(_)) => prior.motion,
             (None, None) => {
@@ -413,54 +417,75 @@ impl<'b> Gpa<'b> {
                 return None;
             }
         };
-        let to_last = self.prediction.to_last();
-        let step = Motion {
-            tx_mm: self.measured.planar.tx_mm - to_last.tx_mm,
-            tz_mm: self.measured.planar.tz_mm - to_last.tz_mm,
-            dyaw_deg: self.measured.planar.dyaw_deg - to_last.dyaw_deg,
-        };
-        self.odometry_fault = self.odometry.map(|odometry| self.disagrees(&odometry, &step, estimate.is_some()));
-        let measured = self.measured.planar;
-        self.prediction.predicted = measured;
-        self.prediction.step = step;
-        let grid = &self.layout.grid;
-        self.parallax.hypotheses = Hypotheses::plan(&measured, &step, grid, &self.config);
-        self.keyframe.plan(keyframe::is_due(&measured, &step, &self.config));
-        self.warp = Warp::new(grid, &self.measured, self.layout.camera_height_mm);
-        self.search.clear();
-        self.residue.clear();
-        self.parallax.clear();
         // An exposure step between the frames: the current rows are
         // brought to the keyframe's brightness, or every textured pixel
         // would differ. (Within 1 % a gain is left alone: noise.)
         let gain = if estimate.is_some() { self.estimator.gain() } else { 1.0 };
         let exposure = (libm::fabsf(gain - 1.0) > 0.01).then(|| exposure_table(gain));
-        let mut adjusted = [0u8; MAX_GRID_SIDE];
         // The rows are read from the store while the stages write their sums.
-        let store = core::mem::replace(&mut self.keyframe, Keyframe::EMPTY);
+        let mut store = core::mem::replace(&mut self.keyframe, Keyframe::EMPTY);
+        let due = self.compare_at(&store, measured, exposure.as_ref());
+        // The seed's own search around the prediction: the report's shift
+        // and statistics are what the seed's GPA, trusting it, would see.
+        let seed_apart = measured != prior.motion;
+        if seed_apart {
+            self.search_prediction(&store, &prior.motion, exposure.as_ref());
+        }
+        store.plan(due);
+        self.keyframe = store;
+        self.odometry_fault = self.odometry.map(|odometry| self.disagrees(&odometry, &self.prediction.step, estimate.is_some()));
+        Some(self.decide(keyframe_frame, &prior.motion.planar, seed_apart))
+    }
+
+    /// Fills the seed's search (`self.seed`) around the `predicted` motion:
+    /// the shift search's part of the row step, on every AOI row.
+    fn search_prediction(&mut self, store: &Keyframe, predicted: &GroundMotion, exposure: Option<&[u8; 256]>) {
+        let s = self.config.search_radius;
+        let warp = Warp::new(&self.layout.grid, predicted, self.layout.camera_height_mm);
+        let (grid, aoi) = (&self.layout.grid, &self.layout.aoi);
+        self.seed.clear();
+        self.band.forget();
+        let mut runs = warp::Runs::new();
+        let mut adjusted = [0u8; MAX_GRID_SIDE];
+        for j in aoi.top..aoi.bottom.min(self.layout.analysis_rows) {
+            let Some(seen) = self.coverage.seen(j) else { continue };
+            let row_warp = warp.row(j);
+            self.coverage.usable_runs(row_warp, seen.clone(), grid, &mut runs);
+            self.band.sample(store, j, row_warp, seen, s, grid.width());
+            let row = exposed(store.current_row(j), exposure, &mut adjusted);
+            self.seed.add_row(row, &self.band.rows(s), s, &runs, aoi, self.layout.in_far_half(j));
+        }
+    }
+
+    /// Compares every stored row of the current frame with the keyframe in
+    /// `store` at the motion `measured` (keyframe -> now), through
+    /// `exposure` (current level -> keyframe brightness) when there is one;
+    /// returns whether this frame, so far from the keyframe, replaces it.
+    fn compare_at(&mut self, store: &Keyframe, measured: GroundMotion, exposure: Option<&[u8; 256]>) -> bool {
+        self.measured = measured;
+        let to_last = self.prediction.to_last();
+        let planar = measured.planar;
+        let step = Motion { tx_mm: planar.tx_mm - to_last.tx_mm, tz_mm: planar.tz_mm - to_last.tz_mm, dyaw_deg: planar.dyaw_deg - to_last.dyaw_deg };
+        self.prediction.predicted = planar;
+        self.prediction.step = step;
+        let grid = &self.layout.grid;
+        self.parallax.hypotheses = Hypotheses::plan(&planar, &step, grid, &self.config);
+        self.warp = Warp::new(grid, &measured, self.layout.camera_height_mm);
+        self.search.clear();
+        self.residue.clear();
+        self.parallax.clear();
+        self.band.forget();
+        let mut adjusted = [0u8; MAX_GRID_SIDE];
         for j in 0..self.layout.analysis_rows {
-            let mut row = store.current_row(j);
-            if let Some(table) = &exposure {
-                for (out, &value) in adjusted.iter_mut().zip(row) {
-                    *out = table[usize::from(value)];
-                }
-                row = &adjusted[..row.len()];
-            }
+            let row = exposed(store.current_row(j), exposure, &mut adjusted);
             #[cfg(test)]
             if self.reference {
-                self.compare_row_reference(&store, j, row);
+                self.compare_row_reference(store, j, row);
                 continue;
             }
-            self.compare_row(&store, j, row);
+            self.compare_row(store, j, row);
         }
-        // The seed's statistics and shift are reported against the
-        // prediction (odometry, or constant velocity without it), as the
-        // seed's GPA that trusts it would see them.
-        let predicted = Warp::new(&self.layout.grid, &prior.motion, self.layout.camera_height_mm);
-        let at_prediction = (prior.motion != self.measured).then(|| shift_search::histogram_at(&store, &predicted, &self.coverage, &self.layout));
-        self.keyframe = store;
-        let beyond = self.warp.shift_from(&predicted, &self.layout.aoi);
-        Some(self.decide(keyframe_frame, beyond, at_prediction))
+        keyframe::is_due(&planar, &step, &self.config)
     }
 
     /// Whether the odometry's step disagrees with the step seen on the
@@ -476,18 +501,18 @@ impl<'b> Gpa<'b> {
     }
 
     /// The frame's sums decide: refined motion, noise, obstacle, alarm.
-    /// `beyond` is the measured motion's shift from the prediction (KG px
-    /// at the AOI's centre) and `at_prediction` the |diff| histogram there
-    /// (None: the measured motion is the prediction).
-    fn decide(&mut self, keyframe_frame: u32, beyond: (f64, f64), at_prediction: Option<[u32; 256]>) -> FrameReport {
+    /// `predicted` is the prediction; `seed_apart`: the seed's search ran
+    /// around it apart from the measured motion's (else they are one).
+    fn decide(&mut self, keyframe_frame: u32, predicted: &Motion, seed_apart: bool) -> FrameReport {
         let measured = self.prediction.predicted;
         let fit = self.search.fit(self.config.search_radius, &measured, &self.layout);
         self.prediction.settle(fit.refined, self.layout.grid.mm_per_px);
         let histogram = self.search.histogram();
-        let (seed_sum, seed_count) = kernels::seed_statistics(at_prediction.as_ref().unwrap_or(&histogram));
         self.noise.update(&histogram, &self.config);
-        // The search ran around the measured motion.
-        let (shift_k, shift_g) = (fit.shift_k + beyond.0, fit.shift_g + beyond.1);
+        let seed = if seed_apart { &self.seed } else { &self.search };
+        let (seed_sum, seed_count) = kernels::seed_statistics(&seed.histogram());
+        let seed_fit = seed.fit(self.config.search_radius, predicted, &self.layout);
+        let (shift_k, shift_g) = (seed_fit.shift_k, seed_fit.shift_g);
         let short_baseline = self.prediction.predicted.distance_mm() < 0.5 * self.config.keyframe_travel_mm;
         let (layout, config) = (&self.layout, &self.config);
         let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &self.residue, config, short_baseline);
@@ -550,4 +575,13 @@ impl<'b> Gpa<'b> {
 /// (current over keyframe).
 fn exposure_table(gain: f32) -> [u8; 256] {
     core::array::from_fn(|level| libm::roundf(level as f32 / gain).clamp(0.0, 255.0) as u8)
+}
+
+/// `row` through `exposure` into `adjusted`, or `row` itself without one.
+fn exposed<'r>(row: &'r [u8], exposure: Option<&[u8; 256]>, adjusted: &'r mut [u8; MAX_GRID_SIDE]) -> &'r [u8] {
+    let Some(table) = exposure else { return row };
+    for (out, &value) in adjusted.iter_mut().zip(row) {
+        *out = table[usize::from(value)];
+    }
+    &adjusted[..row.len()]
 }

@@ -8,9 +8,7 @@
 use super::band::{BandRows, MAX_WINDOW};
 use super::kernels;
 use super::layout::Layout;
-use super::keyframe::Keyframe;
-use super::warp::{clip, Coverage, Runs, Warp};
-use crate::grid::MAX_GRID_SIDE;
+use super::warp::clip;
 use crate::grid::PixelRect;
 use crate::limits::MAX_SEARCH_RADIUS;
 use crate::motion::Motion;
@@ -89,22 +87,9 @@ impl ShiftSearch {
     /// The best shift (search radius `s`) and the motion it measures, from
     /// the `predicted` one.
     pub(super) fn fit(&self, s: usize, predicted: &Motion, layout: &Layout) -> ShiftFit {
-        let mut sad = self.sad_near;
-        for (row, far) in sad.iter_mut().zip(&self.sad_far) {
-            for (sum, &far) in row.iter_mut().zip(far) {
-                *sum += far;
-            }
-        }
+        let sad = self.whole_aoi();
         // Best integer shift, then a parabola per axis for the sub-pixel part.
-        let (mut best_g, mut best_k) = (s, s);
-        for dg in 0..=2 * s {
-            for dk in 0..=2 * s {
-                if sad[dg][dk] < sad[best_g][best_k] {
-                    best_g = dg;
-                    best_k = dk;
-                }
-            }
-        }
+        let (best_g, best_k) = best_shift(&sad, s);
         let interior_k = best_k > 0 && best_k < 2 * s;
         let interior_g = best_g > 0 && best_g < 2 * s;
         let sub_k = if interior_k { minimum_offset(sad[best_g][best_k - 1], sad[best_g][best_k], sad[best_g][best_k + 1]) } else { 0.0 };
@@ -128,6 +113,17 @@ impl ShiftSearch {
             refined
         });
         ShiftFit { shift_k, shift_g, refined }
+    }
+
+    /// SAD per shift [dg][dk] over the whole AOI: near half plus far half.
+    fn whole_aoi(&self) -> [[u32; MAX_WINDOW]; MAX_WINDOW] {
+        let mut sad = self.sad_near;
+        for (row, far) in sad.iter_mut().zip(&self.sad_far) {
+            for (sum, &far) in row.iter_mut().zip(far) {
+                *sum += far;
+            }
+        }
+        sad
     }
 
     /// Yaw error from the K shift of the far and the near half of the AOI
@@ -160,27 +156,19 @@ impl ShiftSearch {
     }
 }
 
-/// The |diff| histogram over the AOI's usable pixels of the current frame
-/// against the keyframe under `warp`, the same pixels the search's own
-/// histogram counts: the seed's statistics at another motion.
-pub(super) fn histogram_at(store: &Keyframe, warp: &Warp, coverage: &Coverage, layout: &Layout) -> [u32; 256] {
-    let mut histogram = kernels::DiffHistogram::EMPTY;
-    let mut line = [0u8; MAX_GRID_SIDE];
-    let mut runs = Runs::new();
-    let (grid, aoi) = (&layout.grid, &layout.aoi);
-    for j in aoi.top..aoi.bottom.min(layout.analysis_rows) {
-        let Some(seen) = coverage.seen(j) else { continue };
-        let row_warp = warp.row(j);
-        coverage.usable_runs(row_warp, seen, grid, &mut runs);
-        for &run in &runs {
-            let columns = clip(run, aoi.left, aoi.right);
-            if !columns.is_empty() {
-                store.sample_line(row_warp, columns.clone(), &mut line);
-                histogram.add(&store.current_row(j)[columns.clone()], &line[columns]);
+/// The (dg, dk) of the smallest SAD in the window of radius `s`; on ties
+/// the centre, else the first in scan order.
+fn best_shift(sad: &[[u32; MAX_WINDOW]; MAX_WINDOW], s: usize) -> (usize, usize) {
+    let (mut best_g, mut best_k) = (s, s);
+    for dg in 0..=2 * s {
+        for dk in 0..=2 * s {
+            if sad[dg][dk] < sad[best_g][best_k] {
+                best_g = dg;
+                best_k = dk;
             }
         }
     }
-    histogram.counts()
+    (best_g, best_k)
 }
 
 /// Sub-pixel offset of a SAD minimum from its neighbours.

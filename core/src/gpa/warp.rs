@@ -3,7 +3,7 @@
 //! the robot origin), one Q16.16 line per row; and which of a row's columns
 //! can be compared at all.
 
-use crate::grid::{KgGrid, PixelRect, MAX_GRID_SIDE};
+use crate::grid::{KgGrid, MAX_GRID_SIDE};
 use crate::motion::{GroundMap, GroundMotion};
 use crate::remap::RemapTable;
 use core::ops::Range;
@@ -94,16 +94,6 @@ impl Warp {
             column: (along.0 - origin.0, along.1 - origin.1),
             row: (down.0 - origin.0, down.1 - origin.1),
         }
-    }
-
-    /// How far this warp's keyframe sample lies from `other`'s at the
-    /// centre of `area` (KG px along K, G): a shift of the seed's search.
-    pub(super) fn shift_from(&self, other: &Warp, area: &PixelRect) -> (f64, f64) {
-        let (c, j) = ((area.left + area.right) / 2, (area.top + area.bottom) / 2);
-        let (i, jj) = self.row(j).at(c);
-        let (i_other, j_other) = other.row(j).at(c);
-        let px = |q16: i32| f64::from(q16) / f64::from(1u32 << FRAC);
-        (px(i - i_other), px(jj - j_other))
     }
 
     /// The warp of current row `j`.
