@@ -8,8 +8,8 @@ use flatland_host::perturb::Perturbation;
 use flatland_host::recording::Recording;
 use std::path::Path;
 
-const RECORDINGS: [&str; 8] =
-    ["flat_marks", "stool_bags", "approach_box", "diagonal", "turn", "qvga_curb", "noisy_marks", "noisy_approach"];
+const RECORDINGS: [&str; 9] =
+    ["flat_marks", "stool_bags", "approach_box", "diagonal", "turn", "qvga_curb", "noisy_marks", "noisy_approach", "ledge"];
 
 fn detect(name: &str, perturbation: Option<Perturbation>) -> (Confusion, Vec<FrameReport>) {
     let mut recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)).unwrap();
@@ -96,6 +96,29 @@ fn clean_recordings_made_noisy() {
     let p = Perturbation { seed: 5, noise_sigma: 2.0, gain_flicker: 0.012, odometry_scale_sigma: 0.025, yaw_sigma_deg: 0.05, ..Default::default() };
     let errors = sweep("sigma 2, 1.2%, 2.5%, 0.05 deg", p);
     assert!(errors.iter().sum::<u32>() <= 4, "{errors:?}");
+}
+
+/// Issue 14: ledge, a 150 mm step down across the path. Every pair is
+/// right outside grace frames, the first alarm is the first alarm pair
+/// outside grace frames (the edge has just entered the AOI), every alarm
+/// is a drop (negative height), and nearest_mm is the edge within 5 %.
+#[test]
+fn ledge_is_a_drop_at_its_edge() {
+    let recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join("ledge")).unwrap();
+    let truth = recording.truth.as_ref().unwrap();
+    let (confusion, reports) = detect("ledge", None);
+    println!("ledge: {confusion:?}");
+    assert_eq!(confusion.errors(), 0, "{confusion:?}");
+    let first_alarm = reports.iter().find(|r| r.alarm).map(|r| r.frame);
+    let first_truth = truth.pair.iter().find(|p| p.alarm && !flatland_host::evaluate::is_grace(truth, p.frame)).map(|p| p.frame);
+    assert_eq!(first_alarm, first_truth);
+    for report in reports.iter().filter(|r| r.alarm) {
+        let want = truth.pair(report.frame).and_then(|p| p.nearest_mm).unwrap();
+        let got = f64::from(report.nearest_mm.unwrap());
+        println!("ledge frame {}: nearest {got} mm (truth {want}), depth {:?}", report.frame, report.obstacle_h_mm);
+        assert!((got - want).abs() <= 0.05 * want, "frame {}: {got} vs {want}", report.frame);
+        assert!(report.obstacle_h_mm.is_some_and(|h| h <= -20), "frame {}: {:?}", report.frame, report.obstacle_h_mm);
+    }
 }
 
 /// Where the obstacle is: nearest_mm against truth on alarm frames.

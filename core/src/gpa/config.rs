@@ -30,8 +30,12 @@ pub struct GpaConfig {
     pub parallax_gain_percent: u32,
     /// ...and by at least this many gray levels per pixel (or the noise level, if higher).
     pub parallax_min_gain: f64,
-    /// Obstacles are at least this tall (mm); lower bumps are ground.
+    /// Obstacles are at least this tall (mm), drops at least this deep;
+    /// lower bumps and shallower dips are ground.
     pub min_obstacle_height_mm: f64,
+    /// The deepest drop the depth hypotheses look for (mm below the ground);
+    /// a deeper one matches the deepest hypothesis and is reported at it.
+    pub max_drop_mm: f64,
     /// Odometry error to tolerate, as a fraction of the step since the last
     /// frame (the part of the motion the shift search has not refined yet):
     /// height hypotheses whose displacement stays within it count as ground.
@@ -62,6 +66,7 @@ impl GpaConfig {
         parallax_gain_percent: 30,
         parallax_min_gain: 3.0,
         min_obstacle_height_mm: 20.0,
+        max_drop_mm: 300.0,
         odometry_error_fraction: 0.05,
         odometry_yaw_error_deg: 0.1,
     };
@@ -77,6 +82,7 @@ impl GpaConfig {
             self.min_residue_mm2,
             self.parallax_min_gain,
             self.min_obstacle_height_mm,
+            self.max_drop_mm,
             self.odometry_error_fraction,
             self.odometry_yaw_error_deg,
         ];

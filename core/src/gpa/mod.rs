@@ -47,7 +47,7 @@ pub use crate::limits::KEYFRAME_SPARE_ROWS;
 pub use config::GpaConfig;
 pub use decision::AlarmSource;
 pub use obstacles::Blob;
-pub use parallax::HEIGHT_FRACTIONS;
+pub use parallax::{DROP_STEPS, HEIGHT_FRACTIONS};
 pub use shift_search::{SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
 
 use crate::geometry::Rig;
@@ -284,7 +284,7 @@ impl<'b> Gpa<'b> {
         }
         let (predicted, step) = (self.prediction.predicted, self.prediction.step);
         let grid = &self.layout.grid;
-        self.parallax.hypotheses = Hypotheses::plan(&predicted, &step, grid, &self.config);
+        self.parallax.hypotheses = Hypotheses::plan(&predicted, &step, grid, &self.config, self.layout.camera_height_mm);
         let replace = keyframe::is_due(&predicted, &step, &self.config);
         if replace && !self.parallax.hypotheses.keep_clear_of_update(&predicted, grid, self.config.search_radius) {
             // Moved too far to compare in place: start afresh from this frame.
@@ -361,12 +361,14 @@ impl<'b> Gpa<'b> {
         let histogram = self.search.histogram();
         let (seed_sum, seed_count) = kernels::seed_statistics(&histogram);
         self.noise.update(&histogram, &self.config);
-        let short_baseline = self.prediction.predicted.distance_mm() < 0.5 * self.config.keyframe_travel_mm;
+        let baseline_mm = self.prediction.predicted.distance_mm();
+        let short_baseline = baseline_mm < 0.5 * self.config.keyframe_travel_mm;
         let (layout, config) = (&self.layout, &self.config);
         let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &self.residue, config, short_baseline);
         self.blobs = obstacles::residue_blobs(layout, &self.residue, config);
         let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &self.residue, config);
-        let obstacle = self.alarm.decide(parallax.map(|(footprint, _)| footprint), residue, short_baseline, &self.prediction.step);
+        let hazard = self.alarm.decide(parallax, residue, baseline_mm, config, &self.prediction.step);
+        let obstacle = hazard.map(|(footprint, _)| footprint);
         let motion = self.prediction.to_last();
         FrameReport {
             frame: self.frame,
@@ -381,8 +383,7 @@ impl<'b> Gpa<'b> {
             shift_g: libm::round(fit.shift_g * f64::from(SHIFT_SCALE)) as i32,
             tx: libm::round(motion.tx_mm * f64::from(MOTION_SCALE)) as i32,
             tz: libm::round(motion.tz_mm * f64::from(MOTION_SCALE)) as i32,
-            // A parallax obstacle always raises the alarm.
-            obstacle_h_mm: parallax.map(|(_, height)| height),
+            obstacle_h_mm: hazard.and_then(|(_, height)| height),
         }
     }
 
@@ -390,8 +391,9 @@ impl<'b> Gpa<'b> {
     pub fn blobs(&self) -> &[Blob] {
         &self.blobs
     }
-    /// Parallax height (mm) of a cell in the last frame, 0 for ground.
-    pub fn cell_height(&self, row: usize, column: usize) -> u8 {
+    /// Parallax height (mm) of a cell in the last frame, 0 for ground,
+    /// negative below it (a drop's lower level).
+    pub fn cell_height(&self, row: usize, column: usize) -> i16 {
         let cells = &self.layout.cells;
         if row >= cells.high || column >= cells.wide {
             return 0;

@@ -99,9 +99,8 @@ impl Gpa<'_> {
         // Height hypotheses (0 = the ground prediction itself, band[S]).
         // A sample off the keyframe is None: that hypothesis skips the pixel.
         let hypotheses = &self.parallax.hypotheses;
-        let usable_hypotheses = hypotheses.usable;
         let mut hypothesis_rows = [[None; MAX_GRID_SIDE]; HYPOTHESES];
-        for k in 1..usable_hypotheses {
+        for k in hypotheses.active() {
             let (oi, oj) = hypotheses.offset[k];
             for c in cur_lo..cur_hi {
                 let (i_ref, j_ref) = warp.at(c);
@@ -159,7 +158,7 @@ impl Gpa<'_> {
                 // tolerance, the heights must beat it outright.
                 sums.pixels[0][cell_column] += 1;
                 sums.sad[0][cell_column] += u32::from(ground_residue);
-                for k in 1..usable_hypotheses {
+                for k in hypotheses.active() {
                     if let Some(sample) = hypothesis_rows[k][c] {
                         sums.pixels[k][cell_column] += 1;
                         sums.sad[k][cell_column] += u32::from(value.abs_diff(sample));
@@ -240,7 +239,7 @@ mod tests {
         v.push(gpa.search.compared_pixels);
         v.extend(gpa.residue.cell_residue.iter().map(|&x| u32::from(x)));
         v.extend(gpa.residue.cell_valid.iter().map(|&x| u32::from(x)));
-        v.extend(gpa.parallax.height.iter().map(|&x| u32::from(x)));
+        v.extend(gpa.parallax.height.iter().map(|&x| x as u32));
         v.extend(gpa.residue.row_residue.iter().map(|&x| u32::from(x)));
         let s = gpa.config.search_radius;
         let span = band_columns.start + MAX_SEARCH_RADIUS..band_columns.end + MAX_SEARCH_RADIUS;
