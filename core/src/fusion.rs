@@ -55,7 +55,7 @@ impl GtiStage {
 
     /// Sets the stage up for a rig (default GTI configuration), in place.
     pub fn configure(&mut self, rig: &Rig, grid: &KgGrid) -> Result<(), GtiError> {
-        self.gti.configure(rig, grid, GtiConfig::default())?;
+        self.gti.configure(rig, grid, GtiConfig::DEFAULT)?;
         let aoi = rig.aoi();
         self.aoi = RegionMm {
             x_min: -aoi.half_width_mm as f32,
@@ -67,6 +67,7 @@ impl GtiStage {
         Ok(())
     }
 
+    /// The GTI state (points, tracks) for `flatland heights`.
     pub fn gti(&self) -> &Gti {
         &self.gti
     }

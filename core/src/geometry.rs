@@ -20,8 +20,7 @@
 
 use libm::{cos, hypot, sin, sqrt};
 
-/// Largest camera image side we accept (the streaming buffers are sized by it).
-pub const MAX_IMAGE_SIDE: u16 = 1024;
+use crate::limits::MAX_IMAGE_SIDE;
 
 /// OpenCV plumb_bob lens distortion coefficients.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -62,14 +61,9 @@ pub struct Aoi {
     pub far_mm: f64,
 }
 
-impl Aoi {
-    pub fn contains(&self, x_mm: f64, z_mm: f64) -> bool {
-        x_mm.abs() <= self.half_width_mm && z_mm >= self.near_mm && z_mm <= self.far_mm
-    }
-}
-
 /// Why a rig was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum RigError {
     /// A value is NaN or infinite.
     NotFinite,
@@ -113,6 +107,8 @@ impl core::fmt::Display for RigError {
     }
 }
 
+impl core::error::Error for RigError {}
+
 /// A point in the seed's KG plane: K = x / (H - y), G = z / (H - y).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Kg {
@@ -154,6 +150,16 @@ const UNDISTORT_ITERATIONS: usize = 20;
 const UNDISTORT_TOLERANCE_PX: f64 = 1e-4;
 
 impl Distortion {
+    /// From OpenCV's coefficient order `[k1, k2, p1, p2, k3]` (rig.toml, the wire).
+    pub const fn from_coefficients([k1, k2, p1, p2, k3]: [f64; 5]) -> Distortion {
+        Distortion { k1, k2, p1, p2, k3 }
+    }
+
+    /// In OpenCV's coefficient order `[k1, k2, p1, p2, k3]`.
+    pub const fn coefficients(&self) -> [f64; 5] {
+        [self.k1, self.k2, self.p1, self.p2, self.k3]
+    }
+
     /// Applies plumb_bob to normalised coordinates (x right, y down).
     pub fn apply(&self, x: f64, y: f64) -> (f64, f64) {
         let r2 = x * x + y * y;

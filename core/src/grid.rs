@@ -6,10 +6,12 @@
 //! top, the robot at the bottom, as in the seed's Fig. 2.
 
 use crate::geometry::Rig;
+use crate::limits::DEFAULT_MAX_PIXELS;
 use libm::ceil;
 
-/// Largest grid side, in pixels (buffers downstream are sized by it).
-pub const MAX_GRID_SIDE: usize = 256;
+/// The grid's capacity, defined with the others in [`crate::limits`]; also
+/// here because the detectors size their per-row buffers by the grid's.
+pub use crate::limits::MAX_GRID_SIDE;
 
 /// How much ground around the AOI the grid covers, and at what resolution.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -31,10 +33,6 @@ pub struct GridConfig {
     /// one grid, so RAM bounds it. A fixed `mm_per_px` is not bound by it.
     pub max_pixels: usize,
 }
-
-/// Default [`GridConfig::max_pixels`]: a 40 KB keyframe, which leaves room
-/// for the rest of the pipeline in an STM32F4's 128 KB.
-pub const DEFAULT_MAX_PIXELS: usize = 40_000;
 
 /// Far margin for the travel between a keyframe and a later frame.
 pub const TRAVEL_MARGIN_MM: f64 = 100.0;
@@ -62,7 +60,9 @@ impl Default for GridConfig {
     }
 }
 
+/// Why no grid could be chosen for a rig.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum GridError {
     /// A margin is negative or not finite, or `mm_per_px` is not positive.
     Config,
@@ -81,6 +81,8 @@ impl core::fmt::Display for GridError {
         })
     }
 }
+
+impl core::error::Error for GridError {}
 
 /// Resolution is rounded up to a multiple of this (mm), so figures stay readable.
 const RESOLUTION_QUANTUM_MM: f64 = 1.0 / 16.0;

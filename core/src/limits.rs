@@ -1,8 +1,38 @@
-//! Capacities and limits: every fixed size that bounds a buffer or a
-//! search, in one place. Core has no heap, so these decide the RAM a target
-//! reserves; algorithm parameters stay with their configs.
+//! Every capacity in one place: the sizes that fix buffers, arrays and
+//! accepted inputs (no heap: each buffer is sized by one of these).
+//! Algorithm parameters (levels, margins, tolerances) stay with their
+//! configs; only what bounds memory or input lives here.
 
-// GPA detector
+// ---------------------------------------------------------------- camera
+
+/// Largest camera image side we accept: the remap's row ring and pinhole
+/// line are sized by it ([`crate::geometry::Rig::new_checked`] refuses more).
+pub const MAX_IMAGE_SIDE: u16 = 1024;
+
+// --------------------------------------------------------------- KG grid
+
+/// Largest KG grid side, in pixels: the remap table's rows and every
+/// per-row buffer downstream are sized by it.
+pub const MAX_GRID_SIDE: usize = 256;
+
+/// Default [`crate::grid::GridConfig::max_pixels`]: a 40 KB keyframe, which
+/// leaves room for the rest of the pipeline in an STM32F4's 128 KB.
+pub const DEFAULT_MAX_PIXELS: usize = 40_000;
+
+// ------------------------------------------------------------------ PGM
+
+/// Largest PGM side the header parser accepts; larger is treated as a
+/// damaged header.
+pub const MAX_PGM_SIDE: u32 = 8192;
+
+// ------------------------------------------------------------- protocol
+
+/// Longest serial line, `$` to `\n` inclusive. Fits the rig message with
+/// every float at its longest shortest-round-trip form (see
+/// `protocol::write_f64`).
+pub const MAX_LINE: usize = 512;
+
+// ---------------------------------------------------------- GPA detector
 
 /// Largest search radius S (the window is `(2S+1)^2` shifts).
 pub const MAX_SEARCH_RADIUS: usize = 3;
@@ -22,3 +52,24 @@ pub const MAX_BLOB_CELLS: usize = 128;
 /// Cells waiting on the stack of a blob's flood fill: a full stack
 /// truncates the blob's growth.
 pub const MAX_FLOOD_CELLS: usize = 256;
+
+// ------------------------------------------------------------------- GTI
+
+/// Most GT lines across the AOI (the default uses all of them: each line's
+/// samples cost a KG column of RAM).
+pub const MAX_LINES: usize = 8;
+/// Samples per GT line: one per KG row.
+pub const MAX_LINE_SAMPLES: usize = MAX_GRID_SIDE;
+/// Most pixels averaged across a GT line.
+pub const MAX_LINE_WIDTH_PX: usize = 7;
+/// Most edges considered per GT line and frame (the strongest win).
+pub const MAX_EDGES_PER_LINE: usize = 24;
+/// Weaker edges per GT line that established tracks may continue on
+/// (hysteresis: a track's prediction vouches for them).
+pub const MAX_WEAK_EDGES_PER_LINE: usize = 64;
+/// Most GTI tracks alive at once, over all lines.
+pub const MAX_TRACKS: usize = 128;
+/// Observations kept per GTI track (a sliding window over the latest frames).
+pub const MAX_OBSERVATIONS: usize = 16;
+/// Points of ended GTI tracks kept in the map.
+pub const MAX_MAP_POINTS: usize = 64;

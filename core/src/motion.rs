@@ -1,9 +1,11 @@
-//! Robot poses and the odometry between them (the seed's Tx, Tz, and yaw).
+//! Robot poses and the odometry between them (the seed's Tx, Tz, and yaw),
+//! and the rotation by a heading that every change of frame goes through.
 //!
 //! World frame as in RECORDING.md: yaw is the heading, positive turning left
 //! (counter-clockwise seen from above), 0 = world +z. The robot's forward
 //! axis in world (x, z) is (-sin yaw, cos yaw) and its right axis (cos yaw, sin yaw).
 
+use core::ops::{Add, Mul, Neg, Sub};
 use libm::{cos, sin};
 
 /// Where the robot was when a frame was captured (world frame, mm, degrees).
@@ -26,13 +28,8 @@ pub struct Motion {
 impl Motion {
     /// The odometry (Tx, Tz, dyaw) from `from` to `to`, in `from`'s robot frame.
     pub fn between(from: &Pose, to: &Pose) -> Motion {
-        let yaw = from.yaw_deg.to_radians();
-        let (dx, dz) = (to.x_mm - from.x_mm, to.z_mm - from.z_mm);
-        Motion {
-            tx_mm: dx * cos(yaw) + dz * sin(yaw),
-            tz_mm: -dx * sin(yaw) + dz * cos(yaw),
-            dyaw_deg: to.yaw_deg - from.yaw_deg,
-        }
+        let [tx_mm, tz_mm] = from.rotation().to_robot([to.x_mm - from.x_mm, to.z_mm - from.z_mm]);
+        Motion { tx_mm, tz_mm, dyaw_deg: to.yaw_deg - from.yaw_deg }
     }
 
     /// This motion followed by `next` (given in the robot frame after this one).
@@ -49,33 +46,83 @@ impl Motion {
     /// A ground point given in the robot frame *after* this motion, expressed
     /// in the robot frame *before* it.
     pub fn to_earlier_frame(&self, x_mm: f64, z_mm: f64) -> (f64, f64) {
-        let yaw = self.dyaw_deg.to_radians();
-        // The later frame's axes, seen from the earlier frame.
-        let (right_x, right_z) = (cos(yaw), sin(yaw));
-        let (forward_x, forward_z) = (-sin(yaw), cos(yaw));
-        (self.tx_mm + x_mm * right_x + z_mm * forward_x, self.tz_mm + x_mm * right_z + z_mm * forward_z)
+        let [x, z] = self.turn().place([self.tx_mm, self.tz_mm], [x_mm, z_mm]);
+        (x, z)
     }
 
     /// Inverse of [`Motion::to_earlier_frame`].
     pub fn to_later_frame(&self, x_mm: f64, z_mm: f64) -> (f64, f64) {
-        let yaw = self.dyaw_deg.to_radians();
-        let (dx, dz) = (x_mm - self.tx_mm, z_mm - self.tz_mm);
-        (dx * cos(yaw) + dz * sin(yaw), -dx * sin(yaw) + dz * cos(yaw))
+        let [x, z] = self.turn().to_robot([x_mm - self.tx_mm, z_mm - self.tz_mm]);
+        (x, z)
+    }
+
+    /// The later frame's axes seen from the earlier one.
+    fn turn(&self) -> Rotation<f64> {
+        Rotation::from_degrees(self.dyaw_deg)
     }
 }
 
 impl Pose {
     /// A point in this pose's robot frame -> world frame.
     pub fn robot_to_world(&self, x_mm: f64, z_mm: f64) -> (f64, f64) {
-        let yaw = self.yaw_deg.to_radians();
-        (self.x_mm + x_mm * cos(yaw) - z_mm * sin(yaw), self.z_mm + x_mm * sin(yaw) + z_mm * cos(yaw))
+        let [x, z] = self.rotation().place([self.x_mm, self.z_mm], [x_mm, z_mm]);
+        (x, z)
     }
 
     /// A world point -> this pose's robot frame.
     pub fn world_to_robot(&self, x_mm: f64, z_mm: f64) -> (f64, f64) {
-        let yaw = self.yaw_deg.to_radians();
-        let (dx, dz) = (x_mm - self.x_mm, z_mm - self.z_mm);
-        (dx * cos(yaw) + dz * sin(yaw), -dx * sin(yaw) + dz * cos(yaw))
+        let [x, z] = self.rotation().to_robot([x_mm - self.x_mm, z_mm - self.z_mm]);
+        (x, z)
+    }
+
+    /// The rotation of this pose's robot axes in the world.
+    pub fn rotation(&self) -> Rotation<f64> {
+        Rotation::from_degrees(self.yaw_deg)
+    }
+}
+
+/// The rotation by a heading (positive turning left): vectors in robot axes
+/// to world axes and back, `[x, z]`. The robot's right axis in the world is
+/// `(cos, sin)`, its forward axis `(-sin, cos)`. Poses, motions and GTI turn
+/// through here; `f32` for callers that work in single precision (the sines
+/// are computed in `f64` either way).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Rotation<T> {
+    sin: T,
+    cos: T,
+}
+
+impl Rotation<f64> {
+    pub fn from_radians(yaw_rad: f64) -> Rotation<f64> {
+        Rotation { sin: sin(yaw_rad), cos: cos(yaw_rad) }
+    }
+
+    pub fn from_degrees(yaw_deg: f64) -> Rotation<f64> {
+        Rotation::from_radians(yaw_deg.to_radians())
+    }
+
+    /// The same rotation in single precision.
+    pub fn to_f32(self) -> Rotation<f32> {
+        Rotation { sin: self.sin as f32, cos: self.cos as f32 }
+    }
+}
+
+impl<T: Copy + Add<Output = T> + Sub<Output = T> + Mul<Output = T> + Neg<Output = T>> Rotation<T> {
+    /// A vector in robot axes, in world axes.
+    pub fn to_world(&self, [x, z]: [T; 2]) -> [T; 2] {
+        [x * self.cos - z * self.sin, x * self.sin + z * self.cos]
+    }
+
+    /// A vector in world axes, in robot axes: the inverse of [`Rotation::to_world`].
+    pub fn to_robot(&self, [x, z]: [T; 2]) -> [T; 2] {
+        [x * self.cos + z * self.sin, -x * self.sin + z * self.cos]
+    }
+
+    /// The point at robot-axes offset `v` from `origin`: `origin + to_world(v)`,
+    /// but summed term by term from the origin (`origin + x cos - z sin`), the
+    /// rounding that poses and motions have always had.
+    pub fn place(&self, origin: [T; 2], [x, z]: [T; 2]) -> [T; 2] {
+        [origin[0] + x * self.cos - z * self.sin, origin[1] + x * self.sin + z * self.cos]
     }
 }
 
@@ -106,5 +153,22 @@ mod tests {
         assert!((chained.tx_mm - direct.tx_mm).abs() < 1e-9 && (chained.tz_mm - direct.tz_mm).abs() < 1e-9);
         assert!((chained.dyaw_deg - direct.dyaw_deg).abs() < 1e-12);
         assert!((rx - wx).abs() < 1e-9 && (rz - wz).abs() < 1e-9);
+    }
+
+    #[test]
+    fn rotation_turns_left_and_back() {
+        // 90 degrees left: the robot's right axis is world +z, forward is world -x.
+        let turn = Rotation::from_degrees(90.0);
+        let [x, z] = turn.to_world([1.0, 0.0]);
+        assert!(x.abs() < 1e-12 && (z - 1.0).abs() < 1e-12);
+        let [x, z] = turn.to_f32().to_world([0.0f32, 1.0]);
+        assert!((x + 1.0).abs() < 1e-6 && z.abs() < 1e-6);
+        let v = [30.0, -7.5];
+        let yaw = Rotation::from_radians(0.7);
+        let [bx, bz] = yaw.to_robot(yaw.to_world(v));
+        assert!((bx - v[0]).abs() < 1e-12 && (bz - v[1]).abs() < 1e-12);
+        let [px, pz] = yaw.place([100.0, 200.0], v);
+        let [wx, wz] = yaw.to_world(v);
+        assert!((px - 100.0 - wx).abs() < 1e-9 && (pz - 200.0 - wz).abs() < 1e-9);
     }
 }

@@ -8,8 +8,11 @@
 //! The header parser works on a prefix of the file, so the firmware can read
 //! the header, then stream rows.
 
+use crate::limits::MAX_PGM_SIDE;
+
 /// Why a PGM was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum PgmError {
     /// Does not start with `P5`.
     BadMagic,
@@ -37,6 +40,8 @@ impl core::fmt::Display for PgmError {
     }
 }
 
+impl core::error::Error for PgmError {}
+
 /// A parsed PGM header.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PgmHeader {
@@ -46,9 +51,6 @@ pub struct PgmHeader {
     /// Offset of the first pixel byte.
     pub data_offset: usize,
 }
-
-/// Largest accepted side; larger is treated as a damaged header.
-const MAX_SIDE: u32 = 8192;
 
 fn is_space(byte: u8) -> bool {
     matches!(byte, b' ' | b'\t' | b'\n' | b'\r' | 0x0b | 0x0c)
@@ -113,7 +115,7 @@ impl PgmHeader {
         let width = cursor.number()?;
         let height = cursor.number()?;
         let maxval = cursor.number()?;
-        if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE || maxval == 0 {
+        if width == 0 || height == 0 || width > MAX_PGM_SIDE || height > MAX_PGM_SIDE || maxval == 0 {
             return Err(PgmError::BadHeaderField);
         }
         if maxval > 255 {

@@ -19,20 +19,19 @@
 
 use core::fmt::{self, Write};
 
+use crate::geometry::{Aoi, Distortion, Intrinsics, Mount, Rig, RigError};
+use crate::limits::MAX_LINE;
 use crate::report::FrameReport;
 
 /// Bumped whenever a message's fields change meaning or count.
 pub const PROTOCOL_VERSION: u32 = 1;
 
-/// Longest line, `$` to `\n` inclusive. Fits the rig message with every
-/// float at its longest shortest-round-trip form (see [`write_f64`]).
-pub const MAX_LINE: usize = 512;
-
 /// One encoded line.
 pub type Line = heapless::String<MAX_LINE>;
 
 /// The rig as it travels on the wire: rig.toml's values, unvalidated.
-/// The firmware turns it into a `geometry::Rig` with `Rig::new_checked`.
+/// `Rig::try_from(&record)` validates it (`Rig::new_checked`);
+/// `RigRecord::from(&rig)` gives it back with the same f64 values.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RigRecord {
     pub width: u16,
@@ -48,6 +47,45 @@ pub struct RigRecord {
     pub aoi_half_width_mm: f64,
     pub aoi_near_mm: f64,
     pub aoi_far_mm: f64,
+}
+
+impl From<&Rig> for RigRecord {
+    fn from(rig: &Rig) -> RigRecord {
+        let (camera, mount, aoi) = (rig.camera(), rig.mount(), rig.aoi());
+        RigRecord {
+            width: camera.width,
+            height: camera.height,
+            fx: camera.fx,
+            fy: camera.fy,
+            cx: camera.cx,
+            cy: camera.cy,
+            distortion: camera.distortion.map(|d| d.coefficients()),
+            height_mm: mount.height_mm,
+            tilt_deg: mount.tilt_deg,
+            aoi_half_width_mm: aoi.half_width_mm,
+            aoi_near_mm: aoi.near_mm,
+            aoi_far_mm: aoi.far_mm,
+        }
+    }
+}
+
+impl TryFrom<&RigRecord> for Rig {
+    type Error = RigError;
+
+    fn try_from(record: &RigRecord) -> Result<Rig, RigError> {
+        let camera = Intrinsics {
+            width: record.width,
+            height: record.height,
+            fx: record.fx,
+            fy: record.fy,
+            cx: record.cx,
+            cy: record.cy,
+            distortion: record.distortion.map(Distortion::from_coefficients),
+        };
+        let mount = Mount { height_mm: record.height_mm, tilt_deg: record.tilt_deg };
+        let aoi = Aoi { half_width_mm: record.aoi_half_width_mm, near_mm: record.aoi_near_mm, far_mm: record.aoi_far_mm };
+        Rig::new_checked(camera, mount, aoi)
+    }
 }
 
 /// The robot's world-frame pose when frame `frame` was captured (a poses.csv row).
@@ -186,6 +224,7 @@ impl Message {
 
 /// Why a message could not be encoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum EncodeError {
     /// NaN or infinity: the decoder would refuse it, so the encoder does.
     NonFinite,
@@ -199,8 +238,20 @@ impl From<fmt::Error> for EncodeError {
     }
 }
 
+impl fmt::Display for EncodeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            EncodeError::NonFinite => "a value is NaN or infinite",
+            EncodeError::Write => "the writer refused the line",
+        })
+    }
+}
+
+impl core::error::Error for EncodeError {}
+
 /// Why a line was refused. Each is counted in [`LinkStats`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum DecodeError {
     /// A `$` arrived before the previous line ended.
     Truncated,
@@ -235,6 +286,23 @@ impl DecodeError {
         }
     }
 }
+
+impl fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            DecodeError::Truncated => f.write_str("line cut short by a new `$`"),
+            DecodeError::TooLong => write!(f, "line longer than {MAX_LINE} bytes"),
+            DecodeError::MissingChecksum => f.write_str("no `*HH` checksum before the line end"),
+            DecodeError::BadChecksum => f.write_str("checksum does not match"),
+            DecodeError::UnknownType => f.write_str("unknown message type"),
+            DecodeError::UnsupportedVersion => write!(f, "protocol version is not {PROTOCOL_VERSION}"),
+            DecodeError::FieldCount => f.write_str("too few or too many fields for the message type"),
+            DecodeError::BadField { index } => write!(f, "field {index} does not parse or is out of range"),
+        }
+    }
+}
+
+impl core::error::Error for DecodeError {}
 
 // ---------------------------------------------------------------- encoding
 
@@ -649,13 +717,12 @@ impl Decoder {
 
 // ---------------------------------------------------------------- checks
 
-/// The protocol's checks, run as host `#[test]`s and on the target by the
-/// firmware's `selftest` binary (see [`crate::selftest`]).
+/// The protocol's checks, listed in [`crate::selftest`] (host `#[test]`s
+/// and the firmware's `selftest` binary on the target).
 #[cfg(any(test, feature = "selftest"))]
 pub mod checks {
     use super::*;
-
-    type Check = Result<(), &'static str>;
+    use crate::selftest::{xorshift32, Outcome as Check};
 
     fn ensure(condition: bool, failure: &'static str) -> Check {
         if condition {
@@ -734,6 +801,29 @@ pub mod checks {
             round_trip(Message::Fault(Fault { code, frame: u32::MAX }))?;
         }
         Ok(())
+    }
+
+    /// rig.toml's values survive record -> `Rig` -> record, with and without a lens.
+    pub fn rig_converts_both_ways() -> Check {
+        // A rig `Rig::new_checked` accepts (sample_rig is only a wire sample).
+        let valid = |distortion| RigRecord {
+            width: 256,
+            height: 256,
+            fx: 240.0,
+            fy: 240.0,
+            cx: 127.5,
+            cy: 127.5,
+            height_mm: 400.0,
+            tilt_deg: 32.0,
+            ..sample_rig(distortion)
+        };
+        for distortion in [None, Some([-0.28, 0.07, 1e-4, -2.5e-4, 0.01])] {
+            let record = valid(distortion);
+            let rig = Rig::try_from(&record).map_err(|_| "valid rig refused")?;
+            ensure(RigRecord::from(&rig) == record, "rig record changed through the rig")?;
+        }
+        let refused = RigRecord { tilt_deg: 90.0, ..valid(None) };
+        ensure(Rig::try_from(&refused) == Err(RigError::Tilt), "an impossible rig was accepted")
     }
 
     pub fn floats_round_trip_bit_for_bit() -> Check {
@@ -828,28 +918,17 @@ pub mod checks {
         ensure(stats.too_long == 1, "overlong line miscounted")
     }
 
-    /// A cheap deterministic generator, so the fuzz case is the same everywhere.
-    struct XorShift(u32);
-    impl XorShift {
-        fn next(&mut self) -> u32 {
-            self.0 ^= self.0 << 13;
-            self.0 ^= self.0 >> 17;
-            self.0 ^= self.0 << 5;
-            self.0
-        }
-    }
-
     pub fn random_bytes_never_panic_and_valid_lines_survive() -> Check {
-        let mut random = XorShift(0x2545_F491);
+        let mut state = 0x2545_F491;
         let mut decoder = Decoder::new();
         // Random bytes biased towards the protocol's own characters.
         for _ in 0..20_000 {
-            let byte = match random.next() % 8 {
+            let byte = match xorshift32(&mut state) % 8 {
                 0 => b'$',
                 1 => b'\n',
                 2 => b',',
                 3 => b'*',
-                _ => (random.next() & 0xFF) as u8,
+                _ => (xorshift32(&mut state) & 0xFF) as u8,
             };
             let _ = decoder.push(byte);
         }
@@ -858,43 +937,5 @@ pub mod checks {
         let line = encode_line(&Message::Frame(sample_report())).map_err(|_| "encode failed")?;
         let messages = decode_all(&mut decoder, line.as_bytes());
         ensure(messages.as_slice() == [Message::Frame(sample_report())], "decoder did not recover")
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::checks;
-
-    #[test]
-    fn every_message_round_trips() {
-        assert_eq!(checks::every_message_round_trips(), Ok(()));
-    }
-    #[test]
-    fn floats_round_trip_bit_for_bit() {
-        assert_eq!(checks::floats_round_trip_bit_for_bit(), Ok(()));
-    }
-    #[test]
-    fn longest_rig_fits_a_line() {
-        assert_eq!(checks::longest_rig_fits_a_line(), Ok(()));
-    }
-    #[test]
-    fn known_line_matches_documentation() {
-        assert_eq!(checks::known_line_matches_documentation(), Ok(()));
-    }
-    #[test]
-    fn non_finite_is_refused_by_encoder() {
-        assert_eq!(checks::non_finite_is_refused_by_encoder(), Ok(()));
-    }
-    #[test]
-    fn malformed_lines_give_typed_errors() {
-        assert_eq!(checks::malformed_lines_give_typed_errors(), Ok(()));
-    }
-    #[test]
-    fn decoder_resynchronises_after_garbage() {
-        assert_eq!(checks::decoder_resynchronises_after_garbage(), Ok(()));
-    }
-    #[test]
-    fn random_bytes_never_panic_and_valid_lines_survive() {
-        assert_eq!(checks::random_bytes_never_panic_and_valid_lines_survive(), Ok(()));
     }
 }

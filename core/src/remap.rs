@@ -29,14 +29,12 @@
 //! kept in a caller-provided ring of [`RemapTable::ring_rows`] rows; no whole
 //! frame is ever held.
 
-use crate::geometry::{Distortion, Rig, MAX_IMAGE_SIDE};
-use crate::grid::{KgGrid, MAX_GRID_SIDE};
+use crate::geometry::{Distortion, Rig};
+use crate::grid::KgGrid;
+use crate::kernels::{bilinear, copy_row, pinhole, FRAC_BITS};
+use crate::limits::MAX_GRID_SIDE;
 
-/// Fractional bits of the fixed-point source coordinates.
-pub const FRAC_BITS: u32 = 16;
 const ONE: i32 = 1 << FRAC_BITS;
-/// Bits of the bilinear weights (1/256 px: far below the 1/32 px error bound).
-const WEIGHT_BITS: u32 = 8;
 /// The accuracy the table guarantees (px), per the issue.
 pub const ERROR_BOUND_PX: f64 = 1.0 / 32.0;
 /// Fewest fractional bits the lens arithmetic may use.
@@ -48,6 +46,7 @@ const MAX_FOCAL_PX: f64 = 16384.0;
 
 /// Why a table could not be built.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum TableError {
     /// The grid is larger than [`MAX_GRID_SIDE`] on a side.
     GridTooLarge,
@@ -69,8 +68,11 @@ impl core::fmt::Display for TableError {
     }
 }
 
+impl core::error::Error for TableError {}
+
 /// Why a streamed row was refused. The remap's state is unchanged by a refused row.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum RemapError {
     /// The row's length is not the camera width.
     RowLength { expected: u16, got: usize },
@@ -94,6 +96,8 @@ impl core::fmt::Display for RemapError {
         }
     }
 }
+
+impl core::error::Error for RemapError {}
 
 /// One KG row: its source line plus the camera rows and columns it uses.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -500,416 +504,6 @@ impl RemapTable {
         core::mem::size_of::<RemapTable>()
     }
 }
-/// Bilinear sample at (u, v) Q16.16 from two camera rows, in integers.
-#[inline(always)]
-fn bilinear(upper: &[u8], lower: &[u8], u: i32, v: i32) -> u8 {
-    let x0 = (u >> FRAC_BITS) as usize;
-    let x1 = (x0 + 1).min(upper.len() - 1);
-    let wx = ((u >> (FRAC_BITS - WEIGHT_BITS)) & 0xFF) as u32;
-    let wy = ((v >> (FRAC_BITS - WEIGHT_BITS)) & 0xFF) as u32;
-    let top = u32::from(upper[x0]) * (256 - wx) + u32::from(upper[x1]) * wx;
-    let bottom = u32::from(lower[x0]) * (256 - wx) + u32::from(lower[x1]) * wx;
-    ((top * (256 - wy) + bottom * wy + (1 << (2 * WEIGHT_BITS - 1))) >> (2 * WEIGHT_BITS)) as u8
-}
-
-/// `dst.copy_from_slice(src)` (same length). On the M4 that is
-/// compiler_builtins' memcpy, ~300 instructions for a 256-pixel row; when
-/// both ends are word aligned, `ldm`/`stm` of four words takes ~70.
-#[inline]
-fn copy_row(dst: &mut [u8], src: &[u8]) {
-    #[cfg(flatland_dsp)]
-    {
-        let blocks = dst.len().min(src.len()) / 16;
-        if blocks > 0 && (dst.as_ptr() as usize | src.as_ptr() as usize).is_multiple_of(4) {
-            // SAFETY: both pointers are word aligned (ldm/stm need that) and
-            // `src`, `dst` hold at least 16 * blocks bytes; fixed registers
-            // because an `ldm` list must be in ascending order.
-            unsafe {
-                core::arch::asm!(
-                    "2:",
-                    "ldmia {s}!, {{r2, r3, r4, r5}}",
-                    "stmia {d}!, {{r2, r3, r4, r5}}",
-                    "subs {n}, {n}, #1",
-                    "bne 2b",
-                    s = inout(reg) src.as_ptr() => _,
-                    d = inout(reg) dst.as_mut_ptr() => _,
-                    n = inout(reg) blocks => _,
-                    out("r2") _, out("r3") _, out("r4") _, out("r5") _,
-                    options(nostack)
-                );
-            }
-            let done = 16 * blocks;
-            dst[done..].copy_from_slice(&src[done..]);
-            return;
-        }
-    }
-    dst.copy_from_slice(src);
-}
-
-/// The pinhole row in two passes, bit-identical to [`bilinear`] per pixel.
-///
-/// A pinhole KG row samples one pair of camera rows (`upper`, `lower`) at a
-/// constant `v`, so `wy` is constant along it. All of [`bilinear`] is exact
-/// integer arithmetic up to the final shift, so it may be summed in the
-/// other order: vertical first,
-/// `V[x] = upper[x] * (256 - wy) + lower[x] * wy` (<= 65,280: a u16), once per
-/// source column the row touches, then per KG pixel
-/// `(V[x0] * (256 - wx) + V[x1] * wx + 2^15) >> 16`, the same integer as
-/// `(top * (256 - wy) + bottom * wy + 2^15) >> 16`. The `x1 = min(x0 + 1,
-/// width - 1)` clamp becomes one duplicated entry after the last column.
-///
-/// The vertical pass is contiguous and vectorises (SSE2 on the host, packed
-/// halfwords on the M4); the horizontal one is one pair load and one
-/// multiply-add per pixel. On x86_64 (`sse2`) and on the M4 (`dsp`, `asm!`)
-/// the line holds `V ^ 0x8000`, which read as i16 is `V - 2^15`, so that a
-/// signed 16x16 dual multiply-add (`pmaddwd`, `smlad`) blends the pair
-/// `[V[x0] | V[x0 + 1]]` (one 32-bit load) with `[256 - wx | wx]` at once.
-mod pinhole {
-    use super::{bilinear, FRAC_BITS, MAX_IMAGE_SIDE, WEIGHT_BITS};
-
-    /// Entries of the line: the widest camera row, the duplicated last
-    /// column, and one spare to keep the size a whole number of words.
-    pub const LINE_CAPACITY: usize = MAX_IMAGE_SIDE as usize + 2;
-
-    /// The vertical pass of one KG row, word aligned (the M4 stores it with `strd`).
-    #[derive(Clone)]
-    #[repr(C, align(4))]
-    pub struct Line(pub [u16; LINE_CAPACITY]);
-
-    impl Line {
-        pub const ZERO: Line = Line([0; LINE_CAPACITY]);
-    }
-
-    /// Source columns `first..=last` a row reads (`last` includes the `x0 + 1`
-    /// neighbour, clamped), and its start relative to `first` (Q16.16).
-    struct Span {
-        first: usize,
-        columns: usize,
-        u: i32,
-    }
-
-    /// The span of `n` pixels from `u` by `step`, if every pixel's source
-    /// lies in `[0, width - 1]` (as a valid row of a built table does) and
-    /// the span fits the line. Then `u + c * step` never overflows i32 and
-    /// the kernels' reads are in bounds.
-    fn span(width: usize, u: i32, step: i32, n: usize) -> Option<Span> {
-        let last_u = i64::from(u) + i64::from(step) * (n as i64 - 1);
-        let (low, high) = (i64::from(u).min(last_u), i64::from(u).max(last_u));
-        let max_u = (width as i64 - 1) << FRAC_BITS;
-        if n == 0 || low < 0 || high > max_u || high > i64::from(i32::MAX) {
-            return None;
-        }
-        let first = (low >> FRAC_BITS) as usize;
-        let last = ((high >> FRAC_BITS) as usize + 1).min(width - 1);
-        let columns = last + 1 - first;
-        if columns + 1 > LINE_CAPACITY {
-            return None;
-        }
-        // u >= low >= first << 16, and u <= high <= i32::MAX.
-        Some(Span { first, columns, u: (i64::from(u) - ((first as i64) << FRAC_BITS)) as i32 })
-    }
-
-    /// `out[c]` = [`bilinear`]`(upper, lower, u + c * step, v)` (wrapping
-    /// u), with the kernels in use. Rows whose sources all lie in the image
-    /// take the two passes; anything else (no built table gives it) is
-    /// sampled per pixel.
-    #[inline]
-    pub fn sample_row(upper: &[u8], lower: &[u8], u: i32, step: i32, v: i32, line: &mut Line, out: &mut [u8]) {
-        #[cfg(flatland_dsp)]
-        let kernels = (dsp::vertical as Vertical, dsp::horizontal as Horizontal);
-        #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
-        let kernels = (sse2::vertical as Vertical, sse2::horizontal as Horizontal);
-        #[cfg(not(any(flatland_dsp, target_arch = "x86_64")))]
-        let kernels = (portable::vertical as Vertical, portable::horizontal as Horizontal);
-        sample_row_with(kernels, upper, lower, u, step, v, line, out);
-    }
-
-    /// `line[..upper.len()]` from `upper` and `lower` (same length) at `wy`.
-    type Vertical = fn(&[u8], &[u8], u32, &mut [u16]);
-    /// # Safety
-    /// For every `c < out.len()`, `x = (u + c * step) >> 16` (no overflow,
-    /// `u + c * step >= 0`) has `x + 1 < line.len()`.
-    type Horizontal = unsafe fn(&[u16], i32, i32, &mut [u8]);
-
-    #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
-    fn sample_row_with(
-        (vertical, horizontal): (Vertical, Horizontal),
-        upper: &[u8],
-        lower: &[u8],
-        u: i32,
-        step: i32,
-        v: i32,
-        line: &mut Line,
-        out: &mut [u8],
-    ) -> bool {
-        let width = upper.len();
-        let Some(span) = span(width, u, step, out.len()).filter(|_| lower.len() == width) else {
-            let mut u = u;
-            for pixel in out {
-                *pixel = bilinear(upper, lower, u, v);
-                u = u.wrapping_add(step);
-            }
-            return false;
-        };
-        let wy = ((v >> (FRAC_BITS - WEIGHT_BITS)) & 0xFF) as u32;
-        let columns = span.columns;
-        let range = span.first..span.first + columns;
-        vertical(&upper[range.clone()], &lower[range], wy, &mut line.0[..columns]);
-        // x1 = min(x0 + 1, width - 1): past the last column, itself again.
-        line.0[columns] = line.0[columns - 1];
-        // SAFETY: `span` checked that every source u lies in
-        // [first << 16, (first + columns - 1) << 16] without overflow, so
-        // relative to `first` each x0 has x0 + 1 <= columns < line length.
-        unsafe { horizontal(&line.0[..columns + 1], span.u, step, out) };
-        true
-    }
-
-    /// Plain Rust: the reference for the kernels below (and the M4's
-    /// vertical tail), and the kernels of targets without them.
-    #[cfg_attr(all(target_arch = "x86_64", not(any(test, feature = "selftest"))), allow(dead_code))]
-    pub mod portable {
-        #[inline]
-        pub fn vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
-            vertical_flipped(upper, lower, wy, line, 0);
-        }
-
-        /// # Safety
-        /// See `Horizontal`.
-        #[inline]
-        pub unsafe fn horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]) {
-            // SAFETY: the caller's contract.
-            unsafe { horizontal_flipped(line, u, step, out, 0) }
-        }
-
-        /// The vertical pass storing `V ^ flip` (the SIMD kernels' line
-        /// holds `V ^ 0x8000`; they use this for the vectorised x86 pass and
-        /// for the M4's tail).
-        #[inline]
-        pub fn vertical_flipped(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16], flip: u16) {
-            let (ay, wy) = ((256 - wy) as u16, wy as u16);
-            for ((v, &a), &b) in line.iter_mut().zip(upper).zip(lower) {
-                // <= 255 * 256: no overflow.
-                *v = (u16::from(a) * ay + u16::from(b) * wy) ^ flip;
-            }
-        }
-
-        /// The horizontal pass from a line holding `V ^ flip` (the SIMD
-        /// kernels' tails).
-        ///
-        /// # Safety
-        /// See `Horizontal`.
-        #[inline]
-        pub unsafe fn horizontal_flipped(line: &[u16], u: i32, step: i32, out: &mut [u8], flip: u16) {
-            let mut u = u as u32;
-            let base = line.as_ptr();
-            for pixel in out {
-                let x = (u >> 16) as usize;
-                let wx = (u >> 8) & 0xFF;
-                // SAFETY: x + 1 < line.len() (the caller's contract).
-                let (v0, v1) = unsafe { (u32::from(*base.add(x) ^ flip), u32::from(*base.add(x + 1) ^ flip)) };
-                *pixel = ((v0 * (256 - wx) + v1 * wx + (1 << 15)) >> 16) as u8;
-                u = u.wrapping_add(step as u32);
-            }
-        }
-    }
-
-    /// x86_64 kernels (SSE2 is baseline there). The line holds `V ^ 0x8000`
-    /// as on the M4, so that `pmaddwd` (signed 16x16, summed in pairs) blends
-    /// `[V'[x0] | V'[x0 + 1]]` with `[256 - wx | wx]` like `smlad` does.
-    #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
-    pub mod sse2 {
-        use core::arch::x86_64::*;
-
-        const FLIP: u16 = 0x8000;
-
-        /// Vectorises to 8 u16 lanes (`pmullw`); the flip is one `pxor`.
-        #[inline]
-        pub fn vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
-            super::portable::vertical_flipped(upper, lower, wy, line, FLIP);
-        }
-
-        /// Eight pixels per step: the pairs are scalar (unaligned) 32-bit
-        /// loads, the weights `(wx << 16) | (256 - wx)` are computed in i32
-        /// lanes from the four u's, `pmaddwd` gives `V'0 * (256 - wx) +
-        /// V'1 * wx`, and `2^23 + 2^15` restores the bias and rounds: the
-        /// sum is `bilinear`'s, < 2^24, and its bits 16..24 the pixel.
-        ///
-        /// # Safety
-        /// See `Horizontal`.
-        #[inline]
-        pub unsafe fn horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]) {
-            let n = out.len();
-            let base = line.as_ptr();
-            let mut u = u;
-            let mut done = 0;
-            // SAFETY: SSE2 is baseline on x86_64; the caller guarantees each
-            // pixel's x0 and x0 + 1 index `line` (read as one unaligned
-            // u32 at x0); stores write out[done..done + 8] (<= n).
-            unsafe {
-                let pair = |u: i32| (base.add((u as u32 >> 16) as usize) as *const i32).read_unaligned();
-                let lanes = _mm_set_epi32(3i32.wrapping_mul(step), 2i32.wrapping_mul(step), step, 0);
-                let step4 = 4i32.wrapping_mul(step);
-                let (byte, c256) = (_mm_set1_epi32(0xFF), _mm_set1_epi32(256));
-                let bias = _mm_set1_epi32((1 << 23) + (1 << 15));
-                let four = |u: i32| {
-                    let us = _mm_add_epi32(_mm_set1_epi32(u), lanes);
-                    let wx = _mm_and_si128(_mm_srli_epi32(us, 8), byte);
-                    let weights = _mm_or_si128(_mm_slli_epi32(wx, 16), _mm_sub_epi32(c256, wx));
-                    let (u1, u2, u3) = (u.wrapping_add(step), u.wrapping_add(step.wrapping_mul(2)), u.wrapping_add(step.wrapping_mul(3)));
-                    let pairs = _mm_set_epi32(pair(u3), pair(u2), pair(u1), pair(u));
-                    _mm_srli_epi32(_mm_add_epi32(_mm_madd_epi16(pairs, weights), bias), 16)
-                };
-                while done + 8 <= n {
-                    let low = four(u);
-                    let high = four(u.wrapping_add(step4));
-                    let bytes = _mm_packus_epi16(_mm_packs_epi32(low, high), _mm_setzero_si128());
-                    _mm_storel_epi64(out.as_mut_ptr().add(done).cast(), bytes);
-                    u = u.wrapping_add(step4).wrapping_add(step4);
-                    done += 8;
-                }
-            }
-            // SAFETY: the caller's contract, for the remaining pixels.
-            unsafe { super::portable::horizontal_flipped(line, u, step, &mut out[done..], FLIP) }
-        }
-    }
-
-    /// Cortex-M4 DSP kernels. The line holds `V ^ 0x8000`: V <= 65,280, so
-    /// as i16 that is exactly `V - 2^15` (`smlad` multiplies signed halves).
-    #[cfg(flatland_dsp)]
-    pub mod dsp {
-        const FLIP: u16 = 0x8000;
-
-        /// Four columns per step: a word of each row, split into even and
-        /// odd bytes as halfword lanes (`uxtb16`). A plain 32-bit `mul` by a
-        /// weight <= 256 is then two lane products at once: each is at most
-        /// 255 * 256 = 65,280 < 2^16, so nothing carries into the other lane,
-        /// and neither does the sum of the two rows' products (same bound).
-        /// `pkhbt`/`pkhtb` put the lanes back in column order.
-        pub fn vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
-            let n = line.len().min(upper.len()).min(lower.len());
-            let groups = n / 4;
-            if groups > 0 {
-                // SAFETY: reads `groups` words of `upper` and `lower` (at least
-                // 4 * groups bytes each; unaligned ldr is fine on the M4) and
-                // writes `groups` pairs of words to `line` (4 * groups halfwords,
-                // word aligned: `Line` is align(4) and starts every row at 0).
-                unsafe {
-                    core::arch::asm!(
-                        "2:",
-                        "ldr {a}, [{pu}], #4",
-                        "ldr {b}, [{pl}], #4",
-                        "uxtb16 {t}, {a}",               // [u0 | u2]
-                        "uxtb16 {a}, {a}, ror #8",       // [u1 | u3]
-                        "mul {t}, {t}, {ay}",            // [u0 * ay | u2 * ay]
-                        "mul {a}, {a}, {ay}",
-                        "uxtb16 {c}, {b}",               // [l0 | l2]
-                        "uxtb16 {b}, {b}, ror #8",       // [l1 | l3]
-                        "mla {t}, {c}, {wy}, {t}",       // [V0 | V2]
-                        "mla {a}, {b}, {wy}, {a}",       // [V1 | V3]
-                        "pkhbt {c}, {t}, {a}, lsl #16",  // [V0 | V1]
-                        "pkhtb {a}, {a}, {t}, asr #16",  // [V2 | V3]
-                        "eor {c}, {c}, #0x80008000",     // V ^ 0x8000 per lane
-                        "eor {a}, {a}, #0x80008000",
-                        "strd {c}, {a}, [{pv}], #8",
-                        "subs {n}, {n}, #1",
-                        "bne 2b",
-                        pu = inout(reg) upper.as_ptr() => _,
-                        pl = inout(reg) lower.as_ptr() => _,
-                        pv = inout(reg) line.as_mut_ptr() => _,
-                        n = inout(reg) groups => _,
-                        ay = in(reg) 256 - wy,
-                        wy = in(reg) wy,
-                        a = out(reg) _, b = out(reg) _, t = out(reg) _, c = out(reg) _,
-                        options(nostack)
-                    );
-                }
-            }
-            let done = 4 * groups;
-            super::portable::vertical_flipped(&upper[done..n], &lower[done..n], wy, &mut line[done..n], FLIP);
-        }
-
-        /// Four pixels per step, 7.5 instructions each: the pair
-        /// `[V'[x0] | V'[x0 + 1]]` is one (unaligned) word load at byte
-        /// 2 * x0; the weights `[256 - wx | wx]` are `wx * 0xFFFF + 256`
-        /// (one `mla`: `(wx << 16) - wx + 256`, and `256 - wx >= 1` never
-        /// borrows); `smlad` sums `V'0 * (256 - wx) + V'1 * wx` onto
-        /// `2^23 + 2^15`, which restores the `- 2^15 * 256` of the bias and
-        /// adds the rounding: the result is `bilinear`'s sum, < 2^24, so the
-        /// pixel is its bits 16..24 and bits 24..32 are 0. Two pixels' sums
-        /// `s0`, `s1` go out as one halfword: `pkhtb` makes
-        /// `[s0 >> 16 | s1 >> 16] = p0 + (p1 << 16)`, and `orr` with itself
-        /// shifted right by 8 puts `p0 + (p1 << 8)` in the low half.
-        ///
-        /// # Safety
-        /// See `Horizontal`.
-        pub unsafe fn horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]) {
-            const BIAS: u32 = (1 << 23) + (1 << 15);
-            let groups = out.len() / 4;
-            let mut u = u;
-            if groups > 0 {
-                // One pixel's sum into `{acc}`. Written out rather than with
-                // `.rept`: LLVM sizes an asm block by its lines, and branches
-                // around a block it underestimates can end up out of range.
-                macro_rules! pixel {
-                    ($acc:literal) => {
-                        concat!(
-                            "lsr {t}, {u}, #16\n",            // x0
-                            "ldr {t}, [{pv}, {t}, lsl #1]\n", // [V'[x0] | V'[x0 + 1]]
-                            "uxtb {w}, {u}, ror #8\n",        // wx
-                            "mla {w}, {w}, {k}, {c256}\n",    // [256 - wx | wx]
-                            "smlad ", $acc, ", {t}, {w}, {bias}\n",
-                            "add {u}, {u}, {step}\n",
-                        )
-                    };
-                }
-                // Two pixels' sums in `{s0}`, `{s1}` out as one halfword.
-                macro_rules! pair {
-                    () => {
-                        concat!(
-                            pixel!("{s0}"),
-                            pixel!("{s1}"),
-                            "pkhtb {s0}, {s1}, {s0}, asr #16\n",
-                            "orr {s0}, {s0}, {s0}, lsr #8\n",
-                            "strh {s0}, [{po}], #2\n",
-                        )
-                    };
-                }
-                // SAFETY: the caller guarantees every x0 (and x0 + 1) indexes
-                // `line`; writes `4 * groups` bytes of `out` (unaligned strh
-                // is fine on the M4).
-                unsafe {
-                    core::arch::asm!(
-                        "2:",
-                        pair!(),
-                        pair!(),
-                        "subs {n}, {n}, #1",
-                        "bne 2b",
-                        u = inout(reg) u,
-                        po = inout(reg) out.as_mut_ptr() => _,
-                        n = inout(reg) groups => _,
-                        step = in(reg) step,
-                        pv = in(reg) line.as_ptr(),
-                        k = in(reg) 0xFFFFu32,
-                        c256 = in(reg) 256u32,
-                        bias = in(reg) BIAS,
-                        t = out(reg) _, w = out(reg) _, s0 = out(reg) _, s1 = out(reg) _,
-                        options(nostack)
-                    );
-                }
-            }
-            // SAFETY: the caller's contract, for the remaining pixels.
-            unsafe { super::portable::horizontal_flipped(line, u, step, &mut out[4 * groups..], FLIP) }
-        }
-    }
-
-    /// [`sample_row`] with the portable kernels; false if it sampled per pixel.
-    #[cfg(any(test, feature = "selftest"))]
-    pub fn sample_row_portable(upper: &[u8], lower: &[u8], u: i32, step: i32, v: i32, line: &mut Line, out: &mut [u8]) -> bool {
-        sample_row_with((portable::vertical, portable::horizontal), upper, lower, u, step, v, line, out)
-    }
-}
-
 /// Row-by-row remap of one frame at a time; see the module docs.
 pub struct StreamingRemap<'t, 'r> {
     table: &'t RemapTable,
@@ -995,7 +589,7 @@ impl<'t, 'r> StreamingRemap<'t, 'r> {
         let last_row = table.camera_height() - 1;
         if !table.has_distortion {
             // Fast path: the whole KG row samples one pair of camera rows at
-            // one v, so it is a vertical pass then a horizontal one (see `pinhole`).
+            // one v, so it is a vertical pass then a horizontal one (see `kernels::pinhole`).
             let top = (map.v >> FRAC_BITS) as usize;
             let (upper, lower) = (row_at(top), row_at((top + 1).min(last_row)));
             let u = map.u_start.wrapping_add((valid.start as i32).wrapping_mul(map.u_step));
@@ -1034,115 +628,6 @@ pub fn remap_frame(table: &RemapTable, frame: &[u8], ring: &mut [u8], out: &mut 
         stream.push_row(camera_row, |j, kg_row| out[j * grid_width..][..grid_width].copy_from_slice(kg_row))?;
     }
     Ok(())
-}
-
-#[cfg(any(test, feature = "selftest"))]
-/// Checks (host `#[test]`s and `cargo fw-test` on the emulated M4): the
-/// pinhole row's two passes, with the kernels in use (DSP on the M4) and the
-/// portable ones, equal [`bilinear`] per pixel.
-pub mod checks {
-    use super::{bilinear, pinhole, FRAC_BITS};
-    use crate::sad::checks::xorshift32 as next;
-
-    /// Random rows (and a 0/255 pattern at the start), widths 1..=70 at
-    /// unaligned starts, wy and wx of 0, 1, 128, 255 and random, steps from
-    /// 0 to over 2 px both ways, runs that start at column 0 and runs that
-    /// end on the last column (the `x1` clamp) or just before it.
-    pub fn pinhole_rows_equal_bilinear() -> Result<(), &'static str> {
-        let mut state = 0x1234_5679u32;
-        let mut upper = [0u8; 75];
-        let mut lower = [0u8; 75];
-        let mut line = pinhole::Line::ZERO;
-        let (mut fast, mut portable) = ([0u8; 40], [0u8; 40]);
-        let steps = [0i32, 1, 0xFF, 0x100, 0x3FFF, 0x8000, 0xFFFF, 0x1_0000, 0x1_0001, 0x1_8080, 0x2_3456];
-        let lengths = [1usize, 2, 3, 4, 5, 7, 8, 9, 13, 32, 37];
-        for (case, width) in [1usize, 2, 3, 4, 5, 6, 7, 8, 9, 17, 64, 70].into_iter().enumerate() {
-            for byte in upper.iter_mut().chain(lower.iter_mut()) {
-                *byte = next(&mut state) as u8;
-            }
-            if case % 2 == 0 {
-                upper[..4].copy_from_slice(&[255, 0, 255, 255]);
-                lower[..4].copy_from_slice(&[255, 255, 0, 255]);
-            }
-            let start = case % 4;
-            let (up, low) = (&upper[start..start + width], &lower[start..start + width]);
-            let max_u = ((width as i32) - 1) << FRAC_BITS;
-            for wy in [0i32, 1, 128, 255, (next(&mut state) & 0xFF) as i32] {
-                let v = (3 << FRAC_BITS) | (wy << 8) | (next(&mut state) & 0xFF) as i32;
-                for &magnitude in &steps {
-                    for step in [magnitude, -magnitude] {
-                        for &n in &lengths {
-                            let span = i64::from(step) * (n as i64 - 1);
-                            for anchor in 0..10 {
-                                // Fractions giving wx = 0, 1, 128, 255 (plus low bits).
-                                let frac = [0, 0x1AB, 0x80FF, 0xFF01, 0x7F][anchor % 5];
-                                // The first five runs start at the left, the rest end at the right.
-                                let (low_u, high_u) = if anchor < 5 { (frac, frac + span.abs()) } else {
-                                    let high = i64::from(max_u) - [0, 1, 0xFF, 0x100, 0x8000][anchor % 5];
-                                    (high - span.abs(), high)
-                                };
-                                if low_u < 0 || high_u > i64::from(max_u) {
-                                    continue;
-                                }
-                                let u = if step >= 0 { low_u } else { high_u } as i32;
-                                let (fast, portable) = (&mut fast[..n], &mut portable[..n]);
-                                pinhole::sample_row(up, low, u, step, v, &mut line, fast);
-                                if !pinhole::sample_row_portable(up, low, u, step, v, &mut line, portable) {
-                                    return Err("an in-image pinhole row was sampled per pixel");
-                                }
-                                for c in 0..n {
-                                    let expected = bilinear(up, low, u.wrapping_add(step.wrapping_mul(c as i32)), v);
-                                    if fast[c] != expected {
-                                        return Err("pinhole row (kernels in use) differs from per-pixel bilinear");
-                                    }
-                                    if portable[c] != expected {
-                                        return Err("pinhole row (portable) differs from per-pixel bilinear");
-                                    }
-                                }
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// The ring's row copy (`ldm`/`stm` on the M4 when word aligned) equals
-    /// `copy_from_slice` for every length 0..=70 and alignment.
-    pub fn copy_row_copies() -> Result<(), &'static str> {
-        #[repr(align(4))]
-        struct Words([u8; 80]);
-        let mut state = 0x0BAD_F00Du32;
-        let mut src = Words([0; 80]);
-        for byte in src.0.iter_mut() {
-            *byte = next(&mut state) as u8;
-        }
-        let mut dst = Words([0; 80]);
-        for length in 0..=70 {
-            for (from, to) in [(0, 0), (0, 1), (1, 0), (2, 2), (3, 1), (4, 8)] {
-                dst.0.fill(0xA5);
-                super::copy_row(&mut dst.0[to..to + length], &src.0[from..from + length]);
-                let untouched = dst.0[..to].iter().chain(&dst.0[to + length..]).all(|&b| b == 0xA5);
-                if dst.0[to..to + length] != src.0[from..from + length] || !untouched {
-                    return Err("copy_row differs from copy_from_slice");
-                }
-            }
-        }
-        Ok(())
-    }
-
-    #[cfg(test)]
-    #[test]
-    fn copy_row_copies_host() {
-        assert_eq!(copy_row_copies(), Ok(()));
-    }
-
-    #[cfg(test)]
-    #[test]
-    fn pinhole_rows_equal_bilinear_host() {
-        assert_eq!(pinhole_rows_equal_bilinear(), Ok(()));
-    }
 }
 
 #[cfg(test)]

@@ -1,31 +1,68 @@
-//! core's checks as one list, so the firmware's `selftest` binary can run
-//! them on the emulated Cortex-M4 (the host runs each as a `#[test]`).
+//! core's checks as one list: the firmware's `selftest` binary runs it on
+//! the emulated Cortex-M4 (`cargo fw-test`), and the same list generates
+//! one host `#[test]` per entry, so the two cannot drift apart.
 //!
 //! A check is a plain function returning `Err(reason)` on failure: no
-//! unwinding, no test harness, nothing the target lacks.
+//! unwinding, no test harness, nothing the target lacks. Each module keeps
+//! its checks in its own `checks` module; this one only lists them.
 
-/// One check: `Ok(())` or why it failed.
-pub type Check = fn() -> Result<(), &'static str>;
+/// What a check found: `Ok(())` or why it failed.
+pub type Outcome = Result<(), &'static str>;
 
-/// Every check of core, `(name, function)`.
-pub const TESTS: &[(&str, Check)] = &[
-    ("sad::dsp_kernels_equal_portable", crate::sad::checks::dsp_kernels_equal_portable),
-    ("sad::bilinear_line_equals_plain", crate::sad::checks::bilinear_line_equals_plain),
-    ("sad::seed_statistics_equal_plain", crate::sad::checks::seed_statistics_equal_plain),
-    ("remap::pinhole_rows_equal_bilinear", crate::remap::checks::pinhole_rows_equal_bilinear),
-    ("remap::copy_row_copies", crate::remap::checks::copy_row_copies),
-    ("protocol::every_message_round_trips", crate::protocol::checks::every_message_round_trips),
-    ("protocol::floats_round_trip_bit_for_bit", crate::protocol::checks::floats_round_trip_bit_for_bit),
-    ("protocol::longest_rig_fits_a_line", crate::protocol::checks::longest_rig_fits_a_line),
-    ("protocol::known_line_matches_documentation", crate::protocol::checks::known_line_matches_documentation),
-    ("protocol::non_finite_is_refused_by_encoder", crate::protocol::checks::non_finite_is_refused_by_encoder),
-    ("protocol::malformed_lines_give_typed_errors", crate::protocol::checks::malformed_lines_give_typed_errors),
-    ("protocol::decoder_resynchronises_after_garbage", crate::protocol::checks::decoder_resynchronises_after_garbage),
-    (
-        "protocol::random_bytes_never_panic_and_valid_lines_survive",
-        crate::protocol::checks::random_bytes_never_panic_and_valid_lines_survive,
-    ),
-];
+/// One check.
+pub type Check = fn() -> Outcome;
+
+/// The next xorshift32 state (`state` must not be 0): core's checks'
+/// deterministic random numbers, the same on the host and the target.
+pub fn xorshift32(state: &mut u32) -> u32 {
+    *state ^= *state << 13;
+    *state ^= *state >> 17;
+    *state ^= *state << 5;
+    *state
+}
+
+/// `checks! { module: [check, ...], ... }` lists `crate::module::checks::check`
+/// as [`TESTS`] (named `module::check`) and as host `#[test]`s
+/// (`selftest::host::module::check`).
+macro_rules! checks {
+    ($($module:ident: [$($check:ident),* $(,)?]),* $(,)?) => {
+        /// Every check of core, `(name, function)`.
+        pub const TESTS: &[(&str, Check)] = &[
+            $($((concat!(stringify!($module), "::", stringify!($check)), crate::$module::checks::$check),)*)*
+        ];
+
+        #[cfg(test)]
+        mod host {
+            $(mod $module {
+                $(#[test]
+                fn $check() {
+                    assert_eq!(crate::$module::checks::$check(), Ok(()));
+                })*
+            })*
+        }
+    };
+}
+
+checks! {
+    kernels: [
+        dsp_kernels_equal_portable,
+        bilinear_line_equals_plain,
+        seed_statistics_equal_plain,
+        pinhole_rows_equal_bilinear,
+        copy_row_copies,
+    ],
+    protocol: [
+        every_message_round_trips,
+        rig_converts_both_ways,
+        floats_round_trip_bit_for_bit,
+        longest_rig_fits_a_line,
+        known_line_matches_documentation,
+        non_finite_is_refused_by_encoder,
+        malformed_lines_give_typed_errors,
+        decoder_resynchronises_after_garbage,
+        random_bytes_never_panic_and_valid_lines_survive,
+    ],
+}
 
 #[cfg(test)]
 mod tests {

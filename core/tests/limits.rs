@@ -4,12 +4,13 @@
 //! with overflow checks on, so an accumulator that overflowed would panic;
 //! the worst-case bounds are also computed and checked against the types.
 
-use flatland_core::geometry::{Aoi, Intrinsics, Mount, Rig, MAX_IMAGE_SIDE};
+use flatland_core::geometry::{Aoi, Intrinsics, Mount, Rig};
 use flatland_core::gpa::{Gpa, GpaConfig};
-use flatland_core::grid::{GridConfig, KgGrid, MAX_GRID_SIDE};
-use flatland_core::limits::MAX_SEARCH_RADIUS;
+use flatland_core::grid::{GridConfig, KgGrid};
+use flatland_core::kernels::FRAC_BITS;
+use flatland_core::limits::{MAX_GRID_SIDE, MAX_IMAGE_SIDE, MAX_SEARCH_RADIUS};
 use flatland_core::motion::Motion;
-use flatland_core::remap::{RemapTable, StreamingRemap, FRAC_BITS};
+use flatland_core::remap::{RemapTable, StreamingRemap};
 use flatland_core::report::FrameReport;
 
 /// flat_marks' geometry on the largest camera (fx scaled with the side).

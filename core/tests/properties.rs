@@ -11,6 +11,7 @@ use flatland_core::motion::Motion;
 use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, Odometry, RigRecord};
 use flatland_core::remap::{remap_frame, RemapTable, StreamingRemap};
 use flatland_core::report::{FrameReport, SHIFT_SCALE};
+use flatland_core::selftest::xorshift32;
 use proptest::prelude::*;
 
 /// Parameters of a rig whose AOI is placed inside the camera's view.
@@ -67,7 +68,7 @@ fn build_rig(p: &RigParams) -> Option<Rig> {
     // Lateral extent seen at the near edge, along its line of sight.
     let near_range = (p.height_mm * p.height_mm + near * near).sqrt();
     let half_width = near_range * cx.min(f64::from(p.width) - 1.0 - cx) / fx * p.half_width_frac;
-    let distortion = p.distortion.map(|[k1, k2, p1, p2, k3]| Distortion { k1, k2, p1, p2, k3 });
+    let distortion = p.distortion.map(Distortion::from_coefficients);
     Rig::new_checked(
         Intrinsics { width: p.width, height: p.height, fx, fy, cx, cy, distortion },
         Mount { height_mm: p.height_mm, tilt_deg: p.tilt_deg },
@@ -130,7 +131,8 @@ proptest! {
         let grid = KgGrid::for_rig(&rig, &GridConfig::default()).expect("grid");
         let table = RemapTable::new(&rig, &grid).expect("table");
         let (cw, ch) = (table.camera_width(), table.camera_height());
-        let frame: Vec<u8> = (0..cw * ch).map(|n| hash(seed, n as u32)).collect();
+        let mut state = seed | 1; // xorshift32's state must not be 0
+        let frame: Vec<u8> = (0..cw * ch).map(|_| xorshift32(&mut state) as u8).collect();
         let mut ring = vec![0u8; table.ring_bytes()];
         let mut stream = StreamingRemap::new(&table, &mut ring).expect("ring");
         let stop = ((ch as f64) * abandon_at) as usize;
@@ -213,14 +215,6 @@ fn check_table_error(rig: &Rig, finer: Option<f64>) -> Result<Option<(f64, f64)>
     prop_assert!(worst <= 1.0 / 32.0, "max source error {worst} px");
     prop_assert!(worst <= table.error_bound_px(), "max source error {worst} px above the table's bound {}", table.error_bound_px());
     Ok(Some((worst, table.error_bound_px())))
-}
-
-fn hash(seed: u32, n: u32) -> u8 {
-    let mut h = seed ^ n.wrapping_mul(0x9E37_79B1);
-    h ^= h >> 15;
-    h = h.wrapping_mul(0x2C1B_3C6D);
-    h ^= h >> 12;
-    (h >> 24) as u8
 }
 
 /// Bilinear sample with 8-bit weights, as the remap documents it, on the

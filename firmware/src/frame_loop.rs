@@ -1,36 +1,35 @@
-//! The frame loop: rig in, remap table and detector built, then per frame:
-//! pose in, rows streamed through the KG remap into the GPA detector and the
-//! GTI stage, one report out (GPA's alarm with GTI's heights,
-//! `flatland_core::fusion`).
+//! The frame loop: the board side of the pipeline. Rig in, remap table and
+//! stages built (in statics), then per frame: pose in from the serial link,
+//! camera rows from the row source fed to `flatland_core::pipeline`, one
+//! report or fault out, the alarm pin set.
 //!
 //! It sees the board only through the board layer's traits, so the same loop
-//! runs on the emulated and on a real board. Per frame it does exactly what
-//! the host's `flatland detect` does (`host-tests/src/detect.rs`), so the
-//! reports are equal field for field:
-//! - odometry is `Motion::between` the previous and this frame's pose, only
-//!   when the previous frame was processed, is the frame just before, and
-//!   its time is earlier; otherwise the keyframe restarts (no false alarm);
+//! runs on the emulated and on a real board. The frame's work, odometry gate
+//! included, is the pipeline's, which the host's `flatland detect` drives
+//! too: the reports are equal field for field. Here:
 //! - a frame that cannot be opened or read is skipped with a `$FLERR`, and
-//!   one that stops mid-frame is abandoned (`Gpa::abort_frame`); the reports
-//!   already sent stand and the loop goes on with the next pose.
+//!   one that stops mid-frame is abandoned (counted as aborted); the reports
+//!   already sent stand and the loop goes on with the next pose;
+//! - a frame whose time goes backwards is skipped without a fault;
+//! - with `bench`, each compared frame's stage timing is logged.
 
 use embedded_hal::digital::OutputPin;
 use embedded_io::{Read, Write};
 
-use flatland_core::geometry::{Aoi, Distortion, Intrinsics, Mount, Rig};
-#[cfg(not(feature = "full-frame"))]
+use flatland_core::geometry::Rig;
 use flatland_core::fusion::GtiStage;
-use flatland_core::gpa::{Gpa, GpaConfig};
+use flatland_core::gpa::{Gpa, GpaConfig, GpaProfile};
 #[cfg(feature = "full-frame")]
 use flatland_core::gpa::KEYFRAME_SPARE_ROWS;
 #[cfg(feature = "full-frame")]
 use flatland_core::grid::MAX_GRID_SIDE;
 use flatland_core::grid::{GridConfig, KgGrid};
-use flatland_core::motion::{Motion, Pose};
+use flatland_core::motion::Pose;
+use flatland_core::pipeline::{FrameError, FrameTiming, Outcome, Pipeline, PoseSample};
 use flatland_core::protocol::{
     encode_line, Decoder, Fault, FaultCode, LinkStats, Message, Odometry, RigRecord,
 };
-use flatland_core::remap::{RemapError, RemapTable, StreamingRemap};
+use flatland_core::remap::{RemapError, RemapTable};
 use flatland_core::report::FrameReport;
 use static_cell::ConstStaticCell;
 
@@ -59,27 +58,12 @@ static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMP
 static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
 static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY);
 /// The GTI stage (`size_of::<GtiStage>()`, 19.6 KB), configured in place.
+#[cfg(not(feature = "full-frame"))]
 static GTI: ConstStaticCell<GtiStage> = ConstStaticCell::new(GtiStage::UNCONFIGURED);
-/// The `full-frame` build's stand-in for the GTI stage: no heights, no RAM.
-#[cfg(feature = "full-frame")]
-struct GtiStage;
-
-#[cfg(feature = "full-frame")]
-impl GtiStage {
-    const UNCONFIGURED: GtiStage = GtiStage;
-    fn configure(&mut self, _: &Rig, _: &KgGrid) -> Result<(), flatland_core::gti::GtiError> {
-        Ok(())
-    }
-    fn on_kg_row(&mut self, _: usize, _: &[u8], _: core::ops::Range<usize>) {}
-    fn abort_frame(&mut self) {}
-    fn end_frame(&mut self, _: Option<Motion>) {}
-    fn enrich(&self, _: &mut FrameReport) {}
-}
-
 static KEYFRAME: ConstStaticCell<[u8; KEYFRAME_CAPACITY]> = ConstStaticCell::new([0; KEYFRAME_CAPACITY]);
 
 /// Why a rig was refused at start-up. Each is logged and sent as `$FLERR`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, defmt::Format)]
 pub enum SetupError {
     Rig(flatland_core::geometry::RigError),
     Grid(flatland_core::grid::GridError),
@@ -105,26 +89,6 @@ impl SetupError {
             SetupError::KeyframeTooLarge { .. } => FaultCode::GridTooLarge,
         }
     }
-}
-
-/// Instruction counts of one frame, for the benchmark log.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct FrameTiming {
-    /// Reading the rows from the row source.
-    pub read: u32,
-    /// The streaming remap (`push_row`, without the detector's share).
-    pub remap: u32,
-    /// The detector's per-row work (`Gpa::on_kg_row`: shift search, residue, keyframe update).
-    pub shift_search: u32,
-    /// `Gpa::end_frame`: best shift, noise, blobs, decision.
-    pub decision: u32,
-    /// GTI's per-row sampling (`GtiStage::on_kg_row`).
-    pub gti_rows: u32,
-    /// GTI's per-frame work: edges, tracking, fits, and the combination
-    /// with GPA's report (`GtiStage::end_frame`, `GtiStage::enrich`).
-    pub gti_frame: u32,
-    /// The whole cycle, odometry received to report sent.
-    pub cycle: u32,
 }
 
 /// What the loop counts beyond the decoder's own counters.
@@ -227,29 +191,9 @@ impl<S: Read + Write> Link<S> {
     }
 }
 
-/// The geometry's rig from the wire's record.
-fn rig_from_record(record: &RigRecord) -> Result<Rig, flatland_core::geometry::RigError> {
-    let camera = Intrinsics {
-        width: record.width,
-        height: record.height,
-        fx: record.fx,
-        fy: record.fy,
-        cx: record.cx,
-        cy: record.cy,
-        distortion: record.distortion.map(|[k1, k2, p1, p2, k3]| Distortion { k1, k2, p1, p2, k3 }),
-    };
-    let mount = Mount { height_mm: record.height_mm, tilt_deg: record.tilt_deg };
-    let aoi = Aoi {
-        half_width_mm: record.aoi_half_width_mm,
-        near_mm: record.aoi_near_mm,
-        far_mm: record.aoi_far_mm,
-    };
-    Rig::new_checked(camera, mount, aoi)
-}
-
 /// Validates the rig, checks it fits the target's memory, builds the table.
 fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Result<(Rig, KgGrid), SetupError> {
-    let rig = rig_from_record(record).map_err(SetupError::Rig)?;
+    let rig = Rig::try_from(record).map_err(SetupError::Rig)?;
     if usize::from(record.width) > MAX_CAMERA_WIDTH {
         return Err(SetupError::CameraTooWide { width: usize::from(record.width) });
     }
@@ -291,7 +235,7 @@ fn configure<S: Read + Write, C: CycleCounter>(
         let (rig, grid) = match set_up(&record, table, options) {
             Ok(built) => built,
             Err(error) => {
-                defmt::error!("rig refused: {}", defmt::Debug2Format(&error));
+                defmt::error!("rig refused: {}", error);
                 link.fault(error.fault_code(), 0);
                 continue;
             }
@@ -318,44 +262,32 @@ fn configure<S: Read + Write, C: CycleCounter>(
     }
 }
 
-/// The last frame that was processed to the end: what the next frame's odometry starts from.
-#[derive(Clone, Copy)]
-struct Previous {
-    frame: u32,
-    t_s: f64,
-    pose: Pose,
-}
-
 /// Why a frame was given up.
 struct FrameFailure {
     code: FaultCode,
-    /// Rows had reached the detector: the frame is abandoned mid-way.
+    /// The frame was open and sized: it is abandoned mid-way.
     mid_frame: bool,
 }
 
-/// The per-frame pipeline and the sizes it expects.
-struct Stages<'a, 't, 'r, 'b> {
-    remap: StreamingRemap<'t, 'r>,
-    gpa: &'a mut Gpa<'b>,
-    gti: &'a mut GtiStage,
-    table: &'t RemapTable,
-    /// Camera (width, height) of the rig.
-    camera: (usize, usize),
-    grid_height: usize,
+/// The fault a pipeline error is sent as.
+fn fault_code(error: FrameError) -> FaultCode {
+    match error {
+        FrameError::Remap(RemapError::RowLength { .. }) => FaultCode::FrameFormat,
+        _ => FaultCode::RemapFailed,
+    }
 }
 
-/// Streams frame `index` through the remap into the detector and finishes it.
-/// On failure the caller abandons the frame in the detector.
-fn process_frame<R: RowSource, C: CycleCounter>(
+/// Streams frame `index` from the row source through the pipeline and
+/// finishes it; `read` accumulates the ticks spent reading rows (the
+/// pipeline times its own stages). On failure the caller gives the frame up.
+fn stream_frame<R: RowSource, C: CycleCounter>(
     frames: &mut R,
     counter: &C,
-    stages: &mut Stages,
+    pipeline: &mut Pipeline,
     index: u32,
-    odometry: Option<Motion>,
-    timing: &mut FrameTiming,
-) -> Result<Option<FrameReport>, FrameFailure> {
-    let Stages { remap, gpa, gti, table, camera, grid_height } = stages;
-    let (camera, grid_height) = (*camera, *grid_height);
+    camera: (usize, usize),
+    read: &mut u32,
+) -> Result<Outcome, FrameFailure> {
     let early = |code| FrameFailure { code, mid_frame: false };
     let size = frames.begin_frame(index).map_err(|error| {
         early(match error {
@@ -371,55 +303,38 @@ fn process_frame<R: RowSource, C: CycleCounter>(
     }
     let mut row_buffer = [0u8; MAX_CAMERA_WIDTH];
     let row = row_buffer.get_mut(..width).ok_or(early(FaultCode::FrameFormat))?;
-    gpa.begin_frame(index, odometry);
-    remap.reset();
     let mid = |code| FrameFailure { code, mid_frame: true };
-    let mut kg_rows = 0usize;
     for _ in 0..height {
-        let read_start = counter.now();
+        let start = counter.now();
         frames.read_row(row).map_err(|_| mid(FaultCode::FrameRead))?;
-        let remap_start = counter.now();
-        let mut detector = 0u32;
-        let mut gti_rows = 0u32;
-        remap
-            .push_row(row, |j, kg_row| {
-                let start = counter.now();
-                kg_rows += 1;
-                gpa.on_kg_row(j, kg_row);
-                let gti_start = counter.now();
-                gti.on_kg_row(j, kg_row, table.valid_columns(j));
-                let end = counter.now();
-                detector = detector.wrapping_add(gti_start.wrapping_sub(start));
-                gti_rows = gti_rows.wrapping_add(end.wrapping_sub(gti_start));
-            })
-            .map_err(|error| {
-                mid(match error {
-                    RemapError::RowLength { .. } => FaultCode::FrameFormat,
-                    _ => FaultCode::RemapFailed,
-                })
-            })?;
-        let end = counter.now();
-        timing.read = timing.read.wrapping_add(remap_start.wrapping_sub(read_start));
-        timing.remap =
-            timing.remap.wrapping_add(end.wrapping_sub(remap_start).wrapping_sub(detector).wrapping_sub(gti_rows));
-        timing.shift_search = timing.shift_search.wrapping_add(detector);
-        timing.gti_rows = timing.gti_rows.wrapping_add(gti_rows);
+        *read = read.wrapping_add(counter.now().wrapping_sub(start));
+        pipeline.push_row(row).map_err(|error| mid(fault_code(error)))?;
     }
     frames.end_frame();
-    // The remap re-arms itself after the last camera row; every KG row must have come out.
-    if kg_rows != grid_height {
-        return Err(mid(FaultCode::RemapFailed));
+    pipeline.finish().map_err(|error| mid(fault_code(error)))
+}
+
+/// `cycle`: odometry received to report sent, the board's whole cycle
+/// (the pipeline's own `timing.cycle` leaves out the serial side).
+fn log_bench(frame: u32, read: u32, cycle: u32, timing: &FrameTiming, profile: &GpaProfile) {
+    defmt::println!("bench: frame: {=u32}", frame);
+    defmt::println!("bench: read_rows: {=u32}", read);
+    defmt::println!("bench: remap: {=u32}", timing.remap);
+    defmt::println!("bench: detector_rows: {=u32}", timing.detector_rows);
+    defmt::println!("bench: gpa_warp: {=u32}", profile.warp);
+    defmt::println!("bench: gpa_residue: {=u32}", profile.residue);
+    defmt::println!("bench: gpa_parallax: {=u32}", profile.parallax);
+    defmt::println!("bench: gpa_shift_search: {=u32}", profile.shift_search);
+    defmt::println!("bench: gpa_keyframe_update: {=u32}", profile.keyframe_update);
+    defmt::println!("bench: decision: {=u32}", timing.decision);
+    // The full-frame build has no GTI stage to measure.
+    #[cfg(not(feature = "full-frame"))]
+    {
+        defmt::println!("bench: gti_rows: {=u32}", timing.gti_rows);
+        defmt::println!("bench: gti_frame: {=u32}", timing.gti_frame);
+        defmt::println!("bench: gti: {=u32}", timing.gti_rows.wrapping_add(timing.gti_frame));
     }
-    let start = counter.now();
-    let mut report = gpa.end_frame();
-    let gti_start = counter.now();
-    timing.decision = gti_start.wrapping_sub(start);
-    gti.end_frame(odometry);
-    if let Some(report) = report.as_mut() {
-        gti.enrich(report);
-    }
-    timing.gti_frame = counter.now().wrapping_sub(gti_start);
-    Ok(report)
+    defmt::println!("bench: instructions_per_cycle: {=u32}", cycle);
 }
 
 fn log_report(report: &FrameReport) {
@@ -469,36 +384,25 @@ where
     };
     let table: &RemapTable = table;
     let camera = (table.camera_width(), table.camera_height());
-    // `set_up` checked the ring and keyframe sizes, so these only fail on a
-    // core change; still a typed fault, not a panic.
-    let remap = match StreamingRemap::new(table, &mut ring[..]) {
-        Ok(remap) => remap,
+    // The detector (~17 KB) lives in a static, initialised in place: by value
+    // LLVM keeps stack temporaries of it.
+    if let Err(error) = gpa.init(&rig, &grid, table, GpaConfig::default(), &mut keyframe[..]) {
+        defmt::error!("detector refused: {}", error);
+        link.fault(SetupError::Detector(error).fault_code(), 0);
+        return link.finish();
+    }
+    let Some(gti) = gti_stage(&mut link, &rig, &grid) else { return link.finish() };
+    // `set_up` checked the ring size, so this only fails on a core change;
+    // still a typed fault, not a panic.
+    let mut pipeline = match Pipeline::new(table, &mut ring[..], gpa, gti) {
+        Ok(pipeline) => pipeline,
         Err(_) => {
             link.fault(FaultCode::CameraTooLarge, 0);
             return link.finish();
         }
     };
-    // The detector (~17 KB) lives in a static, initialised in place: by value
-    // LLVM keeps stack temporaries of it.
-    match gpa.init(&rig, &grid, table, GpaConfig::default(), &mut keyframe[..]) {
-        Ok(()) => gpa.set_clock(if options.bench { options.clock } else { None }),
-        Err(error) => {
-            defmt::error!("detector refused: {}", defmt::Debug2Format(&error));
-            link.fault(SetupError::Detector(error).fault_code(), 0);
-            return link.finish();
-        }
-    };
+    pipeline.set_clock(if options.bench { options.clock } else { None });
 
-    // GTI (19.6 KB) is configured in place in its static, for the same reason.
-    let gti: &'static mut GtiStage = GTI.take();
-    if let Err(error) = gti.configure(&rig, &grid) {
-        defmt::error!("GTI refused: {}", defmt::Debug2Format(&error));
-        link.fault(SetupError::Gti(error).fault_code(), 0);
-        return link.finish();
-    }
-
-    let mut stages = Stages { remap, gpa, gti, table, camera, grid_height: grid.height() };
-    let mut previous: Option<Previous> = None;
     let mut started = false;
     loop {
         let odometry = match link.receive() {
@@ -511,90 +415,72 @@ where
         };
         let cycle_start = counter.now();
         let Odometry { frame, t_s, x_mm, z_mm, yaw_deg } = odometry;
-        let pose = Pose { x_mm, z_mm, yaw_deg };
-        // As detect.rs: motion only from the frame just before, and only forward in time.
-        let follows = previous.filter(|p| p.frame.checked_add(1) == Some(frame));
-        if previous.is_some_and(|p| p.frame != frame && t_s <= p.t_s) {
-            // As detect.rs: time went backwards, so this pose cannot be
-            // trusted; the frame is skipped and the next one restarts.
-            defmt::warn!("frame {=u32}: time goes backwards; frame skipped", frame);
-            stages.gpa.reset_keyframe();
-            let _ = alarm.set_low();
-            previous = None;
-            continue;
-        }
-        let motion = match follows {
-            Some(p) if t_s > p.t_s => Some(Motion::between(&p.pose, &pose)),
-            _ => None,
+        let pose = PoseSample { t_s, pose: Pose { x_mm, z_mm, yaw_deg } };
+        let motion = match pipeline.begin(frame, Some(pose)) {
+            Ok(motion) => motion,
+            Err(_) => {
+                // The pose cannot be trusted: the frame is skipped and the next one restarts.
+                defmt::warn!("frame {=u32}: time goes backwards; frame skipped", frame);
+                let _ = alarm.set_low();
+                continue;
+            }
         };
         if motion.is_none() && started {
             defmt::warn!("frame {=u32}: no odometry from the frame before; keyframe restarts", frame);
             bump(&mut link.counters.frame_gaps);
         }
-        if follows.is_none() {
-            // A pose (or frame) is missing before this one: detect.rs resets here.
-            stages.gpa.reset_keyframe();
-        }
         started = true;
 
-        let mut timing = FrameTiming::default();
-        let mut compared = false;
-        match process_frame(&mut frames, &counter, &mut stages, frame, motion, &mut timing) {
-            Ok(outcome) => {
-                match outcome {
-                    Some(report) => {
-                        compared = true;
-                        let _ = if report.alarm { alarm.set_high() } else { alarm.set_low() };
-                        link.send(&Message::Frame(report));
-                        log_report(&report);
-                    }
-                    None => {
-                        // No comparison, so no alarm can be claimed.
-                        let _ = alarm.set_low();
-                        defmt::info!("frame {=u32}: new keyframe, nothing to compare", frame);
-                    }
+        let mut read = 0;
+        match stream_frame(&mut frames, &counter, &mut pipeline, frame, camera, &mut read) {
+            Ok(Outcome::Compared(report)) => {
+                let _ = if report.alarm { alarm.set_high() } else { alarm.set_low() };
+                link.send(&Message::Frame(report));
+                log_report(&report);
+                let cycle = counter.now().wrapping_sub(cycle_start);
+                // Benchmark figures are for detection cycles (frames compared with a keyframe).
+                if options.bench {
+                    log_bench(frame, read, cycle, &pipeline.timing(), &pipeline.gpa().profile());
                 }
-                bump(&mut link.counters.frames);
-                previous = Some(Previous { frame, t_s, pose });
+            }
+            Ok(Outcome::Keyframe { .. }) => {
+                // No comparison, so no alarm can be claimed.
+                let _ = alarm.set_low();
+                defmt::info!("frame {=u32}: new keyframe, nothing to compare", frame);
             }
             Err(failure) => {
                 frames.end_frame();
+                pipeline.abort();
                 if failure.mid_frame {
-                    stages.gpa.abort_frame();
-                    stages.gti.abort_frame();
                     bump(&mut link.counters.aborted);
                 }
-                // As detect.rs for a skipped frame: the next one restarts the keyframe.
-                stages.gpa.reset_keyframe();
                 let _ = alarm.set_low();
                 link.fault(failure.code, frame);
-                previous = None;
                 continue;
             }
         }
-        timing.cycle = counter.now().wrapping_sub(cycle_start);
-        // Benchmark figures are for detection cycles (frames compared with a keyframe).
-        if options.bench && compared {
-            defmt::println!("bench: frame: {=u32}", frame);
-            defmt::println!("bench: read_rows: {=u32}", timing.read);
-            defmt::println!("bench: remap: {=u32}", timing.remap);
-            defmt::println!("bench: detector_rows: {=u32}", timing.shift_search);
-            let profile = stages.gpa.profile();
-            defmt::println!("bench: gpa_warp: {=u32}", profile.warp);
-            defmt::println!("bench: gpa_residue: {=u32}", profile.residue);
-            defmt::println!("bench: gpa_parallax: {=u32}", profile.parallax);
-            defmt::println!("bench: gpa_shift_search: {=u32}", profile.shift_search);
-            defmt::println!("bench: gpa_keyframe_update: {=u32}", profile.keyframe_update);
-            defmt::println!("bench: decision: {=u32}", timing.decision);
-            // The full-frame build has no GTI stage to measure.
-            #[cfg(not(feature = "full-frame"))]
-            {
-                defmt::println!("bench: gti_rows: {=u32}", timing.gti_rows);
-                defmt::println!("bench: gti_frame: {=u32}", timing.gti_frame);
-                defmt::println!("bench: gti: {=u32}", timing.gti_rows.wrapping_add(timing.gti_frame));
-            }
-            defmt::println!("bench: instructions_per_cycle: {=u32}", timing.cycle);
-        }
+        bump(&mut link.counters.frames);
     }
     link.finish()
+}
+
+/// GTI (19.6 KB) is configured in place in its static, as the detector.
+/// None on a refused rig (the fault is sent).
+#[cfg(not(feature = "full-frame"))]
+fn gti_stage<S: Read + Write>(link: &mut Link<S>, rig: &Rig, grid: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
+    let gti: &'static mut GtiStage = GTI.take();
+    match gti.configure(rig, grid) {
+        Ok(()) => Some(Some(gti)),
+        Err(error) => {
+            defmt::error!("GTI refused: {}", error);
+            link.fault(SetupError::Gti(error).fault_code(), 0);
+            None
+        }
+    }
+}
+
+/// The `full-frame` build has no GTI stage: its keyframe needs the RAM.
+#[cfg(feature = "full-frame")]
+fn gti_stage<S>(_: &mut Link<S>, _: &Rig, _: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
+    Some(None)
 }

@@ -42,7 +42,7 @@ fn main() -> ! {
 #[inline(never)]
 fn kernel_bench() -> (u32, u32, u32) {
     use core::hint::black_box;
-    use flatland_core::sad;
+    use flatland_core::kernels;
     const N: usize = 1024;
     let mut a = [0u8; N];
     let mut b = [0u8; N + 4];
@@ -53,14 +53,14 @@ fn kernel_bench() -> (u32, u32, u32) {
         *y = (n * 91 % 241) as u8;
     }
     let start = instructions_now();
-    black_box(sad::sad(black_box(&a), black_box(&b)));
+    black_box(kernels::sad(black_box(&a), black_box(&b)));
     let sad_count = instructions_now().wrapping_sub(start);
     let mut sums = [0u32; 5];
     let start = instructions_now();
-    sad::sad_shifts(black_box(&a), black_box(&b), black_box(&mut sums));
+    kernels::sad_shifts(black_box(&a), black_box(&b), black_box(&mut sums));
     let shifts_count = instructions_now().wrapping_sub(start);
     black_box(&sums);
-    let mut histogram = sad::DiffHistogram::EMPTY;
+    let mut histogram = kernels::DiffHistogram::EMPTY;
     let start = instructions_now();
     black_box(&mut histogram).add(black_box(&a), black_box(&b));
     let histogram_count = instructions_now().wrapping_sub(start);
@@ -70,7 +70,7 @@ fn kernel_bench() -> (u32, u32, u32) {
 }
 
 /// Instructions per output pixel (x100) of the GPA warp's bilinear line
-/// (`sad::bilinear_line`), 1023 samples from two 1024-byte rows (call
+/// (`kernels::bilinear_line`), 1023 samples from two 1024-byte rows (call
 /// overhead included). Separate from `kernel_bench` so its figures keep
 /// their code.
 #[inline(never)]
@@ -84,7 +84,7 @@ fn bilinear_bench() -> u32 {
     }
     let mut line = [0u8; N - 1];
     let start = instructions_now();
-    flatland_core::sad::bilinear_line(
+    flatland_core::kernels::bilinear_line(
         core::hint::black_box(&upper),
         core::hint::black_box(&lower),
         core::hint::black_box(77),

@@ -1,19 +1,22 @@
 //! `flatland bench`: wall-clock figures of one detection cycle per stage,
 //! single-threaded, with warm-up and medians (a small harness in the spirit
-//! of criterion: the cycle is a few tens of microseconds, so each sample
-//! times a whole cycle and the median drops scheduler noise).
+//! of criterion: the stages take tens to hundreds of microseconds, so each
+//! sample is a whole cycle and the median drops scheduler noise).
 //!
-//! A detection cycle is what the firmware does per frame: the previous frame
-//! is the keyframe; the frame's camera rows stream through the remap into
-//! the GPA, then the decision. Each sample re-makes the keyframe from the
-//! previous frame (untimed) so every sample does the same work.
+//! A detection cycle is what the firmware does per frame, GTI aside: the
+//! previous frame is the keyframe; the frame's camera rows stream through
+//! the remap into the GPA, then the decision. Each sample re-makes the
+//! keyframe from the previous frame so every sample does the same work.
+//! The figures are the pipeline's own stage timing (`FrameTiming`, as
+//! `cargo fw-bench` prints) and GPA's profile, from the x86 time-stamp
+//! counter; its reads add a little.
 
-use crate::recording::Recording;
+use crate::detect::{push_frame, DetectConfig, Detector, Heights};
+use crate::recording::{PoseRow, Recording};
 use flatland_core::geometry::{Aoi, Pixel, Rig};
-use flatland_core::gpa::{Gpa, GpaConfig, GpaProfile};
+use flatland_core::gpa::{GpaConfig, GpaProfile};
 use flatland_core::grid::{GridConfig, KgGrid, MAX_GRID_SIDE};
-use flatland_core::motion::Motion;
-use flatland_core::remap::{RemapTable, StreamingRemap};
+use flatland_core::pipeline::{FrameTiming, PoseSample};
 use std::fmt::Write as _;
 use std::hint::black_box;
 #[cfg(not(target_arch = "x86_64"))]
@@ -29,7 +32,7 @@ fn median(mut values: Vec<f64>) -> f64 {
     values[values.len() / 2]
 }
 
-/// The GPA's profile clock, read ~6 times per KG row: the x86 time-stamp
+/// The pipeline's and GPA's profile clock, read ~9 times per KG row: the x86 time-stamp
 /// counter (a few ns per read; `Instant::now` costs ~20 ns, which would show
 /// in the stages), elsewhere nanoseconds since first use. Wrapping.
 fn ticks() -> u32 {
@@ -52,20 +55,6 @@ fn ticks_per_us() -> f64 {
         std::hint::spin_loop();
     }
     f64::from(ticks().wrapping_sub(first)) / (start.elapsed().as_secs_f64() * 1e6)
-}
-
-/// Times `f` WARM_UP + SAMPLES times (each call gets the sample number); median in us.
-fn time_us(mut f: impl FnMut(usize)) -> f64 {
-    for n in 0..WARM_UP {
-        f(n);
-    }
-    let mut samples = Vec::with_capacity(SAMPLES);
-    for n in 0..SAMPLES {
-        let start = Instant::now();
-        f(n);
-        samples.push(start.elapsed().as_secs_f64() * 1e6);
-    }
-    median(samples)
 }
 
 /// The full-frame worst case (`--full-frame` of `flatland bench` and
@@ -188,11 +177,9 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
     } else {
         (recording.rig, GridConfig { mm_per_px, ..GridConfig::default() })
     };
-    let grid = KgGrid::for_rig(&rig, &grid_config).map_err(|e| format!("KG grid: {e}"))?;
-    let mut table = Box::new(RemapTable::EMPTY);
-    table.build(&rig, &grid).map_err(|e| format!("remap table: {e:?}"))?;
-    let config = GpaConfig { search_radius: search, ..GpaConfig::default() };
-    // Frames and odometry of every consecutive pair.
+    let config = DetectConfig { grid: grid_config, gpa: GpaConfig { search_radius: search, ..GpaConfig::default() } };
+    let mut detector = Detector::new(&rig, &config)?;
+    // Frames and poses of every consecutive pair.
     let mut pairs = Vec::new();
     for window in recording.frames.windows(2) {
         let (a, b) = (window[0], window[1]);
@@ -201,31 +188,15 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
             continue;
         }
         let frames = (recording.load_frame(a).map_err(|e| e.to_string())?, recording.load_frame(b).map_err(|e| e.to_string())?);
-        pairs.push((a, b, frames, Motion::between(&pa.pose, &pb.pose)));
+        let sample = |row: &PoseRow| PoseSample { t_s: row.t_s, pose: row.pose };
+        pairs.push(((a, sample(pa), frames.0), (b, sample(pb), frames.1)));
     }
     if pairs.is_empty() {
         return Err("no consecutive frames with poses".into());
     }
-    let camera_width = usize::from(rig.camera().width);
-    let mut ring = vec![0u8; table.ring_bytes()];
-    let mut keyframe = vec![0u8; Gpa::keyframe_bytes(&grid)];
-    let mut gpa = Box::new(Gpa::new(&rig, &grid, &table, config, &mut keyframe).map_err(|e| format!("detector: {e:?}"))?);
-    let mut stream = StreamingRemap::new(&table, &mut ring).map_err(|e| e.to_string())?;
-    let width = grid.width();
-    let mut kg_current = vec![0u8; grid.len()];
 
-    // Makes frame `a` the keyframe (untimed), then `b` is the timed cycle.
-    macro_rules! keyframe_from {
-        ($a:expr, $frame:expr) => {{
-            gpa.reset_keyframe();
-            gpa.begin_frame($a, None);
-            for row in $frame.pixels.chunks_exact(camera_width) {
-                stream.push_row(row, |j, kg| gpa.on_kg_row(j, kg)).map_err(|e| e.to_string())?;
-            }
-            gpa.end_frame();
-        }};
-    }
     let mut out = String::new();
+    let (grid, table) = (&detector.front_end.grid, &detector.front_end.table);
     let aoi = grid.aoi_pixels(&rig);
     let valid: usize = (0..grid.height()).map(|j| table.valid_columns(j).len()).sum();
     let _ = writeln!(out, "recording: {}", recording.dir.display());
@@ -245,79 +216,53 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
     let _ = writeln!(out, "pairs: {}", pairs.len());
     let _ = writeln!(out, "samples: {SAMPLES} after {WARM_UP} warm-up, median, one thread");
 
-    // Remap alone.
-    let remap_us = time_us(|n| {
-        let (_, _, (_, frame), _) = &pairs[n % pairs.len()];
-        for row in frame.pixels.chunks_exact(camera_width) {
-            let _ = stream.push_row(row, |j, kg| kg_current[j * width..][..width].copy_from_slice(kg));
-        }
-        black_box(&kg_current);
-    });
-
-    // The whole cycle: remap + GPA rows + decision. Keyframe set-up untimed.
-    let mut cycle = Vec::with_capacity(SAMPLES);
-    let mut decision = Vec::with_capacity(SAMPLES);
-    for n in 0..WARM_UP + SAMPLES {
-        let (a, b, (frame_a, frame_b), motion) = &pairs[n % pairs.len()];
-        keyframe_from!(*a, frame_a);
-        let start = Instant::now();
-        gpa.begin_frame(*b, Some(*motion));
-        for row in frame_b.pixels.chunks_exact(camera_width) {
-            stream.push_row(row, |j, kg| gpa.on_kg_row(j, kg)).map_err(|e| e.to_string())?;
-        }
-        let rows_done = Instant::now();
-        black_box(gpa.end_frame());
-        let end = Instant::now();
-        if n >= WARM_UP {
-            cycle.push((end - start).as_secs_f64() * 1e6);
-            decision.push((end - rows_done).as_secs_f64() * 1e6);
-        }
-    }
-    let cycle_us = median(cycle);
-    let decision_us = median(decision);
-
-    // Per-stage profile of the GPA rows (its clock reads add a little).
+    // Each sample: frame a becomes the keyframe, then b is the detection
+    // cycle, timed per stage by the pipeline with the profile clock.
     let tick_rate = ticks_per_us();
-    gpa.set_clock(Some(ticks));
-    let mut profiles: Vec<GpaProfile> = Vec::with_capacity(SAMPLES);
-    for n in 0..WARM_UP + SAMPLES {
-        let (a, b, (frame_a, frame_b), motion) = &pairs[n % pairs.len()];
-        keyframe_from!(*a, frame_a);
-        gpa.begin_frame(*b, Some(*motion));
-        for row in frame_b.pixels.chunks_exact(camera_width) {
-            stream.push_row(row, |j, kg| gpa.on_kg_row(j, kg)).map_err(|e| e.to_string())?;
+    let (timings, profiles) = detector.with_pipeline(Heights::GpaOnly, |pipeline| {
+        pipeline.set_clock(Some(ticks));
+        let mut samples: Vec<(FrameTiming, GpaProfile)> = Vec::with_capacity(SAMPLES);
+        for n in 0..WARM_UP + SAMPLES {
+            let (keyframe, current) = &pairs[n % pairs.len()];
+            pipeline.restart();
+            for (index, pose, frame) in [keyframe, current] {
+                pipeline.begin(*index, Some(*pose)).map_err(|e| e.to_string())?;
+                push_frame(pipeline, frame, |_, _| {}).map_err(|e| e.to_string())?;
+                black_box(pipeline.finish().map_err(|e| e.to_string())?);
+            }
+            if n >= WARM_UP {
+                samples.push((pipeline.timing(), pipeline.gpa().profile()));
+            }
         }
-        if n >= WARM_UP {
-            profiles.push(gpa.profile());
-        }
-        gpa.end_frame();
-    }
-    gpa.set_clock(None);
-    let stage = |f: fn(&GpaProfile) -> u32| median(profiles.iter().map(|p| f64::from(f(p)) / tick_rate).collect());
+        Ok(samples.into_iter().unzip::<_, _, Vec<_>, Vec<_>>())
+    })?;
+    let us = |ticks: u32| f64::from(ticks) / tick_rate;
+    let stage = |f: fn(&FrameTiming) -> u32| median(timings.iter().map(|t| us(f(t))).collect());
+    let gpa_stage = |f: fn(&GpaProfile) -> u32| median(profiles.iter().map(|p| us(f(p))).collect());
 
     // The OpenCV anchor's cycle (remap, |diff| over the (2S+1)^2 shifts,
     // histogram) within the GPA: the remap, the keyframe warped by the
     // prediction (the anchor shifts by whole pixels instead), the shift
     // search with the histogram, and the decision.
     let shifts = 2 * search + 1;
-    let (warp_us, shift_search_us) = (stage(|p| p.warp), stage(|p| p.shift_search));
+    let (remap_us, decision_us) = (stage(|t| t.remap), stage(|t| t.decision));
+    let (warp_us, shift_search_us) = (gpa_stage(|p| p.warp), gpa_stage(|p| p.shift_search));
     let seed_us = remap_us + warp_us + shift_search_us + decision_us;
 
-    let gpa_rows_us = cycle_us - remap_us - decision_us;
     let _ = writeln!(out, "remap_us_median: {remap_us:.1}");
-    let _ = writeln!(out, "gpa_rows_us_median: {gpa_rows_us:.1} (cycle - remap - decision)");
+    let _ = writeln!(out, "gpa_rows_us_median: {:.1}", stage(|t| t.detector_rows));
     let _ = writeln!(out, "gpa_warp_us_median: {warp_us:.1}");
-    let _ = writeln!(out, "gpa_residue_us_median: {:.1}", stage(|p| p.residue));
-    let _ = writeln!(out, "gpa_parallax_us_median: {:.1}", stage(|p| p.parallax));
+    let _ = writeln!(out, "gpa_residue_us_median: {:.1}", gpa_stage(|p| p.residue));
+    let _ = writeln!(out, "gpa_parallax_us_median: {:.1}", gpa_stage(|p| p.parallax));
     let _ = writeln!(out, "gpa_shift_search_us_median: {shift_search_us:.1} (with the histogram)");
-    let _ = writeln!(out, "gpa_keyframe_update_us_median: {:.1}", stage(|p| p.keyframe_update));
+    let _ = writeln!(out, "gpa_keyframe_update_us_median: {:.1}", gpa_stage(|p| p.keyframe_update));
     let _ = writeln!(out, "decision_us_median: {decision_us:.1}");
     let _ = writeln!(
         out,
         "seed_cycle_us_median: {seed_us:.1} (remap + warp + {}-shift search with histogram + decision, the OpenCV anchor's work)",
         shifts * shifts
     );
-    let _ = writeln!(out, "cycle_us_median: {cycle_us:.1}");
+    let _ = writeln!(out, "cycle_us_median: {:.1}", stage(|t| t.cycle));
     Ok(out)
 }
 
@@ -325,6 +270,7 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
 mod tests {
     use super::*;
     use crate::qemu::workspace_root;
+    use flatland_core::remap::RemapTable;
 
     fn rig(name: &str) -> Rig {
         Recording::open(workspace_root().join("host-tests/data").join(name)).expect("recording").rig

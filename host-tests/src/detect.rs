@@ -1,13 +1,16 @@
-//! `flatland detect`: the streaming pipeline (remap -> GPA and GTI, combined
-//! by `flatland_core::fusion`) over a recording, fed row by row exactly as
-//! the firmware feeds it.
+//! `flatland detect`: a recording's frames through `flatland_core::pipeline`
+//! (remap -> GPA and GTI, combined by `flatland_core::fusion`), fed row by
+//! row exactly as the firmware feeds them. `flatland heights` and `flatland
+//! bench` drive the same pipeline from here.
 
-use crate::recording::{Recording, RecordingError};
+use crate::kg::KgFrontEnd;
+use crate::recording::{Frame, Recording, RecordingError};
 use flatland_core::fusion::GtiStage;
+use flatland_core::geometry::Rig;
 use flatland_core::gpa::{Gpa, GpaConfig};
 use flatland_core::grid::{GridConfig, KgGrid};
-use flatland_core::motion::Motion;
-use flatland_core::remap::{RemapTable, StreamingRemap};
+use flatland_core::pipeline::{FrameError, Outcome, Pipeline, PoseSample};
+use flatland_core::remap::RemapTable;
 use flatland_core::report::FrameReport;
 
 /// What happened to one frame.
@@ -17,7 +20,7 @@ pub enum FrameOutcome {
     Report { report: FrameReport, kg: Vec<u8> },
     /// Became the (first) keyframe: nothing to compare with.
     Keyframe { frame: u32, kg: Vec<u8> },
-    /// Could not be used; the keyframe was reset if the gap demands it.
+    /// Could not be used; the next frame restarts the keyframe.
     Skipped { frame: u32, error: RecordingError },
 }
 
@@ -28,114 +31,104 @@ pub struct DetectConfig {
     pub gpa: GpaConfig,
 }
 
-/// Everything built once per rig.
-pub struct Pipeline {
-    pub grid: KgGrid,
-    pub table: Box<RemapTable>,
-    ring: Vec<u8>,
-    keyframe: Vec<u8>,
+/// Whether a pipeline runs the GTI stage.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Heights {
+    /// GPA's decision with GTI's heights: what the firmware runs.
+    WithGti,
+    /// GPA alone (`flatland bench`'s detection cycle).
+    GpaOnly,
 }
 
-impl Pipeline {
-    pub fn new(recording: &Recording, config: &DetectConfig) -> Result<Pipeline, String> {
-        let grid = KgGrid::for_rig(&recording.rig, &config.grid).map_err(|e| format!("KG grid: {e}"))?;
-        let mut table = Box::new(RemapTable::EMPTY);
-        table.build(&recording.rig, &grid).map_err(|e| format!("remap table: {e:?}"))?;
-        let ring = vec![0; table.ring_bytes()];
-        let keyframe = vec![0; Gpa::keyframe_bytes(&grid)];
-        Ok(Pipeline { grid, table, ring, keyframe })
+/// Everything built once per rig: the KG front end and the keyframe memory.
+pub struct Detector {
+    pub front_end: KgFrontEnd,
+    keyframe: Vec<u8>,
+    rig: Rig,
+    config: DetectConfig,
+}
+
+impl Detector {
+    pub fn new(rig: &Rig, config: &DetectConfig) -> Result<Detector, String> {
+        let front_end = KgFrontEnd::new(rig, &config.grid).map_err(|e| e.to_string())?;
+        let keyframe = vec![0; Gpa::keyframe_bytes(&front_end.grid)];
+        Ok(Detector { front_end, keyframe, rig: *rig, config: *config })
     }
 
-    /// Runs every frame of the recording through remap + GPA, in order.
-    pub fn run(
-        &mut self,
-        recording: &Recording,
-        config: &DetectConfig,
-        on_frame: impl FnMut(FrameOutcome, &Gpa),
-    ) -> Result<(), String> {
-        self.run_with(recording, config, |_, _| {}, on_frame)
+    pub fn grid(&self) -> KgGrid {
+        self.front_end.grid
     }
 
-    /// As [`Pipeline::run`], with `alter` applied to each frame after loading
+    /// Runs `drive` on a fresh pipeline over these buffers.
+    pub fn with_pipeline<T>(&mut self, heights: Heights, drive: impl FnOnce(&mut Pipeline) -> Result<T, String>) -> Result<T, String> {
+        let KgFrontEnd { grid, table, ring } = &mut self.front_end;
+        let table: &RemapTable = table;
+        let mut gpa = Gpa::new(&self.rig, grid, table, self.config.gpa, &mut self.keyframe).map_err(|e| format!("detector: {e:?}"))?;
+        let mut gti = match heights {
+            Heights::WithGti => Some(Box::new(GtiStage::new(&self.rig, grid).map_err(|e| format!("GTI: {e}"))?)),
+            Heights::GpaOnly => None,
+        };
+        let mut pipeline = Pipeline::new(table, ring, &mut gpa, gti.as_deref_mut()).map_err(|e| e.to_string())?;
+        drive(&mut pipeline)
+    }
+
+    /// Runs every frame of the recording through the pipeline, in order.
+    pub fn run(&mut self, recording: &Recording, on_frame: impl FnMut(FrameOutcome, &Pipeline)) -> Result<(), String> {
+        self.run_with(recording, |_, _| {}, on_frame)
+    }
+
+    /// As [`Detector::run`], with `alter` applied to each frame after loading
     /// (the tests' perturbations: noise, gain changes).
     pub fn run_with(
         &mut self,
         recording: &Recording,
-        config: &DetectConfig,
-        mut alter: impl FnMut(u32, &mut crate::recording::Frame),
-        mut on_frame: impl FnMut(FrameOutcome, &Gpa),
+        mut alter: impl FnMut(u32, &mut Frame),
+        mut on_frame: impl FnMut(FrameOutcome, &Pipeline),
     ) -> Result<(), String> {
-        let mut gpa = Gpa::new(&recording.rig, &self.grid, &self.table, config.gpa, &mut self.keyframe)
-            .map_err(|e| format!("detector: {e:?}"))?;
-        let mut gti = Box::new(GtiStage::new(&recording.rig, &self.grid).map_err(|e| format!("GTI: {e}"))?);
-        let mut stream = StreamingRemap::new(&self.table, &mut self.ring).map_err(|e| e.to_string())?;
-        let grid_width = self.grid.width();
+        let grid = self.grid();
         let first = recording.frames.first().copied().unwrap_or(0);
         let last = recording.frames.last().copied().unwrap_or(0);
-        let mut previous: Option<(u32, f64, flatland_core::motion::Pose)> = None;
-        for index in first..=last {
-            let frame = match recording.load_frame(index) {
-                Ok(mut frame) => {
-                    alter(index, &mut frame);
-                    frame
+        self.with_pipeline(Heights::WithGti, |pipeline| {
+            for index in first..=last {
+                let frame = match recording.load_frame(index) {
+                    Ok(mut frame) => {
+                        alter(index, &mut frame);
+                        frame
+                    }
+                    Err(error) => {
+                        // A missing or broken frame is a gap: the next good frame
+                        // restarts the keyframe rather than raise a false alarm.
+                        pipeline.abort();
+                        on_frame(FrameOutcome::Skipped { frame: index, error }, pipeline);
+                        continue;
+                    }
+                };
+                let pose = recording.pose(index);
+                if pose.is_none() {
+                    eprintln!("flatland: frame {index}: no row in poses.csv; restarting the keyframe");
                 }
-                Err(error) => {
-                    // A missing or broken frame is a gap: the next good frame
-                    // restarts the keyframe rather than raise a false alarm.
-                    gpa.reset_keyframe();
-                    previous = None;
-                    on_frame(FrameOutcome::Skipped { frame: index, error }, &gpa);
+                if let Err(error) = pipeline.begin(index, pose.map(|row| PoseSample { t_s: row.t_s, pose: row.pose })) {
+                    let line = pose.map_or(0, |row| row.line);
+                    let error = RecordingError::Csv { path: recording.dir.join("poses.csv"), line, message: error.to_string() };
+                    on_frame(FrameOutcome::Skipped { frame: index, error }, pipeline);
                     continue;
                 }
-            };
-            let pose = recording.pose(index).copied();
-            if let (Some((before, t_before, _)), Some(row)) = (previous, pose) {
-                if row.t_s <= t_before {
-                    // Time went backwards: this row's pose cannot be trusted,
-                    // so neither can the motion to or from it.
-                    gpa.reset_keyframe();
-                    previous = None;
-                    let error = RecordingError::Csv {
-                        path: recording.dir.join("poses.csv"),
-                        line: row.line,
-                        message: format!("frame {index} at t = {} s is not after frame {before} at t = {t_before} s", row.t_s),
-                    };
-                    on_frame(FrameOutcome::Skipped { frame: index, error }, &gpa);
-                    continue;
-                }
-            }
-            let odometry = match (previous, pose) {
-                (Some((before, _, from)), Some(row)) if before + 1 == index => Some(Motion::between(&from, &row.pose)),
-                _ => None,
-            };
-            if pose.is_none() {
-                eprintln!("flatland: frame {index}: no row in poses.csv; restarting the keyframe");
-                gpa.reset_keyframe();
-            }
-            gpa.begin_frame(index, odometry);
-            let mut kg = vec![0u8; self.grid.len()];
-            let table = &self.table;
-            for camera_row in frame.pixels.chunks_exact(frame.width) {
-                stream
-                    .push_row(camera_row, |j, kg_row| {
-                        gpa.on_kg_row(j, kg_row);
-                        gti.on_kg_row(j, kg_row, table.valid_columns(j));
-                        kg[j * grid_width..][..grid_width].copy_from_slice(kg_row);
-                    })
+                let mut kg = vec![0u8; grid.len()];
+                let width = grid.width();
+                push_frame(pipeline, &frame, |j, kg_row| kg[j * width..][..width].copy_from_slice(kg_row))
                     .map_err(|e| format!("frame {index}: {e}"))?;
+                let outcome = match pipeline.finish().map_err(|e| format!("frame {index}: {e}"))? {
+                    Outcome::Compared(report) => FrameOutcome::Report { report, kg },
+                    Outcome::Keyframe { frame } => FrameOutcome::Keyframe { frame, kg },
+                };
+                on_frame(outcome, pipeline);
             }
-            let report = gpa.end_frame();
-            gti.end_frame(odometry);
-            let outcome = match report {
-                Some(mut report) => {
-                    gti.enrich(&mut report);
-                    FrameOutcome::Report { report, kg }
-                }
-                None => FrameOutcome::Keyframe { frame: index, kg },
-            };
-            on_frame(outcome, &gpa);
-            previous = pose.map(|row| (index, row.t_s, row.pose));
-        }
-        Ok(())
+            Ok(())
+        })
     }
+}
+
+/// Pushes a frame's camera rows into the pipeline begun on it; `tap` sees each KG row.
+pub fn push_frame(pipeline: &mut Pipeline, frame: &Frame, mut tap: impl FnMut(usize, &[u8])) -> Result<(), FrameError> {
+    frame.pixels.chunks_exact(frame.width).try_for_each(|row| pipeline.push_row_tapped(row, &mut tap))
 }

@@ -1,88 +1,49 @@
 //! `flatland heights`: GTI heights from motion over a recording, as CSV and
 //! pictures (GT-images with the fitted loci, and a top-view height map).
 //!
-//! Frames go through the streaming remap row by row and each KG row is fed
-//! to the GTI stage from the remap's callback, exactly as the firmware does.
+//! Frames go through the same pipeline as `flatland detect` and the firmware
+//! (`detect::Detector`): rows streamed through the remap into GPA and GTI,
+//! behind the same odometry gate.
 
+use crate::detect::{DetectConfig, Detector, FrameOutcome};
 use crate::images::RgbImage;
-use crate::kg::{KgError, KgFrontEnd};
-use crate::recording::{Frame, Recording, RecordingError};
-use flatland_core::grid::{GridConfig, KgGrid};
-use flatland_core::gti::{Gti, GtiConfig, GtiError, HeightPoint, TrackView};
-use flatland_core::motion::Motion;
-use flatland_core::remap::{RemapError, StreamingRemap};
+use crate::recording::{Frame, Recording};
+use flatland_core::grid::KgGrid;
+use flatland_core::gti::{Gti, HeightPoint, TrackView};
 use std::collections::BTreeMap;
-use std::fmt;
 use std::io::Write;
 use std::path::Path;
 
-#[derive(Debug)]
-pub enum HeightsError {
-    Recording(RecordingError),
-    Kg(KgError),
-    Gti(GtiError),
-    Remap { frame: u32, error: RemapError },
-    MissingPose { frame: u32 },
-}
-
-impl fmt::Display for HeightsError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            HeightsError::Recording(e) => write!(f, "{e}"),
-            HeightsError::Kg(e) => write!(f, "{e}"),
-            HeightsError::Gti(e) => write!(f, "GTI: {e}"),
-            HeightsError::Remap { frame, error } => write!(f, "frame {frame}: remap: {error}"),
-            HeightsError::MissingPose { frame } => write!(f, "poses.csv has no row for frame {frame}"),
-        }
-    }
-}
-
-impl std::error::Error for HeightsError {}
-
-/// Runs GTI over every frame of a recording; `each_frame(frame, gti)` is
-/// called after each frame's `end_frame`, when points and tracks are current.
-pub fn run_gti(recording: &Recording, config: GtiConfig, each_frame: impl FnMut(u32, &Gti)) -> Result<KgGrid, HeightsError> {
-    run_gti_perturbed(recording, config, |_, _| {}, each_frame)
+/// Runs the pipeline over every frame of a recording; `each_frame(frame, gti)`
+/// is called after each frame it finished, when GTI's points and tracks are
+/// current. A frame skipped (unreadable, time going backwards) is said on
+/// stderr and restarts GTI's tracks, as it restarts `flatland detect`'s keyframe.
+pub fn run_gti(recording: &Recording, each_frame: impl FnMut(u32, &Gti)) -> Result<KgGrid, String> {
+    run_gti_perturbed(recording, |_, _| {}, each_frame)
 }
 
 /// [`run_gti`] with `perturb(frame, pixels)` applied to each frame as it is
 /// loaded (robustness tests: extra sensor noise and the like).
 pub fn run_gti_perturbed(
     recording: &Recording,
-    config: GtiConfig,
-    mut perturb: impl FnMut(u32, &mut Frame),
+    perturb: impl FnMut(u32, &mut Frame),
     mut each_frame: impl FnMut(u32, &Gti),
-) -> Result<KgGrid, HeightsError> {
-    let front_end = KgFrontEnd::new(&recording.rig, &GridConfig::default()).map_err(HeightsError::Kg)?;
-    let table = &front_end.table;
-    let mut gti = Gti::new(&recording.rig, &front_end.grid, config).map_err(HeightsError::Gti)?;
-    let mut ring = vec![0u8; table.ring_bytes()];
-    let mut remap = StreamingRemap::new(table, &mut ring).map_err(|error| HeightsError::Remap { frame: 0, error })?;
-    let mut previous_pose = None;
-    for &index in &recording.frames {
-        let pose = recording.pose(index).ok_or(HeightsError::MissingPose { frame: index })?.pose;
-        let mut frame = recording.load_frame(index).map_err(HeightsError::Recording)?;
-        perturb(index, &mut frame);
-        let mut row_error = None;
-        remap.reset();
-        for camera_row in frame.pixels.chunks_exact(frame.width) {
-            remap
-                .push_row(camera_row, |j, kg_row| {
-                    if let Err(e) = gti.on_kg_row(j, kg_row, table.valid_columns(j)) {
-                        row_error.get_or_insert(e);
-                    }
-                })
-                .map_err(|error| HeightsError::Remap { frame: index, error })?;
+) -> Result<KgGrid, String> {
+    let mut detector = Detector::new(&recording.rig, &DetectConfig::default())?;
+    detector.run_with(recording, perturb, |outcome, pipeline| {
+        let frame = match outcome {
+            FrameOutcome::Report { report, .. } => report.frame,
+            FrameOutcome::Keyframe { frame, .. } => frame,
+            FrameOutcome::Skipped { frame, error } => {
+                eprintln!("flatland: skipping frame {frame}: {error}");
+                return;
+            }
+        };
+        if let Some(stage) = pipeline.gti() {
+            each_frame(frame, stage.gti());
         }
-        if let Some(e) = row_error {
-            return Err(HeightsError::Gti(e));
-        }
-        let motion = previous_pose.map_or(Motion::default(), |from| Motion::between(&from, &pose));
-        gti.end_frame(&motion);
-        previous_pose = Some(pose);
-        each_frame(index, &gti);
-    }
-    Ok(front_end.grid)
+    })?;
+    Ok(detector.grid())
 }
 
 /// Heights in whole mm, positions in whole mm: what reaches the serial link.
@@ -160,10 +121,9 @@ fn height_colour(h_mm: f32, full_mm: f32) -> [u8; 3] {
 /// edges as dots and fitted loci as lines, coloured by height) and
 /// `map.png` (top view of the final frame's points, coloured by height).
 pub fn run_heights(recording: &Recording, png_dir: Option<&Path>, out: &mut impl Write) -> Result<(), Box<dyn std::error::Error>> {
-    let config = GtiConfig::default();
     let mut drawing = Drawing::default();
     let mut rows = Vec::new();
-    let grid = run_gti(recording, config, |frame, gti| {
+    let grid = run_gti(recording, |frame, gti| {
         for p in gti.points() {
             rows.push(csv_row(frame, &p));
         }

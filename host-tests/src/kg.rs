@@ -30,7 +30,8 @@ impl std::error::Error for KgError {}
 pub struct KgFrontEnd {
     pub grid: KgGrid,
     pub table: Box<RemapTable>,
-    ring: Vec<u8>,
+    /// The remap's camera rows, lent to the streaming pipeline (`detect`).
+    pub(crate) ring: Vec<u8>,
 }
 
 impl KgFrontEnd {

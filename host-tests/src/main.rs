@@ -3,7 +3,7 @@
 use clap::{Parser, Subcommand};
 use flatland_core::grid::GridConfig;
 use flatland_core::report::{FrameReport, CSV_HEADER, MOTION_SCALE, SHIFT_SCALE};
-use flatland_host::detect::{DetectConfig, FrameOutcome, Pipeline};
+use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::evaluate::{is_grace, score, score_hazard};
 use flatland_host::recording::Hazard;
 use flatland_host::images::{detect_picture, save_gray};
@@ -226,9 +226,8 @@ fn run_detect(
     if let Some(p) = perturbation {
         p.poses(&mut recording);
     }
-    let config = DetectConfig::default();
-    let mut pipeline = match Pipeline::new(&recording, &config) {
-        Ok(p) => p,
+    let mut detector = match Detector::new(&recording.rig, &DetectConfig::default()) {
+        Ok(d) => d,
         Err(e) => return fatal(format!("{}: {e}", path.display())),
     };
     if let Some(dir) = png {
@@ -236,7 +235,7 @@ fn run_detect(
             return fatal(format!("{}: {e}", dir.display()));
         }
     }
-    let grid = pipeline.grid;
+    let grid = detector.grid();
     let mut reports = Vec::new();
     let mut previous_kg: Option<Vec<u8>> = None;
     let stdout = std::io::stdout();
@@ -245,8 +244,9 @@ fn run_detect(
         let _ = writeln!(out, "{CSV_HEADER}");
     }
     let mut picture_error = None;
-    let result = pipeline.run_with(&recording, &config, |index, frame| if let Some(p) = perturbation { p.frame(index, frame) }, |outcome, gpa| match outcome {
+    let result = detector.run_with(&recording, |index, frame| if let Some(p) = perturbation { p.frame(index, frame) }, |outcome, pipeline| match outcome {
         FrameOutcome::Report { report, kg } => {
+            let gpa = pipeline.gpa();
             let line = match format {
                 Format::Csv => {
                     let mut line = String::new();

@@ -3,7 +3,9 @@
 
 use crate::recording::{Frame, Recording};
 
-/// A small deterministic generator (SplitMix64): reproducible tests, no dependency.
+/// A small deterministic generator (SplitMix64): reproducible tests, no
+/// dependency. The host side's one (perturbations, the fuzz targets'
+/// textures); core's checks draw from `flatland_core::selftest::xorshift32`.
 #[derive(Clone, Debug)]
 pub struct SplitMix(u64);
 

@@ -17,7 +17,6 @@ use std::sync::mpsc;
 use std::thread;
 use std::time::{Duration, Instant};
 
-use flatland_core::geometry::Rig;
 use flatland_core::protocol::{encode_line, Decoder, LinkStats, Message, Odometry, RigRecord};
 
 use crate::recording::Recording;
@@ -126,29 +125,10 @@ pub fn build_full_frame_firmware() -> Result<PathBuf> {
 
 // ------------------------------------------------------------------ what is sent
 
-/// The wire's rig record of a validated rig (the same f64 values).
-pub fn rig_record(rig: &Rig) -> RigRecord {
-    let (camera, mount, aoi) = (rig.camera(), rig.mount(), rig.aoi());
-    RigRecord {
-        width: camera.width,
-        height: camera.height,
-        fx: camera.fx,
-        fy: camera.fy,
-        cx: camera.cx,
-        cy: camera.cy,
-        distortion: camera.distortion.map(|d| [d.k1, d.k2, d.p1, d.p2, d.k3]),
-        height_mm: mount.height_mm,
-        tilt_deg: mount.tilt_deg,
-        aoi_half_width_mm: aoi.half_width_mm,
-        aoi_near_mm: aoi.near_mm,
-        aoi_far_mm: aoi.far_mm,
-    }
-}
-
 /// The messages a robot controller sends for a recording: the rig, one
 /// `$FLODO` per poses.csv row, `$FLEND`.
 pub fn host_messages(recording: &Recording) -> Vec<Message> {
-    let mut messages = vec![Message::Rig(rig_record(&recording.rig))];
+    let mut messages = vec![Message::Rig(RigRecord::from(&recording.rig))];
     messages.extend(recording.poses.iter().map(|row| {
         Message::Odometry(Odometry { frame: row.frame, t_s: row.t_s, x_mm: row.pose.x_mm, z_mm: row.pose.z_mm, yaw_deg: row.pose.yaw_deg })
     }));

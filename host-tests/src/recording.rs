@@ -3,9 +3,10 @@
 //!
 //! Every error names the file and, where there is one, the line.
 
-use flatland_core::geometry::{Aoi, Distortion, Intrinsics, Mount, Rig, RigError};
+use flatland_core::geometry::{Rig, RigError};
 use flatland_core::motion::Pose;
 use flatland_core::pgm::{Pgm, PgmError};
+use flatland_core::protocol::RigRecord;
 use serde::Deserialize;
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -14,7 +15,7 @@ use std::path::{Path, PathBuf};
 #[derive(Debug)]
 pub enum RecordingError {
     /// A file could not be read.
-    Io { path: PathBuf, message: String },
+    Io { path: PathBuf, error: std::io::Error },
     /// A TOML file does not parse or lacks a key.
     Toml { path: PathBuf, line: Option<usize>, message: String },
     /// rig.toml parses but describes an impossible rig.
@@ -36,7 +37,7 @@ impl fmt::Display for RecordingError {
             None => path.display().to_string(),
         };
         match self {
-            RecordingError::Io { path, message } => write!(f, "{}: {message}", path.display()),
+            RecordingError::Io { path, error } => write!(f, "{}: {error}", path.display()),
             RecordingError::Toml { path, line, message } => write!(f, "{}: {message}", at(path, line)),
             RecordingError::Rig { path, line, error } => write!(f, "{}: impossible rig: {error}", at(path, line)),
             RecordingError::Csv { path, line, message } => write!(f, "{}:{line}: {message}", path.display()),
@@ -55,10 +56,24 @@ impl fmt::Display for RecordingError {
     }
 }
 
-impl std::error::Error for RecordingError {}
+impl std::error::Error for RecordingError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            RecordingError::Io { error, .. } => Some(error),
+            RecordingError::Rig { error, .. } => Some(error),
+            RecordingError::Pgm { error, .. } => Some(error),
+            _ => None,
+        }
+    }
+}
+
+/// `error` about `path`.
+fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> RecordingError + '_ {
+    move |error| RecordingError::Io { path: path.into(), error }
+}
 
 fn read_text(path: &Path) -> Result<String, RecordingError> {
-    std::fs::read_to_string(path).map_err(|e| RecordingError::Io { path: path.into(), message: e.to_string() })
+    std::fs::read_to_string(path).map_err(io_error(path))
 }
 
 /// 1-based line of a byte offset.
@@ -83,6 +98,7 @@ fn parse_toml<T: for<'de> Deserialize<'de>>(path: &Path, text: &str) -> Result<T
     })
 }
 
+/// rig.toml as written: the wire's [`RigRecord`] in sections.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RigFile {
@@ -118,6 +134,25 @@ struct AoiSection {
     far_mm: f64,
 }
 
+impl From<RigFile> for RigRecord {
+    fn from(RigFile { camera, mount, aoi }: RigFile) -> RigRecord {
+        RigRecord {
+            width: camera.width,
+            height: camera.height,
+            fx: camera.fx,
+            fy: camera.fy,
+            cx: camera.cx,
+            cy: camera.cy,
+            distortion: camera.distortion,
+            height_mm: mount.height_mm,
+            tilt_deg: mount.tilt_deg,
+            aoi_half_width_mm: aoi.half_width_mm,
+            aoi_near_mm: aoi.near_mm,
+            aoi_far_mm: aoi.far_mm,
+        }
+    }
+}
+
 /// The key whose value a rig error is about, for the error's line number.
 fn key_of(error: RigError) -> &'static str {
     match error {
@@ -135,18 +170,7 @@ fn key_of(error: RigError) -> &'static str {
 /// Parses rig.toml text (the path is only for messages).
 pub fn parse_rig(path: &Path, text: &str) -> Result<Rig, RecordingError> {
     let file: RigFile = parse_toml(path, text)?;
-    let camera = Intrinsics {
-        width: file.camera.width,
-        height: file.camera.height,
-        fx: file.camera.fx,
-        fy: file.camera.fy,
-        cx: file.camera.cx,
-        cy: file.camera.cy,
-        distortion: file.camera.distortion.map(|[k1, k2, p1, p2, k3]| Distortion { k1, k2, p1, p2, k3 }),
-    };
-    let mount = Mount { height_mm: file.mount.height_mm, tilt_deg: file.mount.tilt_deg };
-    let aoi = Aoi { half_width_mm: file.aoi.half_width_mm, near_mm: file.aoi.near_mm, far_mm: file.aoi.far_mm };
-    Rig::new_checked(camera, mount, aoi).map_err(|error| {
+    Rig::try_from(&RigRecord::from(file)).map_err(|error| {
         // For NaN/inf, point at the first offending key when we can find it.
         let line = if error == RigError::NotFinite {
             text.lines().position(|l| {
@@ -363,8 +387,7 @@ impl Recording {
         let truth_path = dir.join("truth.toml");
         let truth = if truth_path.exists() { Some(parse_truth(&truth_path, &read_text(&truth_path)?)?) } else { None };
         let frames_dir = dir.join("frames");
-        let listing = std::fs::read_dir(&frames_dir)
-            .map_err(|e| RecordingError::Io { path: frames_dir.clone(), message: e.to_string() })?;
+        let listing = std::fs::read_dir(&frames_dir).map_err(io_error(&frames_dir))?;
         let mut frames: Vec<u32> = listing
             .filter_map(|entry| entry.ok())
             .filter_map(|entry| {
@@ -387,7 +410,7 @@ impl Recording {
     /// Reads frame `index` and checks its size against the rig.
     pub fn load_frame(&self, index: u32) -> Result<Frame, RecordingError> {
         let path = self.frame_path(index);
-        let bytes = std::fs::read(&path).map_err(|e| RecordingError::Io { path: path.clone(), message: e.to_string() })?;
+        let bytes = std::fs::read(&path).map_err(io_error(&path))?;
         let frame = parse_frame(&path, &bytes)?;
         let camera = self.rig.camera();
         let expected = (usize::from(camera.width), usize::from(camera.height));

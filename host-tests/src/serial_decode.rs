@@ -4,7 +4,7 @@
 use std::fmt;
 use std::io::{self, Read, Write};
 
-use flatland_core::protocol::{Decoder, Fault, FaultCode, LinkStats, Message};
+use flatland_core::protocol::{DecodeError, Decoder, Fault, FaultCode, LinkStats, Message};
 use flatland_core::report::CSV_HEADER;
 
 /// A clean decode: the csv is written; frames the firmware skipped are listed
@@ -31,8 +31,9 @@ fn is_run_fault(code: FaultCode) -> bool {
 #[derive(Debug)]
 pub enum SerialDecodeError {
     Io(io::Error),
-    /// Lines that were refused (bad checksum, truncated, unknown type, ...).
-    MalformedLines { count: u32 },
+    /// Lines that were refused (bad checksum, truncated, unknown type, ...),
+    /// and why the first was.
+    MalformedLines { count: u32, first: DecodeError },
     /// The firmware refused the rig (the first such fault).
     FirmwareFault(Fault),
 }
@@ -41,7 +42,7 @@ impl fmt::Display for SerialDecodeError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             SerialDecodeError::Io(error) => write!(f, "serial decode: {error}"),
-            SerialDecodeError::MalformedLines { count } => write!(f, "serial decode: {count} malformed line(s) skipped"),
+            SerialDecodeError::MalformedLines { count, .. } => write!(f, "serial decode: {count} malformed line(s) skipped"),
             SerialDecodeError::FirmwareFault(fault) => {
                 write!(f, "firmware fault {} at frame {}", fault.code.as_str(), fault.frame)
             }
@@ -49,7 +50,15 @@ impl fmt::Display for SerialDecodeError {
     }
 }
 
-impl std::error::Error for SerialDecodeError {}
+impl std::error::Error for SerialDecodeError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            SerialDecodeError::Io(error) => Some(error),
+            SerialDecodeError::MalformedLines { first, .. } => Some(first),
+            SerialDecodeError::FirmwareFault(_) => None,
+        }
+    }
+}
 
 impl From<io::Error> for SerialDecodeError {
     fn from(error: io::Error) -> Self {
@@ -63,6 +72,7 @@ pub fn run_serial_decode(input: &mut dyn Read, out: &mut dyn Write) -> Result<De
     writeln!(out, "{CSV_HEADER}")?;
     let mut decoder = Decoder::new();
     let mut malformed = 0u32;
+    let mut first_malformed = None;
     let mut first_fault = None;
     let mut summary = DecodeSummary::default();
     let mut chunk = [0u8; 4096];
@@ -89,7 +99,10 @@ pub fn run_serial_decode(input: &mut dyn Read, out: &mut dyn Write) -> Result<De
                 Some(Ok(Message::Fault(fault))) => summary.frame_faults.push(fault),
                 Some(Ok(Message::Stats(stats))) => summary.stats = Some(stats),
                 Some(Ok(_)) => {}
-                Some(Err(_)) => malformed += 1,
+                Some(Err(error)) => {
+                    malformed += 1;
+                    first_malformed.get_or_insert(error);
+                }
                 None => {}
             }
         }
@@ -98,8 +111,8 @@ pub fn run_serial_decode(input: &mut dyn Read, out: &mut dyn Write) -> Result<De
     if let Some(fault) = first_fault {
         return Err(SerialDecodeError::FirmwareFault(fault));
     }
-    if malformed > 0 {
-        return Err(SerialDecodeError::MalformedLines { count: malformed });
+    if let Some(first) = first_malformed {
+        return Err(SerialDecodeError::MalformedLines { count: malformed, first });
     }
     Ok(summary)
 }
@@ -140,7 +153,7 @@ mod tests {
         stream.extend_from_slice(b"$FLFRM,1*00\r\n");
         let mut out = Vec::new();
         let result = run_serial_decode(&mut stream.as_slice(), &mut out);
-        assert!(matches!(result, Err(SerialDecodeError::MalformedLines { count: 1 })), "{result:?}");
+        assert!(matches!(result, Err(SerialDecodeError::MalformedLines { count: 1, first: DecodeError::BadChecksum })), "{result:?}");
         assert_eq!(String::from_utf8(out).unwrap().lines().count(), 2);
 
         let fault = Fault { code: FaultCode::RigRejected, frame: 0 };

@@ -2,7 +2,7 @@
 //! One default configuration throughout; nothing is tuned per recording.
 
 use flatland_core::report::FrameReport;
-use flatland_host::detect::{DetectConfig, FrameOutcome, Pipeline};
+use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::evaluate::{score, Confusion};
 use flatland_host::perturb::Perturbation;
 use flatland_host::recording::Recording;
@@ -16,13 +16,11 @@ fn detect(name: &str, perturbation: Option<Perturbation>) -> (Confusion, Vec<Fra
     if let Some(p) = perturbation {
         p.poses(&mut recording);
     }
-    let config = DetectConfig::default();
-    let mut pipeline = Pipeline::new(&recording, &config).unwrap();
+    let mut detector = Detector::new(&recording.rig, &DetectConfig::default()).unwrap();
     let mut reports = Vec::new();
-    pipeline
+    detector
         .run_with(
             &recording,
-            &config,
             |index, frame| {
                 if let Some(p) = perturbation {
                     p.frame(index, frame)
@@ -179,8 +177,7 @@ fn gti_alarm_covers_gpa_under_odometry_bias() {
 #[test]
 fn moving_object_raises_the_alarm() {
     let recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join("flat_marks")).unwrap();
-    let config = DetectConfig::default();
-    let mut pipeline = Pipeline::new(&recording, &config).unwrap();
+    let mut detector = Detector::new(&recording.rig, &DetectConfig::default()).unwrap();
     let mut reports = Vec::new();
     let paint_ball = |index: u32, frame: &mut flatland_host::recording::Frame| {
         let (cx, cy, r) = (60 + 22 * index as i64, 170i64, 14i64);
@@ -194,8 +191,8 @@ fn moving_object_raises_the_alarm() {
             }
         }
     };
-    pipeline
-        .run_with(&recording, &config, paint_ball, |outcome, _| {
+    detector
+        .run_with(&recording, paint_ball, |outcome, _| {
             if let FrameOutcome::Report { report, .. } = outcome {
                 reports.push(report);
             }

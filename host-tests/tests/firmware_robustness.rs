@@ -8,7 +8,8 @@ mod common;
 use common::*;
 use flatland_core::gpa::Gpa;
 use flatland_core::grid::{GridConfig, KgGrid};
-use flatland_core::protocol::{checksum, encode_line, FaultCode, Message, Odometry};
+use flatland_core::geometry::Rig;
+use flatland_core::protocol::{checksum, encode_line, FaultCode, Message, Odometry, RigRecord};
 use flatland_host::qemu;
 use flatland_host::recording::Recording;
 
@@ -147,20 +148,15 @@ fn rig_that_does_not_fit_the_target_is_refused_with_a_typed_fault() {
     // than the firmware has (72 KiB); a valid rig, so only the capacity refuses it.
     const KEYFRAME_CAPACITY: usize = 48 * 1024; // firmware/src/frame_loop.rs
     let base = Recording::open(data("qvga_curb")).unwrap();
-    let mut record = qemu::rig_record(&base.rig);
+    let mut record = RigRecord::from(&base.rig);
     let too_large = (200..1000).step_by(10).find_map(|half_width| {
         record.aoi_half_width_mm = f64::from(half_width);
-        let rig = flatland_core::geometry::Rig::new_checked(
-            *base.rig.camera(),
-            *base.rig.mount(),
-            flatland_core::geometry::Aoi { half_width_mm: record.aoi_half_width_mm, ..*base.rig.aoi() },
-        )
-        .ok()?;
+        let rig = Rig::try_from(&record).ok()?;
         let grid = KgGrid::for_rig(&rig, &GridConfig::default()).ok()?;
         (Gpa::keyframe_bytes(&grid) > KEYFRAME_CAPACITY).then_some(record)
     });
     let too_large = too_large.expect("some valid QVGA rig needs more than 48 KiB of keyframe");
-    let mut too_wide = qemu::rig_record(&base.rig);
+    let mut too_wide = RigRecord::from(&base.rig);
     too_wide.width = 800;
     too_wide.cx = 399.5;
     let script = qemu::encode_script(&[Message::Rig(too_large), Message::Rig(too_wide), Message::End]).unwrap();

@@ -5,7 +5,7 @@
 //! obstacle's footprint (truth.toml, robot frame of the frame, grown by a
 //! margin for position error).
 
-use flatland_core::gti::{Gti, GtiConfig, HeightPoint, RegionMm};
+use flatland_core::gti::{Gti, HeightPoint, RegionMm};
 use flatland_host::heights::{run_gti, run_gti_perturbed};
 use flatland_host::perturb::Perturbation;
 use flatland_host::recording::{Recording, TruthObstacle};
@@ -60,7 +60,7 @@ fn collect(recording: &Recording, frame: u32, gti: &Gti) -> FrameHeights {
 fn run(name: &str) -> (Recording, Vec<FrameHeights>) {
     let recording = Recording::open(data(name)).unwrap();
     let mut frames = Vec::new();
-    run_gti(&recording, GtiConfig::default(), |frame, gti| frames.push(collect(&recording, frame, gti))).unwrap();
+    run_gti(&recording, |frame, gti| frames.push(collect(&recording, frame, gti))).unwrap();
     (recording, frames)
 }
 
@@ -92,7 +92,7 @@ fn assert_flat(name: &str) {
             }
         }
     };
-    run_gti(&recording, GtiConfig::default(), run_again).unwrap();
+    run_gti(&recording, run_again).unwrap();
     let mut total = 0;
     let mut near_floor = 0;
     for f in &frames {
@@ -143,7 +143,7 @@ fn run_perturbed(name: &str, perturbation: Perturbation) -> (Recording, Vec<Fram
     let mut recording = Recording::open(data(name)).unwrap();
     perturbation.poses(&mut recording);
     let mut frames = Vec::new();
-    run_gti_perturbed(&recording, GtiConfig::default(), |i, frame| perturbation.frame(i, frame), |frame, gti| {
+    run_gti_perturbed(&recording, |i, frame| perturbation.frame(i, frame), |frame, gti| {
         frames.push(collect(&recording, frame, gti))
     })
     .unwrap();

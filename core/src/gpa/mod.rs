@@ -41,7 +41,7 @@ mod shift_search;
 mod warp;
 
 /// The difference kernels the stages run (one name to change with them).
-use crate::sad as kernels;
+use crate::kernels;
 
 pub use crate::limits::KEYFRAME_SPARE_ROWS;
 pub use config::GpaConfig;

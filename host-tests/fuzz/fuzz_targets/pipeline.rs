@@ -12,6 +12,7 @@ use flatland_core::gpa::{Gpa, GpaConfig};
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::motion::Motion;
 use flatland_core::remap::{remap_frame, RemapTable, StreamingRemap};
+use flatland_host::perturb::SplitMix;
 use libfuzzer_sys::fuzz_target;
 
 #[derive(Arbitrary, Debug)]
@@ -70,16 +71,12 @@ fn numbers(d: &[i16; 17]) -> (u16, u16, [f64; 15]) {
     (width, height, values)
 }
 
-fn pixel(texture: u8, seed: u32, u: usize, v: usize) -> u8 {
+/// Pixel (u, v) of a texture; `noise` (seeded per frame) draws texture 2.
+fn pixel(texture: u8, seed: u32, u: usize, v: usize, noise: &mut SplitMix) -> u8 {
     match texture % 4 {
         0 => 0,
         1 => 255,
-        2 => {
-            let mut h = seed ^ (u as u32).wrapping_mul(0x9E37_79B1) ^ (v as u32).wrapping_mul(0x85EB_CA77);
-            h ^= h >> 15;
-            h = h.wrapping_mul(0x2C1B_3C6D);
-            (h >> 24) as u8
-        }
+        2 => (noise.next_u64() >> 56) as u8,
         _ => {
             let scale = seed % 6;
             if ((u >> scale) ^ (v >> scale)) & 1 == 1 {
@@ -140,7 +137,8 @@ fuzz_target!(|input: Input| {
         if n > 0 {
             frame_number = frame_number.wrapping_add(u32::from(f.step % 4));
         }
-        let image: Vec<u8> = (0..cw * ch).map(|i| pixel(f.texture, f.seed, i % cw, i / cw)).collect();
+        let mut noise = SplitMix::new(u64::from(f.seed));
+        let image: Vec<u8> = (0..cw * ch).map(|i| pixel(f.texture, f.seed, i % cw, i / cw, &mut noise)).collect();
         let odometry = match (f.raw_odometry, f.odometry) {
             (Some((tx, tz, yaw)), _) => Some(Motion { tx_mm: tx, tz_mm: tz, dyaw_deg: yaw }),
             (None, Some((tx, tz, yaw))) => Some(Motion {

@@ -3,7 +3,8 @@
 //! the same message.
 #![no_main]
 
-use flatland_core::protocol::{decode_line, encode_line, Decoder, MAX_LINE};
+use flatland_core::limits::MAX_LINE;
+use flatland_core::protocol::{decode_line, encode_line, Decoder};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use flatland_core::protocol::{Fault, Message};
 use flatland_core::report::CSV_HEADER;
-use flatland_host::detect::{DetectConfig, FrameOutcome, Pipeline};
+use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::qemu::{self, RunOutcome, RunRequest};
 use flatland_host::recording::Recording;
 use flatland_host::serial_decode::{run_serial_decode, DecodeSummary};
@@ -56,11 +56,10 @@ pub fn decoded(outcome: &RunOutcome) -> (String, DecodeSummary) {
 /// `flatland detect <dir> --format csv` (stdout), computed in-process.
 pub fn detect_csv(dir: &Path) -> String {
     let recording = Recording::open(dir).unwrap_or_else(|e| panic!("{e}"));
-    let config = DetectConfig::default();
-    let mut pipeline = Pipeline::new(&recording, &config).unwrap_or_else(|e| panic!("{e}"));
+    let mut detector = Detector::new(&recording.rig, &DetectConfig::default()).unwrap_or_else(|e| panic!("{e}"));
     let mut csv = format!("{CSV_HEADER}\n");
-    pipeline
-        .run(&recording, &config, |outcome, _| {
+    detector
+        .run(&recording, |outcome, _| {
             if let FrameOutcome::Report { report, .. } = outcome {
                 report.write_csv(&mut csv).expect("String write");
                 csv.push('\n');

@@ -1,0 +1,212 @@
+//! From a locus to a height: the robust line fit of a track's observations
+//! (Theil-Sen, then least squares over its inliers), slope <-> height
+//! (eq. 12), a point's height error and quality, and the height that several
+//! points support together.
+
+use crate::limits::MAX_OBSERVATIONS;
+use libm::{fabsf, roundf, sqrtf};
+
+/// Observations at which the quality stops growing with their count.
+pub const FULL_QUALITY_OBSERVATIONS: usize = 10;
+/// Height error (mm) at which quality is halved.
+pub const QUALITY_SIGMA_MM: f32 = 3.0;
+/// Good points [`super::Gti::height_in_region`] needs at one height.
+pub const MIN_SUPPORT: usize = 3;
+/// Points within this height (or this fraction of it) support each other in
+/// [`super::Gti::height_in_region`].
+const SUPPORT_TOLERANCE_MM: f32 = 6.0;
+const SUPPORT_TOLERANCE_FRACTION: f32 = 0.06;
+
+/// Height (mm) of a point whose apparent ground position moves `slope` times
+/// the distance travelled: eq. (12), h = H (1 - 1/s).
+pub fn height_from_slope(mount_height_mm: f32, slope: f32) -> f32 {
+    mount_height_mm * (1.0 - 1.0 / slope)
+}
+
+/// Inverse of [`height_from_slope`]: s = H / (H - h).
+pub fn slope_from_height(mount_height_mm: f32, height_mm: f32) -> f32 {
+    mount_height_mm / (mount_height_mm - height_mm)
+}
+
+/// Slope range a locus may have (h from below the floor to near the camera).
+pub(super) fn slope_plausible(slope: f32) -> bool {
+    (0.7..=20.0).contains(&slope)
+}
+
+/// A straight-line fit `y = intercept + slope * x`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LineFit {
+    pub slope: f32,
+    pub intercept: f32,
+    /// Robust residual scale of the inliers (RMS), in y units.
+    pub residual: f32,
+    /// Points the final fit used.
+    pub inliers: usize,
+    /// Sum of squared x deviations of the inliers (for the slope's error).
+    pub sxx: f32,
+}
+
+/// Median of a slice, reordering it; None when empty.
+pub(super) fn median(values: &mut [f32]) -> Option<f32> {
+    let n = values.len();
+    if n == 0 {
+        return None;
+    }
+    values.sort_unstable_by(|a, b| a.total_cmp(b));
+    let upper = *values.get(n / 2)?;
+    if n % 2 == 1 {
+        Some(upper)
+    } else {
+        Some(0.5 * (*values.get(n / 2 - 1)? + upper))
+    }
+}
+
+/// Robust line fit of up to [`MAX_OBSERVATIONS`] points: Theil-Sen (median
+/// of pairwise slopes, median intercept), then least squares over the points
+/// within 3 robust sigmas of it. None with fewer than 2 points, unequal
+/// lengths, or all x equal.
+pub fn robust_line_fit(x: &[f32], y: &[f32]) -> Option<LineFit> {
+    let n = x.len();
+    if n < 2 || n != y.len() || n > MAX_OBSERVATIONS {
+        return None;
+    }
+    let mut slopes = [0f32; MAX_OBSERVATIONS * (MAX_OBSERVATIONS - 1) / 2];
+    let mut count = 0;
+    for a in 0..n {
+        for b in a + 1..n {
+            let dx = x[b] - x[a];
+            if fabsf(dx) > 1e-6 {
+                if let Some(slot) = slopes.get_mut(count) {
+                    *slot = (y[b] - y[a]) / dx;
+                    count += 1;
+                }
+            }
+        }
+    }
+    let slope = median(slopes.get_mut(..count)?)?;
+    let mut scratch = [0f32; MAX_OBSERVATIONS];
+    for (slot, (xi, yi)) in scratch.iter_mut().zip(x.iter().zip(y)) {
+        *slot = yi - slope * xi;
+    }
+    let intercept = median(scratch.get_mut(..n)?)?;
+    for (slot, (xi, yi)) in scratch.iter_mut().zip(x.iter().zip(y)) {
+        *slot = fabsf(yi - intercept - slope * xi);
+    }
+    let mad = median(scratch.get_mut(..n)?)?;
+    // Floor on the gate: exact data has MAD 0 and every point is an inlier.
+    let gate = 3.0 * 1.4826 * mad + 1e-3 * (1.0 + fabsf(intercept));
+    let inlier = |i: usize| fabsf(y[i] - intercept - slope * x[i]) <= gate;
+    let (mut sx, mut sy, mut m) = (0f32, 0f32, 0usize);
+    for i in (0..n).filter(|&i| inlier(i)) {
+        sx += x[i];
+        sy += y[i];
+        m += 1;
+    }
+    if m < 2 {
+        return None;
+    }
+    let (mx, my) = (sx / m as f32, sy / m as f32);
+    let (mut sxx, mut sxy) = (0f32, 0f32);
+    for i in (0..n).filter(|&i| inlier(i)) {
+        sxx += (x[i] - mx) * (x[i] - mx);
+        sxy += (x[i] - mx) * (y[i] - my);
+    }
+    if !(sxx > 1e-6) {
+        return None;
+    }
+    let slope = sxy / sxx;
+    let intercept = my - slope * mx;
+    let mut sum_sq = 0f32;
+    for i in (0..n).filter(|&i| inlier(i)) {
+        let r = y[i] - intercept - slope * x[i];
+        sum_sq += r * r;
+    }
+    // Unbiased with two fitted parameters; a 2-point fit has no residual.
+    let residual = if m > 2 { sqrtf(sum_sq / (m - 2) as f32) } else { 0.0 };
+    Some(LineFit { slope, intercept, residual, inliers: m, sxx })
+}
+
+/// The height a locus fit gives and how sure it is.
+pub(super) struct FittedHeight {
+    pub h_mm: f32,
+    /// Standard error of the height, mm.
+    pub h_sigma_mm: f32,
+    /// `100 * min(1, n / FULL_QUALITY_OBSERVATIONS) * QUALITY_SIGMA_MM / (QUALITY_SIGMA_MM + h_sigma_mm)`
+    /// with n the fit's inliers.
+    pub quality: u8,
+}
+
+impl FittedHeight {
+    /// For a fit of slope `slope` (the locus falls by it: `slope = -fit.slope`);
+    /// `mm_per_px` floors the residual (a perfect fit is not infinitely sure).
+    pub(super) fn new(fit: &LineFit, slope: f32, mount_height_mm: f32, mm_per_px: f32) -> FittedHeight {
+        let position_sigma = fit.residual.max(0.05 * mm_per_px);
+        let slope_sigma = position_sigma / sqrtf(fit.sxx.max(1e-6));
+        let h_sigma = mount_height_mm / (slope * slope) * slope_sigma;
+        let count_factor = (fit.inliers as f32 / FULL_QUALITY_OBSERVATIONS as f32).min(1.0);
+        let quality = 100.0 * count_factor * QUALITY_SIGMA_MM / (QUALITY_SIGMA_MM + h_sigma);
+        FittedHeight {
+            h_mm: height_from_slope(mount_height_mm, slope),
+            h_sigma_mm: h_sigma,
+            quality: roundf(quality).clamp(0.0, 100.0) as u8,
+        }
+    }
+}
+
+/// Heights within this of `h_mm` support it.
+pub(super) fn support_tolerance(h_mm: f32) -> f32 {
+    SUPPORT_TOLERANCE_MM.max(SUPPORT_TOLERANCE_FRACTION * fabsf(h_mm))
+}
+
+/// The height that at least [`MIN_SUPPORT`] heights reach together: the
+/// highest run of [`MIN_SUPPORT`] consecutive heights (sorted) spanning at
+/// most the support tolerance, and its median. A lone stray point cannot set
+/// it, and lower points on an obstacle's side do not drag it down.
+/// Reorders `heights`.
+pub fn top_supported_height(heights: &mut [f32]) -> Option<f32> {
+    heights.sort_unstable_by(|a, b| b.total_cmp(a));
+    heights
+        .windows(MIN_SUPPORT)
+        .find(|run| match (run.first(), run.last()) {
+            (Some(&top), Some(&bottom)) => top - bottom <= support_tolerance(top),
+            _ => false,
+        })
+        .and_then(|run| run.get(MIN_SUPPORT / 2).copied())
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // tests may panic
+mod tests {
+    use super::*;
+
+    #[test]
+    fn slope_and_height_invert() {
+        assert!((height_from_slope(400.0, 1.0)).abs() < 1e-6);
+        let s = slope_from_height(400.0, 120.0);
+        assert!((s - 400.0 / 280.0).abs() < 1e-6);
+        assert!((height_from_slope(400.0, s) - 120.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn robust_fit_ignores_outliers() {
+        let x: [f32; 12] = core::array::from_fn(|i| i as f32 * 20.0);
+        let mut y: [f32; 12] = core::array::from_fn(|i| 50.0 - 1.4286 * x[i] + if i % 2 == 0 { 0.3 } else { -0.3 });
+        y[3] += 40.0;
+        y[8] -= 25.0;
+        let fit = robust_line_fit(&x, &y).unwrap();
+        assert!((fit.slope + 1.4286).abs() < 0.005, "slope {}", fit.slope);
+        assert!((fit.intercept - 50.0).abs() < 1.0);
+        assert_eq!(fit.inliers, 10);
+        assert!(fit.residual < 0.5);
+        assert_eq!(robust_line_fit(&[1.0, 1.0], &[0.0, 3.0]), None);
+        assert_eq!(robust_line_fit(&[1.0], &[0.0]), None);
+    }
+
+    #[test]
+    fn top_supported_height_needs_agreement() {
+        let mut heights = [3.0, 118.0, 250.0, 121.0, 60.0, 119.5, 104.0, 2.0];
+        assert_eq!(top_supported_height(&mut heights), Some(119.5));
+        let mut pair = [250.0, 251.0, 2.0];
+        assert_eq!(top_supported_height(&mut pair), None);
+    }
+}

@@ -1,0 +1,432 @@
+//! GTI: heights from motion on GT-images (the seed's §3.2, eq. 11-12).
+//!
+//! A point at height h projects onto the KG (ground) image at its *apparent*
+//! ground position `p_app = s * p`, where p is its true ground position (its
+//! foot) relative to the robot and `s = H / (H - h)`. When the robot travels
+//! ds, the apparent position moves by `s * ds`: flat markings move with the
+//! floor (s = 1), higher points faster. So along a line parallel to the
+//! translation, each feature traces a straight locus against distance
+//! travelled (the GT-image), and its slope gives `h = H (1 - 1/s)`.
+//!
+//! Pipeline, fed row by row so the firmware can run it beside the remap:
+//! 1. [`Gti::on_kg_row`] samples N lines (parallel to the translation) from
+//!    each KG row as it streams out of the remap: one sample per KG row per
+//!    line, averaged over a few pixels across the line.
+//! 2. [`Gti::end_frame`] takes the odometry since the previous frame, finds
+//!    edges on each line (gradient extrema above the line's own noise, with
+//!    sub-pixel positions), associates them with the tracks of that line
+//!    (prediction from each track's fitted locus, gating, polarity and a small
+//!    patch correlation), fits every locus with a robust line fit, and turns
+//!    the slopes into heights.
+//!
+//! Bookkeeping is in millimetres, not pixels: an observation is the apparent
+//! position rotated into the odometry world (`q = R(yaw) p_app`), which obeys
+//! `q = s (P - C)` with P the point and C the robot position. Projected on a
+//! fixed direction u per track this is the line `y = A - s c`, where
+//! `c = C . u` is the distance travelled along u: exact for straight runs,
+//! sideways runs and arcs alike, and the distance is odometry, never time.
+//!
+//! Tracks survive [`GtiConfig::max_misses`] frames without a match (the seed's
+//! Fig. 7: features that disappear and reappear), and good tracks that end are
+//! kept as points of a small map so the points seen so far stay reported.
+//!
+//! Memory: everything is fixed capacity (the GTI section of
+//! [`crate::limits`]); the whole state is one [`Gti`] value: 21.1 KB on the
+//! host (a test holds it to 24 KB), 19.6 KB on the Cortex-M4F.
+//! [`Gti::UNCONFIGURED`] and [`Gti::configure`] set it up in place in a static.
+//!
+//! Rooms:
+//! - `lines`: where the GT lines lie, and their samples from the KG rows;
+//! - `edges`: a line's edges in a frame, strong and weak, found in one pass;
+//! - `tracks`: association of edges with tracks, observations, ended tracks
+//!   and the map of their points;
+//! - `fits`: robust line fit of a locus, slope <-> height, quality, the
+//!   height several points support;
+//! - `travel`: the odometry pose, corrected by the floor, and odometry's scale;
+//! - here: the configuration, the stage that composes them, and its queries.
+
+// `!(x > 0.0)` is deliberate, as in geometry.rs: it also refuses NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+mod edges;
+mod fits;
+mod lines;
+mod tracks;
+mod travel;
+
+pub use edges::PATCH_RADIUS;
+pub use fits::{
+    height_from_slope, robust_line_fit, slope_from_height, top_supported_height, LineFit, FULL_QUALITY_OBSERVATIONS,
+    MIN_SUPPORT, QUALITY_SIGMA_MM,
+};
+pub use lines::GtLine;
+
+use crate::geometry::Rig;
+use crate::grid::KgGrid;
+use crate::limits::{MAX_LINES, MAX_LINE_SAMPLES, MAX_LINE_WIDTH_PX, MAX_MAP_POINTS, MAX_OBSERVATIONS, MAX_TRACKS};
+use crate::motion::Motion;
+use core::ops::Range;
+use edges::LineEdges;
+use fits::support_tolerance;
+use heapless::Deque;
+use libm::{atan2f, fabsf, roundf};
+use lines::Lines;
+use tracks::{MapPoint, Track, ROW_UNITS};
+use travel::Travel;
+
+/// Tuning; one default for every rig (nothing here is per recording).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GtiConfig {
+    /// GT lines across the AOI, 1..=[`MAX_LINES`].
+    pub lines: usize,
+    /// KG pixels averaged across each line (odd, 1..=[`MAX_LINE_WIDTH_PX`]):
+    /// suppresses floor texture that no line follows.
+    pub line_width_px: usize,
+    /// Edge threshold in robust standard deviations of the line's gradient.
+    pub edge_threshold_sigma: f32,
+    /// Edge threshold floor, gray levels per sample (noise-free images).
+    pub min_edge_contrast: f32,
+    /// Frames a track may go unmatched before it ends.
+    pub max_misses: u8,
+    /// Slope range s = H/(H-h) searched for a track with one observation:
+    /// from slightly below the floor to this many times the travel.
+    pub max_initial_slope: f32,
+    /// Patch correlation (ZNCC) an association needs.
+    pub min_patch_correlation: f32,
+    /// Base association gate, KG pixels (sub-pixel noise plus edge jitter).
+    pub gate_px: f32,
+    /// Observations a track needs before it yields a point.
+    pub min_observations: usize,
+    /// Quality (0..=100) a point needs to count for [`Gti::height_in_region`]
+    /// and the GTI alarm.
+    pub good_quality: u8,
+    /// Points need this quality to be reported at all.
+    pub min_point_quality: u8,
+    /// GTI alone never raises an alarm below this height, mm.
+    pub min_obstacle_mm: f32,
+    /// Odometry's step length error (sigma, fraction of the step): weighs
+    /// odometry against the floor's measurement of each step.
+    pub odometry_sigma: f32,
+    /// Turns the lines follow at most this far from the G axis, degrees
+    /// (one sample per KG row needs the line to be steeper than 45 degrees).
+    pub max_line_angle_deg: f32,
+}
+
+impl GtiConfig {
+    pub const DEFAULT: GtiConfig = GtiConfig {
+        lines: 8,
+        line_width_px: 3,
+        edge_threshold_sigma: 1.5,
+        min_edge_contrast: 4.0,
+        max_misses: 3,
+        max_initial_slope: 3.0,
+        min_patch_correlation: 0.6,
+        gate_px: 1.5,
+        min_observations: 5,
+        good_quality: 30,
+        min_point_quality: 10,
+        min_obstacle_mm: 20.0,
+        odometry_sigma: 0.03,
+        max_line_angle_deg: 40.0,
+    };
+
+    fn is_valid(&self) -> bool {
+        (1..=MAX_LINES).contains(&self.lines)
+            && (1..=MAX_LINE_WIDTH_PX).contains(&self.line_width_px)
+            && self.line_width_px % 2 == 1
+            && self.edge_threshold_sigma > 0.0
+            && self.min_edge_contrast >= 0.0
+            && self.max_initial_slope > 1.0
+            && self.min_patch_correlation <= 1.0
+            && self.gate_px > 0.0
+            && (3..=MAX_OBSERVATIONS).contains(&self.min_observations)
+            && self.good_quality <= 100
+            && self.min_point_quality <= self.good_quality
+            && self.min_obstacle_mm.is_finite()
+            && self.odometry_sigma > 0.0
+            && self.odometry_sigma.is_finite()
+            && self.max_line_angle_deg >= 0.0
+            && self.max_line_angle_deg <= 45.0
+    }
+}
+
+impl Default for GtiConfig {
+    fn default() -> Self {
+        GtiConfig::DEFAULT
+    }
+}
+
+/// Why a configuration or a KG row was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum GtiError {
+    /// A configuration value is out of range.
+    Config,
+    /// The KG grid has more rows than [`MAX_LINE_SAMPLES`].
+    GridTooLarge,
+    /// A KG row's length is not the grid width.
+    RowLength,
+    /// A KG row index is outside the grid or not after the previous row.
+    RowIndex,
+}
+
+impl core::fmt::Display for GtiError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            GtiError::Config => "GTI configuration out of range",
+            GtiError::GridTooLarge => "KG grid taller than the GTI line buffers",
+            GtiError::RowLength => "KG row length is not the grid width",
+            GtiError::RowIndex => "KG row index out of range or out of order",
+        })
+    }
+}
+
+impl core::error::Error for GtiError {}
+
+/// A tracked point's estimate.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeightPoint {
+    /// Robot frame of the current frame, true (not apparent) position, mm.
+    pub x_mm: f32,
+    pub z_mm: f32,
+    /// Height above the ground, mm.
+    pub h_mm: f32,
+    /// 0..=100: observations, travel span and fit residual (see [`Gti`]).
+    pub quality: u8,
+    /// Standard error of the height, mm.
+    pub h_sigma_mm: f32,
+}
+
+/// A live track as the host draws it on the GT-image.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrackView {
+    pub id: u32,
+    pub line: usize,
+    /// Observed sub-pixel KG row this frame, if matched.
+    pub observed_row: Option<f32>,
+    /// Row the fitted locus predicts for this frame.
+    pub fitted_row: Option<f32>,
+    /// Current estimate, once the track has enough observations.
+    pub point: Option<HeightPoint>,
+}
+
+/// A robot-frame rectangle, mm (inclusive).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RegionMm {
+    pub x_min: f32,
+    pub x_max: f32,
+    pub z_min: f32,
+    pub z_max: f32,
+}
+
+impl RegionMm {
+    pub fn contains(&self, x: f32, z: f32) -> bool {
+        x >= self.x_min && x <= self.x_max && z >= self.z_min && z <= self.z_max
+    }
+}
+
+/// The GTI stage. Quality of a point is
+/// `100 * min(1, n / FULL_QUALITY_OBSERVATIONS) * QUALITY_SIGMA_MM / (QUALITY_SIGMA_MM + sigma_h)`
+/// with n observations and sigma_h the height's standard error from the fit.
+pub struct Gti {
+    config: GtiConfig,
+    grid: KgGrid,
+    mount_height_mm: f32,
+    lines: Lines,
+    tracks: [Option<Track>; MAX_TRACKS],
+    map: Deque<MapPoint, MAX_MAP_POINTS>,
+    next_id: u32,
+    travel: Travel,
+}
+
+impl Gti {
+    /// A GTI stage for a rig and the KG grid its remap fills.
+    pub fn new(rig: &Rig, grid: &KgGrid, config: GtiConfig) -> Result<Gti, GtiError> {
+        let mut gti = Gti::UNCONFIGURED;
+        gti.configure(rig, grid, config)?;
+        Ok(gti)
+    }
+
+    /// A stage with no rig yet, for a `static` ([`Gti::configure`] sets it
+    /// up in place: a ~20 KB value must not pass through a small stack).
+    pub const UNCONFIGURED: Gti = {
+        const NO_TRACK: Option<Track> = None;
+        Gti {
+            config: GtiConfig {
+                lines: 1,
+                line_width_px: 1,
+                edge_threshold_sigma: 1.0,
+                min_edge_contrast: 0.0,
+                max_misses: 0,
+                max_initial_slope: 2.0,
+                min_patch_correlation: 1.0,
+                gate_px: 1.0,
+                min_observations: 3,
+                good_quality: 100,
+                min_point_quality: 100,
+                min_obstacle_mm: 0.0,
+                odometry_sigma: 1.0,
+                max_line_angle_deg: 0.0,
+            },
+            grid: KgGrid { mm_per_px: 1.0, x_left_mm: 0.0, z_far_mm: 0.0, width: 0, height: 0 },
+            mount_height_mm: 1.0,
+            lines: Lines::UNCONFIGURED,
+            tracks: [NO_TRACK; MAX_TRACKS],
+            map: Deque::new(),
+            next_id: 0,
+            travel: Travel::START,
+        }
+    };
+
+    /// Sets the stage up for a rig and the KG grid its remap fills, in
+    /// place; everything from an earlier rig is forgotten. On error the
+    /// stage is left unchanged.
+    pub fn configure(&mut self, rig: &Rig, grid: &KgGrid, config: GtiConfig) -> Result<(), GtiError> {
+        if !config.is_valid() {
+            return Err(GtiError::Config);
+        }
+        if grid.height() > MAX_LINE_SAMPLES {
+            return Err(GtiError::GridTooLarge);
+        }
+        self.config = config;
+        self.grid = *grid;
+        self.mount_height_mm = rig.height_mm() as f32;
+        self.lines.configure(rig, &config);
+        self.restart();
+        self.next_id = 0;
+        self.travel = Travel::START;
+        Ok(())
+    }
+
+    pub fn config(&self) -> &GtiConfig {
+        &self.config
+    }
+
+    /// The lines sampled in the current frame.
+    pub fn lines(&self) -> &[GtLine] {
+        self.lines.lines(self.config.lines)
+    }
+
+    /// Samples the lines from KG row `row` of the current frame; call it from
+    /// the streaming remap's callback with the columns the camera sees
+    /// (`RemapTable::valid_columns`). Rows must come in increasing order.
+    pub fn on_kg_row(&mut self, row: usize, kg_row: &[u8], valid_columns: Range<usize>) -> Result<(), GtiError> {
+        self.lines.on_kg_row(&self.config, &self.grid, row, kg_row, valid_columns)
+    }
+
+    /// The latest frame's samples of line `l` (indexed by KG row) and the
+    /// valid rows; kept until the next frame's first row.
+    pub fn line_samples(&self, l: usize) -> Option<(&[u8], Range<usize>)> {
+        let samples = (l < self.config.lines).then(|| self.lines.samples(l))?;
+        Some((&samples.values[..self.grid.height().min(MAX_LINE_SAMPLES)], samples.valid()))
+    }
+
+    /// Drops the current frame's rows (a frame abandoned mid-way): the next
+    /// row starts a new frame.
+    pub fn abort_frame(&mut self) {
+        self.lines.abort_frame();
+    }
+
+    /// Forgets every track and map point (the odometry has a gap, so the
+    /// loci cannot be continued); the current frame's rows and the learned
+    /// odometry scale (a property of the wheels) are kept.
+    pub fn restart(&mut self) {
+        for slot in self.tracks.iter_mut() {
+            *slot = None;
+        }
+        self.map.clear();
+    }
+
+    /// Ends the frame: `motion` is the odometry from the previous frame to
+    /// this one (in the previous robot frame; zero for the first frame).
+    pub fn end_frame(&mut self, motion: &Motion) {
+        self.lines.end_frame(self.config.lines);
+        // One line's edges at a time (found for the travel correction, then
+        // again for the association): every line's at once would add ~10 KB
+        // to the firmware's deepest stack.
+        let mut edges = LineEdges::NONE;
+        self.advance_pose(motion, &mut edges);
+        for track in self.tracks.iter_mut().flatten() {
+            track.matched_row = None;
+        }
+        for l in 0..self.config.lines {
+            edges.find(self.lines.samples(l), &self.config);
+            self.associate_line(l, &edges);
+        }
+        self.end_lost_tracks();
+        // Next frame's lines follow this frame's translation (the best guess
+        // of the next one); without translation they keep their direction.
+        if motion.distance_mm() > 1.0 {
+            let limit = self.config.max_line_angle_deg.to_radians();
+            self.lines.turn_next_frame(atan2f(motion.tx_mm as f32, motion.tz_mm as f32).clamp(-limit, limit));
+        }
+    }
+
+    /// Every point seen so far (live tracks and the map) with at least
+    /// `min_point_quality`, in the current robot frame; map points behind
+    /// the robot are left out.
+    pub fn points(&self) -> impl Iterator<Item = HeightPoint> + '_ {
+        let min_quality = self.config.min_point_quality;
+        let live = self.tracks.iter().flatten().filter_map(|t| self.estimate(t));
+        let (position, rotation) = (self.travel.position(), self.travel.rotation());
+        let mapped = self.map.iter().map(move |m| {
+            let [x, z] = rotation.to_robot([f64::from(m.world[0]) - position[0], f64::from(m.world[1]) - position[1]]);
+            HeightPoint { x_mm: x as f32, z_mm: z as f32, h_mm: m.h_mm, quality: m.quality, h_sigma_mm: m.h_sigma_mm }
+        });
+        live.chain(mapped.filter(|p| p.z_mm > 0.0)).filter(move |p| p.quality >= min_quality)
+    }
+
+    /// Live tracks, for drawing GT-images with their loci.
+    pub fn tracks(&self) -> impl Iterator<Item = TrackView> + '_ {
+        self.tracks.iter().flatten().map(|track| {
+            let fitted_row = track
+                .fit()
+                .filter(|_| track.observations.len() >= 3)
+                .and_then(|fit| track.predict_apparent(&self.travel, -fit.slope, Some(&fit)))
+                .and_then(|p| self.lines.line(usize::from(track.line)).map(|line| line.row_of(&self.grid, p).0));
+            TrackView {
+                id: track.id,
+                line: usize::from(track.line),
+                observed_row: track.matched_row.map(|r| f32::from(r) / ROW_UNITS),
+                fitted_row,
+                point: self.estimate(track),
+            }
+        })
+    }
+
+    /// Estimated obstacle height (whole mm) inside a robot-frame region: the
+    /// height that at least [`MIN_SUPPORT`] good points reach together (see
+    /// [`top_supported_height`]). None when no such group lies in the region.
+    pub fn height_in_region(&self, region: &RegionMm) -> Option<i32> {
+        let mut heights: heapless::Vec<f32, { MAX_TRACKS + MAX_MAP_POINTS }> = heapless::Vec::new();
+        for p in self.points() {
+            if p.quality >= self.config.good_quality && region.contains(p.x_mm, p.z_mm) {
+                let _ = heights.push(p.h_mm);
+            }
+        }
+        top_supported_height(&mut heights).map(|h| roundf(h) as i32)
+    }
+
+    /// GTI's own alarm: the nearest good point inside the AOI at least
+    /// `min_obstacle_mm` high and backed by [`MIN_SUPPORT`] points within the
+    /// support tolerance of its height and 100 mm of it on the ground.
+    pub fn nearest_obstacle_point(&self, aoi: &RegionMm) -> Option<HeightPoint> {
+        let good = |p: &HeightPoint| p.quality >= self.config.good_quality;
+        let mut nearest: Option<HeightPoint> = None;
+        for p in self.points().filter(good) {
+            if p.h_mm < self.config.min_obstacle_mm || !aoi.contains(p.x_mm, p.z_mm) {
+                continue;
+            }
+            let tolerance = support_tolerance(p.h_mm);
+            let support = self
+                .points()
+                .filter(good)
+                .filter(|o| fabsf(o.h_mm - p.h_mm) <= tolerance && fabsf(o.x_mm - p.x_mm) <= 100.0 && fabsf(o.z_mm - p.z_mm) <= 100.0)
+                .count();
+            if support >= MIN_SUPPORT && nearest.is_none_or(|n| p.z_mm < n.z_mm) {
+                nearest = Some(p);
+            }
+        }
+        nearest
+    }
+}

@@ -1,0 +1,387 @@
+//! Tracks: one per feature on a GT line, its locus as observations `(c, y)`
+//! (module docs of [`super`]). Each frame a line's edges are associated with
+//! its tracks (prediction from the fitted locus, a gate around it, polarity
+//! and a patch correlation), unmatched strong edges start tracks, and tracks
+//! missed too often end; good ones leave their point in a small map.
+
+use super::edges::{Edge, LineEdges, PATCH};
+use super::fits::{robust_line_fit, slope_plausible, FittedHeight, LineFit};
+use super::lines::GtLine;
+use super::travel::Travel;
+use super::{Gti, HeightPoint};
+use crate::grid::KgGrid;
+use crate::limits::{MAX_EDGES_PER_LINE, MAX_OBSERVATIONS, MAX_TRACKS, MAX_WEAK_EDGES_PER_LINE};
+use heapless::{Deque, Vec};
+use libm::{fabsf, roundf, sqrtf};
+
+/// Observation storage unit: 1/4 mm in i16 (tracks span at most +-8 m).
+const OBS_UNITS_PER_MM: f32 = 4.0;
+const OBS_LIMIT_MM: f32 = (i16::MAX as f32 - 1.0) / OBS_UNITS_PER_MM;
+/// Matched KG row storage unit: 1/64 row in u16.
+pub(super) const ROW_UNITS: f32 = 64.0;
+
+/// One feature's locus: observations `(c, y)` in 1/4 mm, relative to its
+/// first, where c is the distance travelled along `axis` and y the apparent
+/// position along it (module docs of [`super`]).
+#[derive(Clone, Debug)]
+pub(super) struct Track {
+    pub id: u32,
+    pub line: u8,
+    pub rising: bool,
+    pub misses: u8,
+    pub patch: [u8; PATCH],
+    /// Gradient magnitude of the latest edge, 1/16 gray level per sample:
+    /// weak tracks give way to strong new edges when a line is full.
+    strength: u16,
+    /// World direction u (unit) of the locus, and its normal.
+    pub axis: [f32; 2],
+    /// Robot position (odometry world) at the first observation. f32 is
+    /// enough: its rounding shifts all of a track's c equally (slope unchanged).
+    origin: [f32; 2],
+    /// Apparent position along u at the first observation, mm.
+    y0: f32,
+    /// Latest apparent position across u (mm) and travel across u then.
+    w_last: f32,
+    across_last: f32,
+    pub observations: Deque<[i16; 2], MAX_OBSERVATIONS>,
+    /// KG row (1/[`ROW_UNITS`]) of the observation matched this frame (for drawing).
+    pub matched_row: Option<u16>,
+}
+
+impl Track {
+    /// A track for `edge` on line `l`, found at ground point `point` (robot frame).
+    fn start(id: u32, l: usize, line: &GtLine, point: [f32; 2], edge: &Edge, travel: &Travel) -> Track {
+        let rotation = travel.rotation().to_f32();
+        let q = rotation.to_world(point);
+        let axis = rotation.to_world(line.direction);
+        let position = travel.position();
+        let mut observations = Deque::new();
+        let _ = observations.push_back([0i16, 0i16]);
+        Track {
+            id,
+            line: l as u8,
+            rising: edge.rising,
+            misses: 0,
+            patch: edge.patch,
+            strength: encode_strength(edge.strength),
+            axis,
+            origin: [position[0] as f32, position[1] as f32],
+            y0: q[0] * axis[0] + q[1] * axis[1],
+            w_last: q[0] * axis[1] - q[1] * axis[0],
+            across_last: 0.0,
+            observations,
+            matched_row: encode_row(edge.row),
+        }
+    }
+
+    /// Robust line fit of the observations, in mm.
+    pub(super) fn fit(&self) -> Option<LineFit> {
+        let mut c = [0f32; MAX_OBSERVATIONS];
+        let mut y = [0f32; MAX_OBSERVATIONS];
+        let n = self.observations.len();
+        for (i, &[ci, yi]) in self.observations.iter().enumerate() {
+            if let (Some(cs), Some(ys)) = (c.get_mut(i), y.get_mut(i)) {
+                *cs = f32::from(ci) / OBS_UNITS_PER_MM;
+                *ys = f32::from(yi) / OBS_UNITS_PER_MM;
+            }
+        }
+        robust_line_fit(c.get(..n)?, y.get(..n)?)
+    }
+
+    /// Apparent position (robot frame, mm) of the feature in the current
+    /// frame, for slope `slope`, from its latest observation (or on `fit`).
+    pub(super) fn predict_apparent(&self, travel: &Travel, slope: f32, fit: Option<&LineFit>) -> Option<[f32; 2]> {
+        let (c_now, across_now) = travel.since(self.origin, self.axis);
+        let &[c_last, y_last] = self.observations.back()?;
+        let (c_last, y_last) = (f32::from(c_last) / OBS_UNITS_PER_MM, f32::from(y_last) / OBS_UNITS_PER_MM);
+        let y = match fit {
+            Some(fit) => fit.intercept + fit.slope * c_now,
+            None => y_last - slope * (c_now - c_last),
+        } + self.y0;
+        let w = self.w_last - slope * (across_now - self.across_last);
+        let u = self.axis;
+        // q = y u + w u_perp, with u_perp = (u_z, -u_x) as in `Travel::since`.
+        Some(travel.rotation().to_f32().to_robot([y * u[0] + w * u[1], y * u[1] - w * u[0]]))
+    }
+
+    /// Records a matched edge at ground point `point` (robot frame).
+    fn observe(&mut self, travel: &Travel, point: [f32; 2], edge: &Edge) {
+        let q = travel.rotation().to_f32().to_world(point);
+        let (c, across) = travel.since(self.origin, self.axis);
+        let u = self.axis;
+        let y = q[0] * u[0] + q[1] * u[1] - self.y0;
+        let w = q[0] * u[1] - q[1] * u[0];
+        if fabsf(c) > OBS_LIMIT_MM || fabsf(y) > OBS_LIMIT_MM {
+            self.misses = u8::MAX; // outgrew its storage: end it
+            return;
+        }
+        if self.observations.is_full() {
+            self.observations.pop_front();
+        }
+        let _ = self.observations.push_back([roundf(c * OBS_UNITS_PER_MM) as i16, roundf(y * OBS_UNITS_PER_MM) as i16]);
+        self.w_last = w;
+        self.across_last = across;
+        self.misses = 0;
+        self.patch = edge.patch;
+        self.strength = encode_strength(edge.strength);
+        self.matched_row = encode_row(edge.row);
+    }
+}
+
+fn encode_row(row: f32) -> Option<u16> {
+    (row >= 0.0 && row * ROW_UNITS < f32::from(u16::MAX)).then(|| roundf(row * ROW_UNITS) as u16)
+}
+
+fn encode_strength(strength: f32) -> u16 {
+    roundf((strength * 16.0).clamp(0.0, f32::from(u16::MAX))) as u16
+}
+
+/// Zero-mean normalised cross-correlation of two patches; 0 if either is flat.
+pub(super) fn zncc(a: &[u8; PATCH], b: &[u8; PATCH]) -> f32 {
+    let mean = |p: &[u8; PATCH]| p.iter().map(|&v| f32::from(v)).sum::<f32>() / PATCH as f32;
+    let (ma, mb) = (mean(a), mean(b));
+    let (mut sab, mut saa, mut sbb) = (0f32, 0f32, 0f32);
+    for (&va, &vb) in a.iter().zip(b) {
+        let (da, db) = (f32::from(va) - ma, f32::from(vb) - mb);
+        sab += da * db;
+        saa += da * da;
+        sbb += db * db;
+    }
+    if saa < 1e-3 || sbb < 1e-3 {
+        return 0.0;
+    }
+    sab / sqrtf(saa * sbb)
+}
+
+/// A point of an ended track, in the odometry world.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct MapPoint {
+    pub world: [f32; 2],
+    pub h_mm: f32,
+    pub quality: u8,
+    pub h_sigma_mm: f32,
+}
+
+/// Where a track's feature may be on its line this frame.
+struct Gate {
+    /// KG rows, fractional.
+    low: f32,
+    high: f32,
+    /// The row an established track's fitted locus predicts.
+    predicted: Option<f32>,
+}
+
+impl Gate {
+    /// Which of the unused `edges` of the track's polarity inside the gate
+    /// matches the track's `patch` best (nearest the prediction, if any,
+    /// among equals); None when none correlates well enough.
+    fn best(&self, edges: &[Edge], used: &[bool], rising: bool, patch: &[u8; PATCH], min_correlation: f32) -> Option<usize> {
+        let mut best: Option<(usize, f32)> = None;
+        for (e, edge) in edges.iter().enumerate() {
+            if used.get(e).copied().unwrap_or(true) || edge.rising != rising {
+                continue;
+            }
+            if edge.row < self.low || edge.row > self.high {
+                continue;
+            }
+            let correlation = zncc(patch, &edge.patch);
+            if correlation < min_correlation {
+                continue;
+            }
+            let half_width = 0.5 * (self.high - self.low);
+            let distance_penalty = self.predicted.map_or(0.0, |row| 0.2 * fabsf(edge.row - row) / half_width);
+            let score = correlation - distance_penalty;
+            if best.is_none_or(|(_, s)| score > s) {
+                best = Some((e, score));
+            }
+        }
+        best.map(|(e, _)| e)
+    }
+}
+
+/// Marks every edge of `edges` at `row` used (the strong and weak sets share edges).
+fn claim(edges: &[Edge], used: &mut [bool], row: f32) {
+    for (e, other) in edges.iter().enumerate() {
+        if fabsf(other.row - row) < 1e-3 {
+            if let Some(flag) = used.get_mut(e) {
+                *flag = true;
+            }
+        }
+    }
+}
+
+impl Gti {
+    /// Associates line `l`'s edges with its tracks, oldest tracks first
+    /// (their predictions are the tightest); unmatched strong edges start
+    /// tracks.
+    // Not inlined: the frame that holds the edges must stay small, as the
+    // firmware's deepest stack runs through edge finding.
+    #[inline(never)]
+    pub(super) fn associate_line(&mut self, l: usize, edges: &LineEdges) {
+        let Some(line) = self.lines.line(l).copied() else { return };
+        let mut taken = [false; MAX_EDGES_PER_LINE];
+        let mut weak_taken = [false; MAX_WEAK_EDGES_PER_LINE];
+        let mut order: Vec<(usize, usize), MAX_TRACKS> = Vec::new();
+        for (index, track) in self.tracks.iter().enumerate() {
+            if let Some(track) = track.as_ref().filter(|t| usize::from(t.line) == l) {
+                let _ = order.push((track.observations.len(), index));
+            }
+        }
+        order.sort_unstable_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+        let min_correlation = self.config.min_patch_correlation;
+        for &(_, index) in order.iter() {
+            let Some(track) = self.tracks.get(index).and_then(|t| t.as_ref()) else { continue };
+            let Some(gate) = self.gate(track, &line) else { continue };
+            let (rising, patch) = (track.rising, track.patch);
+            let matched = match gate.best(&edges.strong, &taken, rising, &patch, min_correlation) {
+                Some(e) => edges.strong.get(e).copied(),
+                // An established track may continue on a weaker edge that no strong edge claimed.
+                None if gate.predicted.is_some() => {
+                    gate.best(&edges.weak, &weak_taken, rising, &patch, min_correlation).and_then(|e| edges.weak.get(e)).copied()
+                }
+                None => None,
+            };
+            let Some(track) = self.tracks.get_mut(index).and_then(|t| t.as_mut()) else { continue };
+            match matched {
+                Some(edge) => {
+                    claim(&edges.strong, &mut taken, edge.row);
+                    claim(&edges.weak, &mut weak_taken, edge.row);
+                    track.observe(&self.travel, line.point_at_row(&self.grid, edge.row), &edge);
+                }
+                None => track.misses = track.misses.saturating_add(1),
+            }
+        }
+        self.start_tracks(l, &line, &edges.strong, &taken);
+    }
+
+    /// The gate of a track on its line this frame; None when its locus leaves
+    /// the line (the track is then neither matched nor missed).
+    fn gate(&self, track: &Track, line: &GtLine) -> Option<Gate> {
+        let grid: &KgGrid = &self.grid;
+        let mm_per_px = grid.mm_per_px as f32;
+        let fit = if track.observations.len() >= 2 { track.fit() } else { None };
+        let widen = self.config.gate_px * (1.0 + 0.5 * f32::from(track.misses));
+        match fit {
+            Some(fit) if track.observations.len() >= 3 => {
+                let p = track.predict_apparent(&self.travel, -fit.slope, Some(&fit))?;
+                let (row, lateral) = line.row_of(grid, p);
+                if fabsf(lateral) > 2.0 * mm_per_px {
+                    return None;
+                }
+                let gate = widen + 3.0 * fit.residual / mm_per_px;
+                Some(Gate { low: row - gate, high: row + gate, predicted: Some(row) })
+            }
+            _ => {
+                // One or two observations: any slope in the initial range.
+                let slope_hint = fit.map(|f| -f.slope).filter(|s| slope_plausible(*s));
+                let (low, high) = match slope_hint {
+                    Some(s) => (s * 0.85, s * 1.15),
+                    None => (0.85, self.config.max_initial_slope),
+                };
+                let a = track.predict_apparent(&self.travel, low, None)?;
+                let b = track.predict_apparent(&self.travel, high, None)?;
+                let ((ra, la), (rb, lb)) = (line.row_of(grid, a), line.row_of(grid, b));
+                if fabsf(la).min(fabsf(lb)) > 2.0 * mm_per_px {
+                    return None;
+                }
+                Some(Gate { low: ra.min(rb) - widen, high: ra.max(rb) + widen, predicted: None })
+            }
+        }
+    }
+
+    /// Unmatched `edges` of line `l` start tracks, strongest first, within
+    /// the line's share; when it is full, a much stronger edge replaces the
+    /// weakest track (floor texture must not crowd out an obstacle's edges).
+    fn start_tracks(&mut self, l: usize, line: &GtLine, edges: &[Edge], taken: &[bool]) {
+        let share = MAX_TRACKS / self.config.lines;
+        for (e, edge) in edges.iter().enumerate() {
+            if taken.get(e).copied().unwrap_or(true) {
+                continue;
+            }
+            let strength = encode_strength(edge.strength);
+            let on_line = self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l).count();
+            let slot = if on_line < share {
+                self.tracks.iter().position(|t| t.is_none())
+            } else {
+                let weakest = self
+                    .tracks
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, t)| t.as_ref().filter(|t| usize::from(t.line) == l).map(|t| (i, t.strength)))
+                    .min_by_key(|&(_, s)| s);
+                match weakest {
+                    Some((i, s)) if u32::from(strength) * 2 > u32::from(s) * 3 => {
+                        self.end_track(i);
+                        Some(i)
+                    }
+                    _ => None,
+                }
+            };
+            let Some(slot) = slot else { continue };
+            let point = line.point_at_row(&self.grid, edge.row);
+            let track = Track::start(self.next_id, l, line, point, edge, &self.travel);
+            self.next_id = self.next_id.wrapping_add(1);
+            if let Some(s) = self.tracks.get_mut(slot) {
+                *s = Some(track);
+            }
+        }
+    }
+
+    /// Ends tracks missed too often or with an implausible locus; good ones
+    /// become map points.
+    pub(super) fn end_lost_tracks(&mut self) {
+        for index in 0..MAX_TRACKS {
+            let Some(track) = self.tracks.get(index).and_then(|t| t.as_ref()) else { continue };
+            let fit = if track.observations.len() >= 3 { track.fit() } else { None };
+            let implausible = fit.is_some_and(|f| !slope_plausible(-f.slope));
+            if track.misses <= self.config.max_misses && !implausible {
+                continue;
+            }
+            self.end_track(index);
+        }
+    }
+
+    /// Ends a track; a good one becomes a map point.
+    fn end_track(&mut self, index: usize) {
+        let Some(slot) = self.tracks.get(index) else { return };
+        if let Some(point) = slot.as_ref().and_then(|track| self.estimate(track)) {
+            if point.quality >= self.config.good_quality {
+                let [x, z] = self.travel.rotation().place(self.travel.position(), [f64::from(point.x_mm), f64::from(point.z_mm)]);
+                if self.map.is_full() {
+                    self.map.pop_front();
+                }
+                let _ = self.map.push_back(MapPoint {
+                    world: [x as f32, z as f32],
+                    h_mm: point.h_mm,
+                    quality: point.quality,
+                    h_sigma_mm: point.h_sigma_mm,
+                });
+            }
+        }
+        if let Some(slot) = self.tracks.get_mut(index) {
+            *slot = None;
+        }
+    }
+
+    /// A track's point in the current robot frame, once it has enough
+    /// observations and a plausible slope.
+    pub(super) fn estimate(&self, track: &Track) -> Option<HeightPoint> {
+        if track.observations.len() < self.config.min_observations {
+            return None;
+        }
+        let fit = track.fit()?;
+        let slope = -fit.slope;
+        if !slope_plausible(slope) {
+            return None;
+        }
+        let apparent = track.predict_apparent(&self.travel, slope, Some(&fit))?;
+        let height = FittedHeight::new(&fit, slope, self.mount_height_mm, self.grid.mm_per_px as f32);
+        Some(HeightPoint {
+            x_mm: apparent[0] / slope,
+            z_mm: apparent[1] / slope,
+            h_mm: height.h_mm,
+            quality: height.quality,
+            h_sigma_mm: height.h_sigma_mm,
+        })
+    }
+}

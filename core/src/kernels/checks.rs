@@ -1,0 +1,250 @@
+//! The kernels' checks (host `#[test]`s and `cargo fw-test` on the emulated
+//! M4, listed in [`crate::selftest`]): the kernels in use and the portable
+//! ones equal plain per-pixel loops.
+
+use super::{bilinear, pinhole, portable, FRAC_BITS};
+use crate::selftest::{xorshift32, Outcome};
+
+/// Deterministic bytes around 128, within `spread` of it (any byte from 256 up).
+fn fill(buffer: &mut [u8], mut state: u32, spread: u32) {
+    for byte in buffer.iter_mut() {
+        let random = xorshift32(&mut state);
+        *byte = if spread >= 256 { random as u8 } else { 128u32.wrapping_add(random % (2 * spread + 1)).wrapping_sub(spread) as u8 };
+    }
+}
+
+/// Every length 0..=300, unaligned starts, random and edge values
+/// (0, 255, the seed levels and their neighbours), every window width.
+pub fn dsp_kernels_equal_portable() -> Outcome {
+    let mut a = [0u8; 307];
+    let mut b = [0u8; 314];
+    for (round, spread) in [(1u32, 256u32), (2, 60), (3, 30), (4, 3)].into_iter() {
+        fill(&mut a, 0x9E37_79B9 ^ round, spread);
+        fill(&mut b, 0x85EB_CA6B ^ (round * 7), spread);
+        if round == 1 {
+            // Exact edges: |diff| of 30, 31, 50, 51, 255.
+            let edges = [(0u8, 30u8), (31, 0), (100, 50), (49, 100), (0, 255), (255, 0), (200, 149), (7, 7)];
+            for (n, (x, y)) in edges.iter().enumerate() {
+                a[n] = *x;
+                b[n] = *y;
+            }
+        }
+        for start in 0..4 {
+            for length in 0..=300 {
+                let (x, y) = (&a[start..start + length], &b[3 - start..3 - start + length]);
+                let plain_sad = |y: &[u8]| x.iter().zip(y).map(|(&p, &q)| u32::from(p.abs_diff(q))).sum::<u32>();
+                if super::sad(x, y) != plain_sad(y) || portable::sad(x, y) != plain_sad(y) {
+                    return Err("sad differs from the per-pixel loop");
+                }
+                let mut expected = [0u32; 256];
+                for (&p, &q) in x.iter().zip(y) {
+                    expected[usize::from(p.abs_diff(q))] += 1;
+                }
+                let mut histogram = super::DiffHistogram::EMPTY;
+                histogram.add(x, y);
+                let mut portable_histogram = [[0u32; 256]; portable::HISTOGRAM_LANES];
+                portable::diff_histogram(x, y, &mut portable_histogram);
+                if histogram.counts() != expected || portable_histogram != [expected] {
+                    return Err("diff_histogram differs from the per-pixel loop");
+                }
+                for shifts in 1..=7 {
+                    let reference = &b[3 - start..3 - start + length + shifts - 1];
+                    let mut sums = [7u32; 7];
+                    super::sad_shifts(x, reference, &mut sums[..shifts]);
+                    for (k, &sum) in sums[..shifts].iter().enumerate() {
+                        if sum != 7 + plain_sad(&reference[k..]) {
+                            return Err("sad_shifts differs from the per-pixel loop");
+                        }
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The seed's statistics from a histogram equal a per-pixel loop.
+pub fn seed_statistics_equal_plain() -> Outcome {
+    let mut a = [0u8; 1000];
+    let mut b = [0u8; 1000];
+    fill(&mut a, 0x1234_5678, 256);
+    fill(&mut b, 0x0BAD_F00D, 256);
+    let mut histogram = super::DiffHistogram::EMPTY;
+    histogram.add(&a, &b);
+    let (mut sum_above, mut count_above) = (0u32, 0u32);
+    for (&x, &y) in a.iter().zip(&b) {
+        let d = x.abs_diff(y);
+        if d > super::SUM_LEVEL {
+            sum_above += u32::from(d);
+        }
+        if d > super::COUNT_LEVEL {
+            count_above += 1;
+        }
+    }
+    if super::seed_statistics(&histogram.counts()) != (sum_above, count_above) {
+        return Err("seed_statistics differs from the per-pixel loop");
+    }
+    Ok(())
+}
+
+/// The bilinear kernel in use and the portable one equal a per-pixel loop:
+/// every length 0..=300, unaligned starts of `upper`, `lower` and `out`
+/// (independently), edge weights (0, 1, 128, 255) and random ones, random
+/// pixels, pixels near the middle, and all-0 / all-255 / alternating 0-255
+/// lines (the extremes of the intermediate sums).
+pub fn bilinear_line_equals_plain() -> Outcome {
+    let mut upper = [0u8; 310];
+    let mut lower = [0u8; 310];
+    let mut out = [0u8; 310];
+    let mut state = 0x1234_5678u32;
+    let mut random = move || xorshift32(&mut state);
+    for round in 0..6u32 {
+        match round {
+            0 | 1 => {
+                fill(&mut upper, 0x2545_F491 ^ round, if round == 0 { 256 } else { 3 });
+                fill(&mut lower, 0x6C07_8965 ^ (round * 3), if round == 0 { 256 } else { 3 });
+                upper[..4].copy_from_slice(&[255, 0, 255, 255]);
+                lower[..4].copy_from_slice(&[255, 255, 0, 255]);
+            }
+            2 => {
+                upper.fill(255);
+                lower.fill(255);
+            }
+            3 => {
+                upper.fill(0);
+                lower.fill(0);
+            }
+            4 => {
+                for (n, (u, l)) in upper.iter_mut().zip(lower.iter_mut()).enumerate() {
+                    *u = if n % 2 == 0 { 255 } else { 0 };
+                    *l = if n % 3 == 0 { 0 } else { 255 };
+                }
+            }
+            _ => {
+                for (n, (u, l)) in upper.iter_mut().zip(lower.iter_mut()).enumerate() {
+                    *u = if n % 2 == 0 { 0 } else { 255 };
+                    *l = if n % 2 == 0 { 255 } else { 0 };
+                }
+            }
+        }
+        let mut weights = [(0u32, 0u32), (255, 255), (0, 255), (255, 0), (128, 1), (1, 128), (128, 128), (1, 1), (77, 201), (0, 0), (0, 0), (0, 0)];
+        for pair in weights[9..].iter_mut() {
+            let r = random();
+            *pair = (r & 0xFF, (r >> 8) & 0xFF);
+        }
+        for (n, &(wx, wy)) in weights.iter().enumerate() {
+            for (length, kernel) in (0..=600).map(|k| (k / 2, k % 2)) {
+                let r = random() as usize;
+                let (su, sl, so) = ((n + length) % 4, (r >> 4) % 4, (r >> 8) % 4);
+                let (u, l) = (&upper[su..su + length + 1], &lower[sl..sl + length + 1]);
+                out.fill(0xA5);
+                let target = &mut out[so..so + length];
+                if kernel == 0 {
+                    super::bilinear_line(u, l, wx, wy, target);
+                } else {
+                    portable::bilinear_line(u, l, wx, wy, target);
+                }
+                for (c, &got) in target.iter().enumerate() {
+                    let top = u32::from(u[c]) * (256 - wx) + u32::from(u[c + 1]) * wx;
+                    let bottom = u32::from(l[c]) * (256 - wx) + u32::from(l[c + 1]) * wx;
+                    if u32::from(got) != (top * (256 - wy) + bottom * wy + (1 << 15)) >> 16 {
+                        return Err("bilinear_line differs from the per-pixel formula");
+                    }
+                }
+                if out[..so].iter().chain(&out[so + length..]).any(|&b| b != 0xA5) {
+                    return Err("bilinear_line wrote outside its output");
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+
+/// Random rows (and a 0/255 pattern at the start), widths 1..=70 at
+/// unaligned starts, wy and wx of 0, 1, 128, 255 and random, steps from
+/// 0 to over 2 px both ways, runs that start at column 0 and runs that
+/// end on the last column (the `x1` clamp) or just before it.
+pub fn pinhole_rows_equal_bilinear() -> Outcome {
+    let mut state = 0x1234_5679u32;
+    let mut upper = [0u8; 75];
+    let mut lower = [0u8; 75];
+    let mut line = pinhole::Line::ZERO;
+    let (mut fast, mut portable) = ([0u8; 40], [0u8; 40]);
+    let steps = [0i32, 1, 0xFF, 0x100, 0x3FFF, 0x8000, 0xFFFF, 0x1_0000, 0x1_0001, 0x1_8080, 0x2_3456];
+    let lengths = [1usize, 2, 3, 4, 5, 7, 8, 9, 13, 32, 37];
+    for (case, width) in [1usize, 2, 3, 4, 5, 6, 7, 8, 9, 17, 64, 70].into_iter().enumerate() {
+        for byte in upper.iter_mut().chain(lower.iter_mut()) {
+            *byte = xorshift32(&mut state) as u8;
+        }
+        if case % 2 == 0 {
+            upper[..4].copy_from_slice(&[255, 0, 255, 255]);
+            lower[..4].copy_from_slice(&[255, 255, 0, 255]);
+        }
+        let start = case % 4;
+        let (up, low) = (&upper[start..start + width], &lower[start..start + width]);
+        let max_u = ((width as i32) - 1) << FRAC_BITS;
+        for wy in [0i32, 1, 128, 255, (xorshift32(&mut state) & 0xFF) as i32] {
+            let v = (3 << FRAC_BITS) | (wy << 8) | (xorshift32(&mut state) & 0xFF) as i32;
+            for &magnitude in &steps {
+                for step in [magnitude, -magnitude] {
+                    for &n in &lengths {
+                        let span = i64::from(step) * (n as i64 - 1);
+                        for anchor in 0..10 {
+                            // Fractions giving wx = 0, 1, 128, 255 (plus low bits).
+                            let frac = [0, 0x1AB, 0x80FF, 0xFF01, 0x7F][anchor % 5];
+                            // The first five runs start at the left, the rest end at the right.
+                            let (low_u, high_u) = if anchor < 5 { (frac, frac + span.abs()) } else {
+                                let high = i64::from(max_u) - [0, 1, 0xFF, 0x100, 0x8000][anchor % 5];
+                                (high - span.abs(), high)
+                            };
+                            if low_u < 0 || high_u > i64::from(max_u) {
+                                continue;
+                            }
+                            let u = if step >= 0 { low_u } else { high_u } as i32;
+                            let (fast, portable) = (&mut fast[..n], &mut portable[..n]);
+                            pinhole::sample_row(up, low, u, step, v, &mut line, fast);
+                            if !pinhole::sample_row_portable(up, low, u, step, v, &mut line, portable) {
+                                return Err("an in-image pinhole row was sampled per pixel");
+                            }
+                            for c in 0..n {
+                                let expected = bilinear(up, low, u.wrapping_add(step.wrapping_mul(c as i32)), v);
+                                if fast[c] != expected {
+                                    return Err("pinhole row (kernels in use) differs from per-pixel bilinear");
+                                }
+                                if portable[c] != expected {
+                                    return Err("pinhole row (portable) differs from per-pixel bilinear");
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The ring's row copy (`ldm`/`stm` on the M4 when word aligned) equals
+/// `copy_from_slice` for every length 0..=70 and alignment.
+pub fn copy_row_copies() -> Outcome {
+    #[repr(align(4))]
+    struct Words([u8; 80]);
+    let mut state = 0x0BAD_F00Du32;
+    let mut src = Words([0; 80]);
+    for byte in src.0.iter_mut() {
+        *byte = xorshift32(&mut state) as u8;
+    }
+    let mut dst = Words([0; 80]);
+    for length in 0..=70 {
+        for (from, to) in [(0, 0), (0, 1), (1, 0), (2, 2), (3, 1), (4, 8)] {
+            dst.0.fill(0xA5);
+            super::copy_row(&mut dst.0[to..to + length], &src.0[from..from + length]);
+            let untouched = dst.0[..to].iter().chain(&dst.0[to + length..]).all(|&b| b == 0xA5);
+            if dst.0[to..to + length] != src.0[from..from + length] || !untouched {
+                return Err("copy_row differs from copy_from_slice");
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,364 @@
+//! Cortex-M4/M7 kernels (`thumbv7em`, cfg `flatland_dsp` from build.rs)
+//! with the DSP extension through `asm!` (LLVM never emits these):
+//! `usada8` adds four absolute differences in one instruction, `usub8` +
+//! `sel` compare and select four bytes, `smlad` does the bilinear blends two
+//! products at a time, `ldm`/`stm` copy rows. Same functions as `portable`,
+//! whose versions do the tails.
+
+use super::pinhole::FLIP;
+use super::portable;
+
+#[inline]
+pub fn sad(a: &[u8], b: &[u8]) -> u32 {
+    let n = a.len().min(b.len());
+    let words = n / 4;
+    let mut acc = 0u32;
+    if words > 0 {
+        // SAFETY: reads `words` words (unaligned ldr is fine on M4) from
+        // `a` and `b`, which hold at least 4 * words bytes each.
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "ldr {x}, [{pa}], #4",
+                "ldr {y}, [{pb}], #4",
+                "usada8 {acc}, {x}, {y}, {acc}",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                pa = inout(reg) a.as_ptr() => _, pb = inout(reg) b.as_ptr() => _,
+                n = inout(reg) words => _, acc = inout(reg) acc,
+                x = out(reg) _, y = out(reg) _,
+                options(readonly, nostack)
+            );
+        }
+    }
+    acc + portable::sad(&a[4 * words..n], &b[4 * words..n])
+}
+
+/// Five shifts (the default ±2 window) per current word: the reference
+/// word of shift 4 is the next word's shift 0, so 1 + 4 loads feed
+/// 5 `usada8` (12 instructions per 4 pixels and 5 shifts). Other window
+/// widths run `sad` per shift.
+#[inline]
+pub fn sad_shifts(current: &[u8], reference: &[u8], sums: &mut [u32]) {
+    let n = current.len();
+    let words = n / 4;
+    if sums.len() != 5 || words == 0 {
+        for (k, sum) in sums.iter_mut().enumerate() {
+            *sum += sad(current, &reference[k..]);
+        }
+        return;
+    }
+    let mut acc = [0u32; 5];
+    // SAFETY: reads `words` words of `current` (4 * words <= n bytes) and
+    // reference bytes below 4 * words + 4 <= n + 4 <= reference.len()
+    // (checked by `super::sad_shifts`); unaligned ldr is fine on the M4.
+    unsafe {
+        core::arch::asm!(
+            "ldr {r0}, [{pr}]",
+            "2:",
+            "ldr {c}, [{pc}], #4",
+            "usada8 {a0}, {c}, {r0}, {a0}",
+            "ldr {t}, [{pr}, #1]",
+            "usada8 {a1}, {c}, {t}, {a1}",
+            "ldr {t}, [{pr}, #2]",
+            "usada8 {a2}, {c}, {t}, {a2}",
+            "ldr {t}, [{pr}, #3]",
+            "usada8 {a3}, {c}, {t}, {a3}",
+            "ldr {r0}, [{pr}, #4]!",          // shift 4 now, shift 0 next word
+            "usada8 {a4}, {c}, {r0}, {a4}",
+            "subs {n}, {n}, #1",
+            "bne 2b",
+            pc = inout(reg) current.as_ptr() => _, pr = inout(reg) reference.as_ptr() => _,
+            n = inout(reg) words => _,
+            c = out(reg) _, t = out(reg) _, r0 = out(reg) _,
+            a0 = inout(reg) acc[0], a1 = inout(reg) acc[1], a2 = inout(reg) acc[2],
+            a3 = inout(reg) acc[3], a4 = inout(reg) acc[4],
+            options(readonly, nostack)
+        );
+    }
+    // At most 3 pixels left: a plain loop (the portable `sad`'s block
+    // set-up would cost more than the pixels).
+    let done = 4 * words;
+    for (n, &value) in current[done..].iter().enumerate() {
+        for (k, acc) in acc.iter_mut().enumerate() {
+            *acc += u32::from(value.abs_diff(reference[done + n + k]));
+        }
+    }
+    for (sum, acc) in sums.iter_mut().zip(acc) {
+        *sum += acc;
+    }
+}
+
+/// One lane: the M4 has no store-to-load stall to hide (1 KB).
+pub const HISTOGRAM_LANES: usize = 1;
+
+/// |diff| of four pixels with `usub8`/`sel` (the GE flags must survive
+/// from `usub8` to `sel`, hence one `asm!` block), then four increments.
+#[inline]
+pub fn diff_histogram(a: &[u8], b: &[u8], lanes: &mut [[u32; 256]; HISTOGRAM_LANES]) {
+    let [histogram] = &mut *lanes;
+    let n = a.len().min(b.len());
+    let words = n / 4;
+    if words > 0 {
+        // SAFETY: reads `words` words of `a` and `b` (at least 4 * words
+        // bytes each); every index is a byte (< 256) into `histogram`.
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "ldr {x}, [{pa}], #4",
+                "ldr {y}, [{pb}], #4",
+                "usub8 {t}, {x}, {y}",            // GE[i] = x >= y
+                "usub8 {y}, {y}, {x}",            // GE[i] = y >= x
+                "sel {x}, {y}, {t}",              // x = |x - y| per byte
+                "uxtb {t}, {x}",
+                "ldr {y}, [{h}, {t}, lsl #2]",
+                "add {y}, {y}, #1",
+                "str {y}, [{h}, {t}, lsl #2]",
+                "uxtb {t}, {x}, ror #8",
+                "ldr {y}, [{h}, {t}, lsl #2]",
+                "add {y}, {y}, #1",
+                "str {y}, [{h}, {t}, lsl #2]",
+                "uxtb {t}, {x}, ror #16",
+                "ldr {y}, [{h}, {t}, lsl #2]",
+                "add {y}, {y}, #1",
+                "str {y}, [{h}, {t}, lsl #2]",
+                "lsr {t}, {x}, #24",
+                "ldr {y}, [{h}, {t}, lsl #2]",
+                "add {y}, {y}, #1",
+                "str {y}, [{h}, {t}, lsl #2]",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                pa = inout(reg) a.as_ptr() => _, pb = inout(reg) b.as_ptr() => _,
+                n = inout(reg) words => _, h = in(reg) histogram.as_mut_ptr(),
+                x = out(reg) _, y = out(reg) _, t = out(reg) _,
+                options(nostack)
+            );
+        }
+    }
+    portable::diff_histogram(&a[4 * words..n], &b[4 * words..n], lanes);
+}
+
+/// Vertical blend first (exact integers, so the same value as the
+/// portable horizontal-first order): `V[x] = upper[x] * (256 - wy) +
+/// lower[x] * wy` (<= 65,280), then `out[n] = (V[n] * (256 - wx) +
+/// V[n + 1] * wx + 2^15) >> 16`. Both steps are `smlad`s with one
+/// accumulator constant `K = 2^23 + 2^15`:
+/// - vertical: `smlad((u, l), (256 - wy, wy), K)` = `V + K`, whose low
+///   halfword is `V + 2^15 mod 2^16`, i.e. `V - 2^15` as an i16 (V < 2^16);
+/// - horizontal: `smlad((V[n] - 2^15, V[n + 1] - 2^15), (256 - wx, wx), K)`
+///   = `V[n] * (256 - wx) + V[n + 1] * wx - 2^15 * 256 + 2^23 + 2^15`,
+///   the portable sum before the shift (< 2^24, so bits 24..31 are zero).
+///
+/// 4 samples per iteration, 26 instructions; `V` of the last column is
+/// carried to the next iteration. The tail (< 4 samples) is portable.
+#[inline]
+pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
+    const K: u32 = (1 << 23) + (1 << 15);
+    let n = out.len().min(upper.len().saturating_sub(1)).min(lower.len().saturating_sub(1));
+    let words = n / 4;
+    if words > 0 {
+        let wxs = (256 - wx) | (wx << 16);
+        let wys = (256 - wy) | (wy << 16);
+        let v0 = u32::from(upper[0]) * (256 - wy) + u32::from(lower[0]) * wy + K;
+        // SAFETY: iteration i reads the words upper/lower[4i + 1..4i + 5]
+        // (the last ends at 4 * words + 1 <= n + 1 <= len) and writes the
+        // word out[4i..4i + 4] (<= n <= out.len()); unaligned ldr/str are
+        // fine on the M4. Register arithmetic only otherwise.
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "ldr {u}, [{pu}], #4",            // bytes u1 u2 u3 u4
+                "ldr {l}, [{pl}], #4",
+                "pkhbt {a}, {u}, {l}, lsl #16",   // bytes u1 u2 l1 l2
+                "pkhtb {b}, {l}, {u}, asr #16",   // bytes u3 u4 l3 l4
+                "uxtb16 {u}, {a}",                // (u1, l1)
+                "smlad {u}, {u}, {wy}, {k}",      // V1 + K
+                "uxtb16 {a}, {a}, ror #8",        // (u2, l2)
+                "smlad {a}, {a}, {wy}, {k}",      // V2 + K
+                "pkhbt {v}, {v}, {u}, lsl #16",   // (V0, V1) - 2^15
+                "smlad {v}, {v}, {wx}, {k}",      // out0 << 16
+                "pkhbt {u}, {u}, {a}, lsl #16",   // (V1, V2) - 2^15
+                "smlad {u}, {u}, {wx}, {k}",      // out1 << 16
+                "uxtb16 {l}, {b}",                // (u3, l3)
+                "smlad {l}, {l}, {wy}, {k}",      // V3 + K
+                "pkhbt {a}, {a}, {l}, lsl #16",   // (V2, V3) - 2^15
+                "smlad {a}, {a}, {wx}, {k}",      // out2 << 16
+                "pkhtb {a}, {a}, {v}, asr #16",   // out0 | out2 << 16
+                "uxtb16 {b}, {b}, ror #8",        // (u4, l4)
+                "smlad {v}, {b}, {wy}, {k}",      // V4 + K: V0 of the next iteration
+                "pkhbt {l}, {l}, {v}, lsl #16",   // (V3, V4) - 2^15
+                "smlad {l}, {l}, {wx}, {k}",      // out3 << 16
+                "pkhtb {l}, {l}, {u}, asr #16",   // out1 | out3 << 16
+                "orr {a}, {a}, {l}, lsl #8",
+                "str {a}, [{po}], #4",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                pu = inout(reg) upper[1..].as_ptr() => _, pl = inout(reg) lower[1..].as_ptr() => _,
+                po = inout(reg) out.as_mut_ptr() => _, n = inout(reg) words => _,
+                v = inout(reg) v0 => _,
+                u = out(reg) _, l = out(reg) _, a = out(reg) _, b = out(reg) _,
+                wx = in(reg) wxs, wy = in(reg) wys, k = in(reg) K,
+                options(nostack)
+            );
+        }
+    }
+    let done = 4 * words;
+    portable::bilinear_line(&upper[done..], &lower[done..], wx, wy, &mut out[done..n]);
+}
+
+// ------------------------------------------------------------ pinhole rows
+// The line holds `V ^ FLIP`: V <= 65,280, so as i16 that is exactly
+// `V - 2^15` (`smlad` multiplies signed halves).
+
+/// Four columns per step: a word of each row, split into even and
+/// odd bytes as halfword lanes (`uxtb16`). A plain 32-bit `mul` by a
+/// weight <= 256 is then two lane products at once: each is at most
+/// 255 * 256 = 65,280 < 2^16, so nothing carries into the other lane,
+/// and neither does the sum of the two rows' products (same bound).
+/// `pkhbt`/`pkhtb` put the lanes back in column order.
+pub fn pinhole_vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
+    let n = line.len().min(upper.len()).min(lower.len());
+    let groups = n / 4;
+    if groups > 0 {
+        // SAFETY: reads `groups` words of `upper` and `lower` (at least
+        // 4 * groups bytes each; unaligned ldr is fine on the M4) and
+        // writes `groups` pairs of words to `line` (4 * groups halfwords,
+        // word aligned: `Line` is align(4) and starts every row at 0).
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "ldr {a}, [{pu}], #4",
+                "ldr {b}, [{pl}], #4",
+                "uxtb16 {t}, {a}",               // [u0 | u2]
+                "uxtb16 {a}, {a}, ror #8",       // [u1 | u3]
+                "mul {t}, {t}, {ay}",            // [u0 * ay | u2 * ay]
+                "mul {a}, {a}, {ay}",
+                "uxtb16 {c}, {b}",               // [l0 | l2]
+                "uxtb16 {b}, {b}, ror #8",       // [l1 | l3]
+                "mla {t}, {c}, {wy}, {t}",       // [V0 | V2]
+                "mla {a}, {b}, {wy}, {a}",       // [V1 | V3]
+                "pkhbt {c}, {t}, {a}, lsl #16",  // [V0 | V1]
+                "pkhtb {a}, {a}, {t}, asr #16",  // [V2 | V3]
+                "eor {c}, {c}, #0x80008000",     // V ^ 0x8000 per lane
+                "eor {a}, {a}, #0x80008000",
+                "strd {c}, {a}, [{pv}], #8",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                pu = inout(reg) upper.as_ptr() => _,
+                pl = inout(reg) lower.as_ptr() => _,
+                pv = inout(reg) line.as_mut_ptr() => _,
+                n = inout(reg) groups => _,
+                ay = in(reg) 256 - wy,
+                wy = in(reg) wy,
+                a = out(reg) _, b = out(reg) _, t = out(reg) _, c = out(reg) _,
+                options(nostack)
+            );
+        }
+    }
+    let done = 4 * groups;
+    portable::pinhole_vertical_flipped(&upper[done..n], &lower[done..n], wy, &mut line[done..n], FLIP);
+}
+
+/// Four pixels per step, 7.5 instructions each: the pair
+/// `[V'[x0] | V'[x0 + 1]]` is one (unaligned) word load at byte
+/// 2 * x0; the weights `[256 - wx | wx]` are `wx * 0xFFFF + 256`
+/// (one `mla`: `(wx << 16) - wx + 256`, and `256 - wx >= 1` never
+/// borrows); `smlad` sums `V'0 * (256 - wx) + V'1 * wx` onto
+/// `2^23 + 2^15`, which restores the `- 2^15 * 256` of the bias and
+/// adds the rounding: the result is `bilinear`'s sum, < 2^24, so the
+/// pixel is its bits 16..24 and bits 24..32 are 0. Two pixels' sums
+/// `s0`, `s1` go out as one halfword: `pkhtb` makes
+/// `[s0 >> 16 | s1 >> 16] = p0 + (p1 << 16)`, and `orr` with itself
+/// shifted right by 8 puts `p0 + (p1 << 8)` in the low half.
+///
+/// # Safety
+/// Every pixel's `x0 + 1` indexes `line` (see `pinhole::Horizontal`).
+pub unsafe fn pinhole_horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]) {
+    const BIAS: u32 = (1 << 23) + (1 << 15);
+    let groups = out.len() / 4;
+    let mut u = u;
+    if groups > 0 {
+        // One pixel's sum into `{acc}`. Written out rather than with
+        // `.rept`: LLVM sizes an asm block by its lines, and branches
+        // around a block it underestimates can end up out of range.
+        macro_rules! pixel {
+            ($acc:literal) => {
+                concat!(
+                    "lsr {t}, {u}, #16\n",            // x0
+                    "ldr {t}, [{pv}, {t}, lsl #1]\n", // [V'[x0] | V'[x0 + 1]]
+                    "uxtb {w}, {u}, ror #8\n",        // wx
+                    "mla {w}, {w}, {k}, {c256}\n",    // [256 - wx | wx]
+                    "smlad ", $acc, ", {t}, {w}, {bias}\n",
+                    "add {u}, {u}, {step}\n",
+                )
+            };
+        }
+        // Two pixels' sums in `{s0}`, `{s1}` out as one halfword.
+        macro_rules! pair {
+            () => {
+                concat!(
+                    pixel!("{s0}"),
+                    pixel!("{s1}"),
+                    "pkhtb {s0}, {s1}, {s0}, asr #16\n",
+                    "orr {s0}, {s0}, {s0}, lsr #8\n",
+                    "strh {s0}, [{po}], #2\n",
+                )
+            };
+        }
+        // SAFETY: the caller guarantees every x0 (and x0 + 1) indexes
+        // `line`; writes `4 * groups` bytes of `out` (unaligned strh
+        // is fine on the M4).
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                pair!(),
+                pair!(),
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                u = inout(reg) u,
+                po = inout(reg) out.as_mut_ptr() => _,
+                n = inout(reg) groups => _,
+                step = in(reg) step,
+                pv = in(reg) line.as_ptr(),
+                k = in(reg) 0xFFFFu32,
+                c256 = in(reg) 256u32,
+                bias = in(reg) BIAS,
+                t = out(reg) _, w = out(reg) _, s0 = out(reg) _, s1 = out(reg) _,
+                options(nostack)
+            );
+        }
+    }
+    // SAFETY: the caller's contract, for the remaining pixels.
+    unsafe { portable::pinhole_horizontal_flipped(line, u, step, &mut out[4 * groups..], FLIP) }
+}
+
+/// `dst.copy_from_slice(src)` (same length). That is compiler_builtins'
+/// memcpy, ~300 instructions for a 256-pixel row; when both ends are word
+/// aligned, `ldm`/`stm` of four words takes ~70.
+#[inline]
+pub fn copy_row(dst: &mut [u8], src: &[u8]) {
+    let blocks = dst.len().min(src.len()) / 16;
+    if blocks > 0 && (dst.as_ptr() as usize | src.as_ptr() as usize).is_multiple_of(4) {
+        // SAFETY: both pointers are word aligned (ldm/stm need that) and
+        // `src`, `dst` hold at least 16 * blocks bytes; fixed registers
+        // because an `ldm` list must be in ascending order.
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "ldmia {s}!, {{r2, r3, r4, r5}}",
+                "stmia {d}!, {{r2, r3, r4, r5}}",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                s = inout(reg) src.as_ptr() => _,
+                d = inout(reg) dst.as_mut_ptr() => _,
+                n = inout(reg) blocks => _,
+                out("r2") _, out("r3") _, out("r4") _, out("r5") _,
+                options(nostack)
+            );
+        }
+        let done = 16 * blocks;
+        dst[done..].copy_from_slice(&src[done..]);
+        return;
+    }
+    dst.copy_from_slice(src);
+}

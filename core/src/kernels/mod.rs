@@ -1,0 +1,148 @@
+//! Instruction-set kernels: the byte loops of the GPA (SAD, shift search,
+//! |diff| histogram, bilinear lines) and of the remap (pinhole rows, ring
+//! row copy), with one selection of the instruction set.
+//!
+//! Three backends hold the same functions:
+//! - [`portable`]: plain Rust, the reference, and the SIMD backends' tails;
+//! - `sse2`: x86_64 (SSE2 is baseline there);
+//! - `dsp`: Cortex-M4/M7, `asm!` with the DSP extension (cfg `flatland_dsp`,
+//!   set by build.rs for `thumbv7em`).
+//!
+//! `selected` below is the backend the entry points of this module call;
+//! nothing else looks at the target. All backends give identical results;
+//! `checks` compares them with the portable ones and with per-pixel
+//! loops, on the host and on the emulated M4 (`cargo fw-test`).
+
+pub mod portable;
+
+#[cfg(flatland_dsp)]
+pub mod dsp;
+#[cfg(flatland_dsp)]
+use dsp as selected;
+
+#[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+pub mod sse2;
+#[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+use sse2 as selected;
+
+#[cfg(not(any(flatland_dsp, target_arch = "x86_64")))]
+use portable as selected;
+
+pub(crate) mod pinhole;
+
+#[cfg(any(test, feature = "selftest"))]
+pub mod checks;
+
+// ------------------------------------------------------------------ GPA
+
+/// The seed's levels: |diff| above `SUM_LEVEL` is summed, above `COUNT_LEVEL` counted.
+pub const SUM_LEVEL: u8 = 30;
+pub const COUNT_LEVEL: u8 = 50;
+
+/// Sum of |a - b| over the common length.
+#[inline]
+pub fn sad(a: &[u8], b: &[u8]) -> u32 {
+    selected::sad(a, b)
+}
+
+/// The shift search's kernel: `sums[k] += SAD(current, reference[k..k + n])`
+/// for every shift `k` in `0..sums.len()`, n = `current.len()`.
+/// `reference` holds at least `n + sums.len() - 1` bytes (shorter: no-op).
+/// One call does a whole row of shifts so each current word is loaded once.
+#[inline]
+pub fn sad_shifts(current: &[u8], reference: &[u8], sums: &mut [u32]) {
+    if sums.is_empty() || reference.len() + 1 < current.len() + sums.len() {
+        return;
+    }
+    selected::sad_shifts(current, reference, sums)
+}
+
+/// A histogram of |diff|, counted into the backend's number of interleaved
+/// lanes (four on x86_64, one on the M4: see `HISTOGRAM_LANES` there).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DiffHistogram {
+    lanes: [[u32; 256]; selected::HISTOGRAM_LANES],
+}
+
+impl DiffHistogram {
+    pub const EMPTY: DiffHistogram = DiffHistogram { lanes: [[0; 256]; selected::HISTOGRAM_LANES] };
+
+    pub fn clear(&mut self) {
+        *self = Self::EMPTY;
+    }
+
+    /// Counts `|a[n] - b[n]|` over the common length.
+    #[inline]
+    pub fn add(&mut self, a: &[u8], b: &[u8]) {
+        selected::diff_histogram(a, b, &mut self.lanes)
+    }
+
+    /// Adds one |diff| (the per-pixel reference path).
+    pub fn add_one(&mut self, diff: u8) {
+        self.lanes[0][usize::from(diff)] += 1;
+    }
+
+    /// The counts per |diff| level.
+    pub fn counts(&self) -> [u32; 256] {
+        let mut counts = self.lanes[0];
+        for lane in &self.lanes[1..] {
+            for (count, &more) in counts.iter_mut().zip(lane) {
+                *count += more;
+            }
+        }
+        counts
+    }
+}
+
+/// The seed's statistics from a |diff| histogram: the sum of |diff| above
+/// [`SUM_LEVEL`] and the count above [`COUNT_LEVEL`].
+pub fn seed_statistics(histogram: &[u32; 256]) -> (u32, u32) {
+    let mut sum_above = 0u32;
+    let mut count_above = 0u32;
+    for (level, &count) in histogram.iter().enumerate() {
+        if level > usize::from(SUM_LEVEL) {
+            sum_above = sum_above.wrapping_add(count.wrapping_mul(level as u32));
+        }
+        if level > usize::from(COUNT_LEVEL) {
+            count_above = count_above.wrapping_add(count);
+        }
+    }
+    (sum_above, count_above)
+}
+
+/// One line of bilinear samples with constant weights (`wx`, `wy` in 0..=255,
+/// 1/256 units): `out[n]` from `upper[n..=n + 1]` and `lower[n..=n + 1]`,
+/// `((top * (256 - wy) + bottom * wy + 2^15) >> 16)` with
+/// `top = upper[n] * (256 - wx) + upper[n + 1] * wx` (likewise `bottom`).
+/// `upper` and `lower` hold at least `out.len() + 1` bytes.
+#[inline]
+pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
+    debug_assert!(wx <= 255 && wy <= 255);
+    selected::bilinear_line(upper, lower, wx, wy, out)
+}
+
+// ---------------------------------------------------------------- remap
+
+/// Fractional bits of the fixed-point source coordinates (Q16.16 pixels).
+pub const FRAC_BITS: u32 = 16;
+/// Bits of the bilinear weights (1/256 px: far below the remap's 1/32 px error bound).
+const WEIGHT_BITS: u32 = 8;
+
+/// Bilinear sample at (u, v) Q16.16 from two camera rows, in integers: the
+/// definition every remap path reproduces.
+#[inline(always)]
+pub fn bilinear(upper: &[u8], lower: &[u8], u: i32, v: i32) -> u8 {
+    let x0 = (u >> FRAC_BITS) as usize;
+    let x1 = (x0 + 1).min(upper.len() - 1);
+    let wx = ((u >> (FRAC_BITS - WEIGHT_BITS)) & 0xFF) as u32;
+    let wy = ((v >> (FRAC_BITS - WEIGHT_BITS)) & 0xFF) as u32;
+    let top = u32::from(upper[x0]) * (256 - wx) + u32::from(upper[x1]) * wx;
+    let bottom = u32::from(lower[x0]) * (256 - wx) + u32::from(lower[x1]) * wx;
+    ((top * (256 - wy) + bottom * wy + (1 << (2 * WEIGHT_BITS - 1))) >> (2 * WEIGHT_BITS)) as u8
+}
+
+/// `dst.copy_from_slice(src)` (same length): a camera row into the remap's ring.
+#[inline]
+pub fn copy_row(dst: &mut [u8], src: &[u8]) {
+    selected::copy_row(dst, src)
+}

@@ -1,0 +1,93 @@
+//! Plain Rust kernels: the reference the SIMD ones are checked against
+//! (`checks`), the SIMD ones' tails, and the kernels of targets without
+//! SIMD ones. Same functions as `sse2` and `dsp`.
+
+#[inline]
+pub fn sad(a: &[u8], b: &[u8]) -> u32 {
+    // u16 lanes over blocks of 256 cannot overflow and vectorise well.
+    let mut total = 0u32;
+    for (a, b) in a.chunks(256).zip(b.chunks(256)) {
+        let block: u16 = a.iter().zip(b).map(|(&x, &y)| u16::from(x.abs_diff(y))).fold(0u16, u16::wrapping_add);
+        total += u32::from(block);
+    }
+    total
+}
+
+#[inline]
+pub fn sad_shifts(current: &[u8], reference: &[u8], sums: &mut [u32]) {
+    for (k, sum) in sums.iter_mut().enumerate() {
+        *sum += sad(current, &reference[k..]);
+    }
+}
+
+/// One lane (`sse2` interleaves four; see there).
+pub const HISTOGRAM_LANES: usize = 1;
+
+#[inline]
+pub fn diff_histogram(a: &[u8], b: &[u8], [histogram]: &mut [[u32; 256]; HISTOGRAM_LANES]) {
+    for (&x, &y) in a.iter().zip(b) {
+        histogram[usize::from(x.abs_diff(y))] += 1;
+    }
+}
+
+#[inline]
+pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
+    let (ax, ay) = (256 - wx, 256 - wy);
+    for ((pixel, u), l) in out.iter_mut().zip(upper.windows(2)).zip(lower.windows(2)) {
+        let top = u32::from(u[0]) * ax + u32::from(u[1]) * wx;
+        let bottom = u32::from(l[0]) * ax + u32::from(l[1]) * wx;
+        *pixel = ((top * ay + bottom * wy + (1 << 15)) >> 16) as u8;
+    }
+}
+
+// ------------------------------------------------------------ pinhole rows
+
+#[inline]
+pub fn pinhole_vertical(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16]) {
+    pinhole_vertical_flipped(upper, lower, wy, line, 0);
+}
+
+/// # Safety
+/// Every pixel's `x0 + 1` indexes `line` (see `pinhole::Horizontal`).
+#[inline]
+pub unsafe fn pinhole_horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]) {
+    // SAFETY: the caller's contract.
+    unsafe { pinhole_horizontal_flipped(line, u, step, out, 0) }
+}
+
+/// The vertical pass storing `V ^ flip` (the SIMD kernels' line
+/// holds `V ^ 0x8000`; they use this for the vectorised x86 pass and
+/// for the M4's tail).
+#[inline]
+pub fn pinhole_vertical_flipped(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16], flip: u16) {
+    let (ay, wy) = ((256 - wy) as u16, wy as u16);
+    for ((v, &a), &b) in line.iter_mut().zip(upper).zip(lower) {
+        // <= 255 * 256: no overflow.
+        *v = (u16::from(a) * ay + u16::from(b) * wy) ^ flip;
+    }
+}
+
+/// The horizontal pass from a line holding `V ^ flip` (the SIMD
+/// kernels' tails).
+///
+/// # Safety
+/// Every pixel's `x0 + 1` indexes `line` (see `pinhole::Horizontal`).
+#[inline]
+pub unsafe fn pinhole_horizontal_flipped(line: &[u16], u: i32, step: i32, out: &mut [u8], flip: u16) {
+    let mut u = u as u32;
+    let base = line.as_ptr();
+    for pixel in out {
+        let x = (u >> 16) as usize;
+        let wx = (u >> 8) & 0xFF;
+        // SAFETY: x + 1 < line.len() (the caller's contract).
+        let (v0, v1) = unsafe { (u32::from(*base.add(x) ^ flip), u32::from(*base.add(x + 1) ^ flip)) };
+        *pixel = ((v0 * (256 - wx) + v1 * wx + (1 << 15)) >> 16) as u8;
+        u = u.wrapping_add(step as u32);
+    }
+}
+
+/// `dst.copy_from_slice(src)` (same length); see [`super::copy_row`].
+#[inline]
+pub fn copy_row(dst: &mut [u8], src: &[u8]) {
+    dst.copy_from_slice(src);
+}
