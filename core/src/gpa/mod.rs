@@ -37,6 +37,8 @@ mod parallax;
 mod prediction;
 mod residue;
 mod row;
+#[cfg(test)]
+mod scenes;
 mod shift_search;
 mod warp;
 

@@ -28,7 +28,7 @@ pub const HEIGHT_FRACTIONS: [f64; 8] = [0.0, 0.04, 0.08, 0.13, 0.19, 0.27, 0.37,
 /// the apparent position gives. The first sits near that limit (the 10 mm
 /// dip against the 25 mm drop is decided by the parabola around it), the
 /// last at the deepest, with one between for the parabola.
-pub const DROP_STEPS: [f64; 3] = [0.12, 0.45, 1.0];
+pub const DROP_STEPS: [f64; 4] = [0.1, 0.2, 0.45, 1.0];
 pub(super) const HYPOTHESES: usize = HEIGHT_FRACTIONS.len() + DROP_STEPS.len();
 /// Where the ground (index 0) sits when the hypotheses are ordered by
 /// displacement: after the drops, deepest first.

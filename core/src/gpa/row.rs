@@ -185,7 +185,7 @@ impl Gpa<'_> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::super::{Gpa, GpaConfig};
     use crate::geometry::{Aoi, Intrinsics, Mount, Rig};
     use crate::grid::{GridConfig, KgGrid};
@@ -194,7 +194,7 @@ mod tests {
     use crate::remap::RemapTable;
     use core::ops::Range;
 
-    fn rig() -> Rig {
+    pub(in crate::gpa) fn rig() -> Rig {
         Rig::new_checked(
             Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
             Mount { height_mm: 400.0, tilt_deg: 32.0 },
@@ -204,7 +204,7 @@ mod tests {
     }
 
     /// Ground texture at world (x, z): smooth structure, edges and noise-like detail.
-    fn texture(x: f64, z: f64) -> u8 {
+    pub(in crate::gpa) fn texture(x: f64, z: f64) -> u8 {
         let smooth = 90.0 * libm::sin(x * 0.031) * libm::cos(z * 0.027);
         let edges = if (libm::floor(x / 37.0) as i64 + libm::floor(z / 53.0) as i64) % 3 == 0 { 45.0 } else { 0.0 };
         let hash = ((libm::floor(x / 3.0) as i64).wrapping_mul(73_856_093) ^ (libm::floor(z / 3.0) as i64).wrapping_mul(19_349_663)) & 31;
