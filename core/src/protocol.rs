@@ -790,6 +790,8 @@ pub mod checks {
             Message::Odometry(Odometry { frame: 3, t_s: 0.3, x_mm: -0.1, z_mm: 19.43, yaw_deg: -0.0477 }),
             Message::Frame(sample_report()),
             Message::Frame(FrameReport::default()),
+            // A drop's depth: obstacle_h_mm is signed on the wire (issue 14).
+            Message::Frame(FrameReport { obstacle_h_mm: Some(-150), ..sample_report() }),
             Message::Stats(stats),
             Message::Fault(Fault { code: FaultCode::FrameRead, frame: 12 }),
             Message::End,

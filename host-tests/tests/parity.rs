@@ -70,3 +70,9 @@ fn parity_approach_box() {
 fn parity_noisy_approach() {
     parity("noisy_approach");
 }
+
+/// Issue 14: a drop's alarm, negative obstacle_h_mm through the protocol.
+#[test]
+fn parity_ledge() {
+    parity("ledge");
+}

@@ -108,9 +108,8 @@ impl Alarm {
     /// `baseline_mm` from its keyframe shows too little parallax to clear
     /// an alarm when the baseline is short (under half the keyframe
     /// travel); a drop's parallax is smaller still (T*d/(H+d), under T
-    /// however deep), so a drop is held until a frame with the full
-    /// keyframe travel decides again. A held hazard is moved by the
-    /// odometry `step`.
+    /// however deep), so a drop is held through baselines under three
+    /// quarters of the travel. A held hazard is moved by the odometry `step`.
     pub(super) fn decide(
         &mut self,
         parallax: Option<(Footprint, i32)>,
@@ -127,7 +126,7 @@ impl Alarm {
         let found = parallax.map(|(footprint, height)| (footprint, Some(height))).or(residue.map(|footprint| (footprint, None)));
         let too_short = |held: &Hazard| {
             let is_drop = held.1.is_some_and(|h| h < 0);
-            let needed = if is_drop { 1.0 } else { 0.5 } * config.keyframe_travel_mm;
+            let needed = if is_drop { 0.75 } else { 0.5 } * config.keyframe_travel_mm;
             baseline_mm < needed
         };
         let hazard = match (found, self.previous) {

@@ -35,6 +35,22 @@ pub(super) struct Footprint {
     pub(super) right_mm: i32,
 }
 
+/// A set of cells, one bit each (a `[bool; MAX_CELLS]` would cost 1.7 KB
+/// of the M4's stack per flood).
+struct CellSet([u32; MAX_CELLS.div_ceil(32)]);
+
+impl CellSet {
+    const EMPTY: CellSet = CellSet([0; MAX_CELLS.div_ceil(32)]);
+
+    fn contains(&self, cell: usize) -> bool {
+        self.0[cell / 32] & (1 << (cell % 32)) != 0
+    }
+
+    fn insert(&mut self, cell: usize) {
+        self.0[cell / 32] |= 1 << (cell % 32);
+    }
+}
+
 /// Visits the cells connected to `start` (neighbours within `radius` cells,
 /// in a grid of `size` = (columns, rows) cells stored row by row)
 /// for which `member` holds, marking them in `seen`; `visit` gets (cell,
@@ -43,13 +59,13 @@ fn flood_cells(
     size: (usize, usize),
     radius: i32,
     start: usize,
-    seen: &mut [bool],
+    seen: &mut CellSet,
     member: impl Fn(usize) -> bool,
     mut visit: impl FnMut(usize, usize, usize),
 ) {
     let (w, h) = size;
     let mut stack: heapless::Vec<u16, MAX_FLOOD_CELLS> = heapless::Vec::new();
-    seen[start] = true;
+    seen.insert(start);
     let _ = stack.push(start as u16);
     while let Some(cell) = stack.pop() {
         let cell = usize::from(cell);
@@ -62,14 +78,17 @@ fn flood_cells(
                     continue;
                 }
                 let neighbour = nr as usize * w + nc as usize;
-                if !seen[neighbour] && member(neighbour) {
-                    seen[neighbour] = true;
+                if !seen.contains(neighbour) && member(neighbour) {
+                    seen.insert(neighbour);
                     let _ = stack.push(neighbour as u16);
                 }
             }
         }
     }
 }
+
+/// Cells a group needs where heights are coarse (short baselines, drops).
+const LARGE_GROUP_CELLS: usize = 8;
 
 /// Which side of the ground a group of parallax cells lies on.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -135,10 +154,10 @@ fn parallax_group(
         Side::Below => i32::from(heights[cell]) <= -min_height,
     };
     let aoi = layout.aoi_mm();
-    let mut seen = [false; MAX_CELLS];
+    let mut seen = CellSet::EMPTY;
     let mut best: Option<(f64, f64, f64, f64)> = None;
     for start in 0..h * w {
-        if seen[start] || !member(start) {
+        if seen.contains(start) || !member(start) {
             continue;
         }
         let mut with_residue = false;
@@ -190,9 +209,11 @@ fn parallax_group(
         // parallax over a wider patch.
         // A short baseline measures heights coarsely, so its footprints
         // wander: there a blob must be large to raise an alarm by itself.
-        if group < 3 || (!with_residue && group < 4) || (short_baseline && group < 8) {
+        let large = group >= LARGE_GROUP_CELLS;
+        if group < 3 || (!with_residue && group < 4) || (short_baseline && !large) {
             continue;
         }
+
         let height = match side {
             Side::Above => tallest,
             Side::Below => {
@@ -219,6 +240,14 @@ fn parallax_group(
             best = Some((nearest, left.max(-aoi.half_width), right.min(aoi.half_width), height));
         }
     }
+    // A drop must show over an area: its parallax is at most T*d/(H+d),
+    // so an odometry or heading error fakes a small shallow patch more
+    // easily, and a hole a wheel can fall into shows its lower level over
+    // many cells (though, far and seen at a grazing angle, in scattered
+    // ones; the groups in front mark its edge).
+    if side == Side::Below && (0..h * w).filter(|&cell| member(cell)).count() < LARGE_GROUP_CELLS {
+        return None;
+    }
     best.map(|(z, left, right, height)| {
         let z = z.max(aoi.near);
         let footprint =
@@ -232,11 +261,11 @@ pub(super) fn residue_blobs(layout: &Layout, residue: &Residue, config: &GpaConf
     let mut blobs: heapless::Vec<Blob, MAX_BLOBS> = heapless::Vec::new();
     let cells = &layout.cells;
     let (w, h) = (cells.wide, cells.high);
-    let mut label = [false; MAX_CELLS];
+    let mut label = CellSet::EMPTY;
     let percent = |cell: usize| residue.percent(cell, cells.px);
     let active = |cell: usize| percent(cell) >= config.active_cell_percent;
     for start in 0..h * w {
-        if label[start] || !active(start) {
+        if label.contains(start) || !active(start) {
             continue;
         }
         let (sr, sc) = ((start / w) as u8, (start % w) as u8);
