@@ -94,3 +94,23 @@ impl Cells {
         }
     }
 }
+
+/// A set of cells, one bit each (a `[bool; MAX_CELLS]` would cost 1.7 KB
+/// of the M4's stack per flood).
+pub(super) struct CellSet([u32; MAX_CELLS.div_ceil(32)]);
+
+impl CellSet {
+    pub(super) const EMPTY: CellSet = CellSet([0; MAX_CELLS.div_ceil(32)]);
+
+    pub(super) fn contains(&self, cell: usize) -> bool {
+        self.0[cell / 32] & (1 << (cell % 32)) != 0
+    }
+
+    pub(super) fn insert(&mut self, cell: usize) {
+        self.0[cell / 32] |= 1 << (cell % 32);
+    }
+
+    pub(super) fn remove(&mut self, cell: usize) {
+        self.0[cell / 32] &= !(1 << (cell % 32));
+    }
+}

@@ -400,7 +400,7 @@ impl<'b> Gpa<'b> {
         if row >= cells.high || column >= cells.wide {
             return 0;
         }
-        self.parallax.height[row * cells.wide + column]
+        self.parallax.height.get(row * cells.wide + column)
     }
     /// Coherence cells (rows, columns).
     pub fn cells(&self) -> (usize, usize) {

@@ -7,9 +7,10 @@
 //! thresholds carry across cameras.
 
 use super::config::GpaConfig;
-use super::layout::Layout;
+use super::parallax::CellHeights;
+use super::layout::{CellSet, Layout};
 use super::residue::Residue;
-use crate::limits::{MAX_BLOBS, MAX_BLOB_CELLS, MAX_CELLS, MAX_CELLS_SIDE, MAX_FLOOD_CELLS};
+use crate::limits::{MAX_BLOBS, MAX_BLOB_CELLS, MAX_CELLS_SIDE, MAX_FLOOD_CELLS};
 
 /// A connected group of hot cells.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -33,22 +34,6 @@ pub(super) struct Footprint {
     pub(super) near_mm: i32,
     pub(super) left_mm: i32,
     pub(super) right_mm: i32,
-}
-
-/// A set of cells, one bit each (a `[bool; MAX_CELLS]` would cost 1.7 KB
-/// of the M4's stack per flood).
-struct CellSet([u32; MAX_CELLS.div_ceil(32)]);
-
-impl CellSet {
-    const EMPTY: CellSet = CellSet([0; MAX_CELLS.div_ceil(32)]);
-
-    fn contains(&self, cell: usize) -> bool {
-        self.0[cell / 32] & (1 << (cell % 32)) != 0
-    }
-
-    fn insert(&mut self, cell: usize) {
-        self.0[cell / 32] |= 1 << (cell % 32);
-    }
 }
 
 /// Visits the cells connected to `start` (neighbours within `radius` cells,
@@ -103,7 +88,7 @@ enum Side {
 /// signed height (mm; a drop's is minus its depth). See [`parallax_group`].
 pub(super) fn parallax_obstacle(
     layout: &Layout,
-    heights: &[i16; MAX_CELLS],
+    heights: &CellHeights,
     residue: &Residue,
     config: &GpaConfig,
     short_baseline: bool,
@@ -137,7 +122,7 @@ pub(super) fn parallax_obstacle(
 /// the hole starts at the nearest cells' near side.
 fn parallax_group(
     layout: &Layout,
-    heights: &[i16; MAX_CELLS],
+    heights: &CellHeights,
     residue: &Residue,
     config: &GpaConfig,
     short_baseline: bool,
@@ -150,8 +135,8 @@ fn parallax_group(
     // an integer compare per cell instead of a soft-float one on the M4.
     let min_height = libm::ceil(config.min_obstacle_height_mm) as i32;
     let member = |cell: usize| cell >= first_row * w && match side {
-        Side::Above => i32::from(heights[cell]) >= min_height,
-        Side::Below => i32::from(heights[cell]) <= -min_height,
+        Side::Above => i32::from(heights.get(cell)) >= min_height,
+        Side::Below => i32::from(heights.get(cell)) <= -min_height,
     };
     let aoi = layout.aoi_mm();
     let mut seen = CellSet::EMPTY;
@@ -162,8 +147,8 @@ fn parallax_group(
         }
         let mut with_residue = false;
         let mut footprints: heapless::Vec<f64, MAX_BLOB_CELLS> = heapless::Vec::new();
-        // Below: the nearest edge per cell column.
-        let mut edges = [f64::MAX; MAX_CELLS_SIDE];
+        // Below: per cell column, 1 + the nearest cell row (0: none).
+        let mut nearest_rows = [0u8; MAX_CELLS_SIDE];
         // Above: the tallest cell; below: the cells' depths, for their median
         // (past an edge every cell sees the same lower level).
         let mut depths: heapless::Vec<i16, MAX_BLOB_CELLS> = heapless::Vec::new();
@@ -174,7 +159,7 @@ fn parallax_group(
         flood_cells((w, h), 2, start, &mut seen, member, |cell, r, c| {
             group += 1;
             with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
-            let height = f64::from(heights[cell]);
+            let height = f64::from(heights.get(cell));
             let scale = match side {
                 // The cell's measured height belongs to its centre.
                 Side::Above => {
@@ -185,9 +170,7 @@ fn parallax_group(
                     scale
                 }
                 Side::Below => {
-                    let near_side = ((r + 1) * cells.px) as f64 - 0.5;
-                    let (_, z_near) = grid.pixel_to_ground(0.0, near_side);
-                    edges[c] = edges[c].min(z_near);
+                    nearest_rows[c] = nearest_rows[c].max(r as u8 + 1);
                     1.0
                 }
             };
@@ -198,7 +181,7 @@ fn parallax_group(
             match side {
                 Side::Above => tallest = tallest.max(height),
                 Side::Below => {
-                    let _ = depths.push(heights[cell]);
+                    let _ = depths.push(heights.get(cell));
                 }
             }
         });
@@ -217,7 +200,10 @@ fn parallax_group(
         let height = match side {
             Side::Above => tallest,
             Side::Below => {
-                footprints.extend(edges.iter().copied().filter(|z| *z < f64::MAX));
+                // A cell's near side: the bottom of its last pixel row.
+                let near_side = |rows: u8| (usize::from(rows) * cells.px) as f64 - 0.5;
+                let edges = nearest_rows.iter().filter(|&&rows| rows > 0).map(|&rows| grid.pixel_to_ground(0.0, near_side(rows)).1);
+                footprints.extend(edges);
                 depths.sort_unstable();
                 f64::from(depths[depths.len() / 2])
             }

@@ -9,7 +9,7 @@
 use super::config::GpaConfig;
 use super::decision::Noise;
 use super::keyframe::Keyframe;
-use super::layout::Cells;
+use super::layout::{CellSet, Cells};
 use super::warp::{clip, to_q16, RowWarp};
 use crate::grid::{KgGrid, MAX_GRID_SIDE};
 use crate::limits::{KEYFRAME_SPARE_ROWS, MAX_CELLS, MAX_CELLS_SIDE};
@@ -187,6 +187,37 @@ fn by_rank(rank: usize) -> usize {
     }
 }
 
+/// Parallax height per cell (mm, 0 = ground or undecided, negative below
+/// the ground), up to 255 mm either way: one byte and one bit a cell, for
+/// the M4's RAM.
+pub(super) struct CellHeights {
+    magnitude: [u8; MAX_CELLS],
+    below: CellSet,
+}
+
+impl CellHeights {
+    pub(super) const EMPTY: CellHeights = CellHeights { magnitude: [0; MAX_CELLS], below: CellSet::EMPTY };
+
+    pub(super) fn get(&self, cell: usize) -> i16 {
+        let magnitude = i16::from(self.magnitude[cell]);
+        if self.below.contains(cell) {
+            -magnitude
+        } else {
+            magnitude
+        }
+    }
+
+    /// Sets a cell's height, clamped to ±255 mm.
+    pub(super) fn set(&mut self, cell: usize, height: i16) {
+        self.magnitude[cell] = height.unsigned_abs().min(u16::from(u8::MAX)) as u8;
+        if height < 0 {
+            self.below.insert(cell);
+        } else {
+            self.below.remove(cell);
+        }
+    }
+}
+
 /// Per-hypothesis SAD and pixel count of the cells of the current cell row.
 pub(super) struct CellRowSums {
     pub(super) sad: [[u32; MAX_CELLS_SIDE]; HYPOTHESES],
@@ -215,17 +246,16 @@ pub(super) struct Parallax {
     pub(super) hypotheses: Hypotheses,
     /// Hypothesis 0, the ground, is summed by the residue stage.
     pub(super) sums: CellRowSums,
-    /// Parallax height (mm, 0 = ground or undecided, negative below the
-    /// ground) per cell, this frame.
-    pub(super) height: [i16; MAX_CELLS],
+    /// Parallax height per cell, this frame.
+    pub(super) height: CellHeights,
 }
 
 impl Parallax {
     pub(super) const EMPTY: Parallax =
-        Parallax { hypotheses: Hypotheses::NONE, sums: CellRowSums::EMPTY, height: [0; MAX_CELLS] };
+        Parallax { hypotheses: Hypotheses::NONE, sums: CellRowSums::EMPTY, height: CellHeights::EMPTY };
 
     pub(super) fn clear(&mut self) {
-        self.height = [0; MAX_CELLS];
+        self.height = CellHeights::EMPTY;
         self.sums.clear();
     }
 
@@ -282,7 +312,7 @@ impl Parallax {
         for column in 0..cells.wide {
             let pixels = self.sums.pixels[0][column];
             let cell = cell_row * cells.wide + column;
-            self.height[cell] = 0;
+            self.height.set(cell, 0);
             if pixels < min_pixels || self.hypotheses.usable == 0 {
                 continue;
             }
@@ -299,9 +329,8 @@ impl Parallax {
             let fraction = self.hypotheses.height_fraction(&sads, pixels, min_gain, noise.floor(), config.parallax_gain_percent);
             if let Some(fraction) = fraction {
                 let height = libm::round(fraction * camera_height_mm);
-                // Above: capped like the 8-bit heights of old; below: the
-                // hypotheses reach no deeper than the configured depth.
-                self.height[cell] = if height > 0.0 { height.clamp(1.0, 255.0) } else { height.clamp(-1000.0, -1.0) } as i16;
+                let magnitude = libm::fabs(height).clamp(1.0, f64::from(u8::MAX)) as i16;
+                self.height.set(cell, if height > 0.0 { magnitude } else { -magnitude });
             }
         }
         self.sums.clear();

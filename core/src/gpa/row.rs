@@ -239,7 +239,7 @@ pub(super) mod tests {
         v.push(gpa.search.compared_pixels);
         v.extend(gpa.residue.cell_residue.iter().map(|&x| u32::from(x)));
         v.extend(gpa.residue.cell_valid.iter().map(|&x| u32::from(x)));
-        v.extend(gpa.parallax.height.iter().map(|&x| x as u32));
+        v.extend((0..crate::limits::MAX_CELLS).map(|cell| gpa.parallax.height.get(cell) as u32));
         v.extend(gpa.residue.row_residue.iter().map(|&x| u32::from(x)));
         let s = gpa.config.search_radius;
         let span = band_columns.start + MAX_SEARCH_RADIUS..band_columns.end + MAX_SEARCH_RADIUS;
