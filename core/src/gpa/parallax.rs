@@ -218,10 +218,12 @@ impl CellHeights {
     }
 }
 
-/// Per-hypothesis SAD and pixel count of the cells of the current cell row.
+/// Per-hypothesis SAD and pixel count of the cells of the current cell
+/// row: a cell is at most [`super::layout::MAX_CELL_PX`] square, so 16
+/// and 8 bits hold them.
 pub(super) struct CellRowSums {
-    pub(super) sad: [[u32; MAX_CELLS_SIDE]; HYPOTHESES],
-    pub(super) pixels: [[u16; MAX_CELLS_SIDE]; HYPOTHESES],
+    pub(super) sad: [[u16; MAX_CELLS_SIDE]; HYPOTHESES],
+    pub(super) pixels: [[u8; MAX_CELLS_SIDE]; HYPOTHESES],
 }
 
 impl CellRowSums {
@@ -236,8 +238,8 @@ impl CellRowSums {
     /// Adds `pixels` pixels of SAD `sad` to hypothesis `k` of cell `column`.
     #[inline(always)]
     pub(super) fn add(&mut self, k: usize, column: usize, pixels: u16, sad: u32) {
-        self.pixels[k][column] += pixels;
-        self.sad[k][column] += sad;
+        self.pixels[k][column] += pixels as u8;
+        self.sad[k][column] += sad as u16;
     }
 }
 
@@ -290,12 +292,12 @@ impl Parallax {
                 }
                 cells.segments(columns, |cell_column, columns| {
                     // Counted before the sum is taken: nothing stays live across it.
-                    self.sums.pixels[k][cell_column] += columns.len() as u16;
+                    self.sums.pixels[k][cell_column] += columns.len() as u8;
                     #[cfg(flatland_dsp)]
                     let sum = super::kernels::sad(&row[columns.clone()], &samples[columns]);
                     #[cfg(not(flatland_dsp))]
                     let sum: u32 = samples[columns].iter().map(|&d| u32::from(d)).sum();
-                    self.sums.sad[k][cell_column] += sum;
+                    self.sums.sad[k][cell_column] += sum as u16;
                 });
             }
         }
@@ -310,7 +312,7 @@ impl Parallax {
         let min_pixels = (cells.px * cells.px / 2) as u16;
         let min_gain = config.parallax_min_gain.max(noise.level());
         for column in 0..cells.wide {
-            let pixels = self.sums.pixels[0][column];
+            let pixels = u16::from(self.sums.pixels[0][column]);
             let cell = cell_row * cells.wide + column;
             self.height.set(cell, 0);
             if pixels < min_pixels || self.hypotheses.usable == 0 {

@@ -157,11 +157,11 @@ impl Gpa<'_> {
                 // The ground is the null hypothesis: it gets the half-pixel
                 // tolerance, the heights must beat it outright.
                 sums.pixels[0][cell_column] += 1;
-                sums.sad[0][cell_column] += u32::from(ground_residue);
+                sums.sad[0][cell_column] += u16::from(ground_residue);
                 for k in hypotheses.active() {
                     if let Some(sample) = hypothesis_rows[k][c] {
                         sums.pixels[k][cell_column] += 1;
-                        sums.sad[k][cell_column] += u32::from(value.abs_diff(sample));
+                        sums.sad[k][cell_column] += u16::from(value.abs_diff(sample));
                     }
                 }
             }
