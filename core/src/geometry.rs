@@ -402,7 +402,8 @@ impl Rig {
     }
 
     /// A point at height h above ground position (x, z) -> pixel.
-    pub fn point_at_height_to_pixel(&self, x_mm: f64, z_mm: f64, h_mm: f64) -> Option<Pixel> {
+    #[cfg(test)]
+    fn point_at_height_to_pixel(&self, x_mm: f64, z_mm: f64, h_mm: f64) -> Option<Pixel> {
         self.point_to_pixel(Point3 { x: x_mm, y: h_mm, z: z_mm })
     }
 
@@ -421,7 +422,8 @@ impl Rig {
     }
 
     /// Inverse of (5)+(6): (K, G) -> pixel. (K, G) is a ray through the optical centre.
-    pub fn kg_to_pixel(&self, kg: Kg) -> Option<Pixel> {
+    #[cfg(test)]
+    fn kg_to_pixel(&self, kg: Kg) -> Option<Pixel> {
         // Any point on the ray: y' = H - y = 1 mm.
         self.point_to_pixel(Point3 { x: kg.k, y: self.mount.height_mm - 1.0, z: kg.g })
     }

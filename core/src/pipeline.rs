@@ -72,7 +72,14 @@ impl fmt::Display for FrameError {
     }
 }
 
-impl core::error::Error for FrameError {}
+impl core::error::Error for FrameError {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
+        match self {
+            FrameError::Remap(error) => Some(error),
+            _ => None,
+        }
+    }
+}
 
 /// Clock ticks spent per stage on the last frame (all 0 without a clock).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -21,6 +21,8 @@ use core::fmt::{self, Write};
 
 use crate::geometry::{Aoi, Distortion, Intrinsics, Mount, Rig, RigError};
 use crate::limits::MAX_LINE;
+use crate::motion::Pose;
+use crate::pipeline::PoseSample;
 use crate::report::FrameReport;
 
 /// Bumped whenever a message's fields change meaning or count.
@@ -96,6 +98,14 @@ pub struct Odometry {
     pub x_mm: f64,
     pub z_mm: f64,
     pub yaw_deg: f64,
+}
+
+/// The pipeline's view of an odometry message: when, and where.
+impl From<Odometry> for PoseSample {
+    fn from(odometry: Odometry) -> Self {
+        let Odometry { frame: _, t_s, x_mm, z_mm, yaw_deg } = odometry;
+        PoseSample { t_s, pose: Pose { x_mm, z_mm, yaw_deg } }
+    }
 }
 
 /// What the firmware counted on its serial input and frame stream.

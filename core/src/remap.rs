@@ -468,7 +468,8 @@ impl RemapTable {
     }
 
     /// Fractional bits of the lens arithmetic (0 without distortion).
-    pub fn lens_bits(&self) -> u32 {
+    #[cfg(test)]
+    fn lens_bits(&self) -> u32 {
         self.lens.q
     }
 

@@ -19,16 +19,11 @@ use embedded_io::{Read, Write};
 use flatland_core::geometry::Rig;
 use flatland_core::fusion::GtiStage;
 use flatland_core::gpa::{Gpa, GpaConfig, GpaProfile};
-#[cfg(feature = "full-frame")]
-use flatland_core::gpa::KEYFRAME_SPARE_ROWS;
-#[cfg(feature = "full-frame")]
-use flatland_core::grid::MAX_GRID_SIDE;
 use flatland_core::grid::{GridConfig, KgGrid};
-use flatland_core::motion::Pose;
+#[cfg(feature = "full-frame")]
+use flatland_core::limits::{KEYFRAME_SPARE_ROWS, MAX_GRID_SIDE};
 use flatland_core::pipeline::{FrameError, FrameTiming, Outcome, Pipeline, PoseSample};
-use flatland_core::protocol::{
-    encode_line, Decoder, Fault, FaultCode, LinkStats, Message, Odometry, RigRecord,
-};
+use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, RigRecord};
 use flatland_core::remap::{RemapError, RemapTable};
 use flatland_core::report::FrameReport;
 use static_cell::ConstStaticCell;
@@ -121,7 +116,7 @@ pub struct Options {
     /// A grid without margins, the AOI all of it (`GridConfig::without_margins`;
     /// the full-frame benchmark, which sends a square AOI).
     pub no_margins: bool,
-    /// Per-stage profile of the detector (`Gpa::set_clock`), with `bench`.
+    /// Per-stage profile of the detector (`Pipeline::set_clock`), with `bench`.
     pub clock: Option<fn() -> u32>,
 }
 
@@ -146,7 +141,7 @@ impl<S: Read + Write> Link<S> {
             }
             match self.decoder.push(byte[0]) {
                 Some(Ok(message)) => return message,
-                Some(Err(error)) => defmt::warn!("serial: dropped a line ({=str})", error.as_str()),
+                Some(Err(error)) => defmt::warn!("serial: dropped a line ({})", error),
                 None => {}
             }
         }
@@ -159,7 +154,7 @@ impl<S: Read + Write> Link<S> {
                     defmt::warn!("serial: write failed");
                 }
             }
-            Err(_) => defmt::error!("serial: cannot encode {=str}", message.tag()),
+            Err(error) => defmt::error!("serial: cannot encode {=str}: {}", message.tag(), error),
         }
     }
 
@@ -385,8 +380,8 @@ where
     };
     let table: &RemapTable = table;
     let camera = (table.camera_width(), table.camera_height());
-    // The detector (~17 KB) lives in a static, initialised in place: by value
-    // LLVM keeps stack temporaries of it.
+    // The detector lives in a static, initialised in place: by value LLVM
+    // keeps stack temporaries of it, and it is kilobytes.
     if let Err(error) = gpa.init(&rig, &grid, table, GpaConfig::default(), &mut keyframe[..]) {
         defmt::error!("detector refused: {}", error);
         link.fault(SetupError::Detector(error).fault_code(), 0);
@@ -397,7 +392,8 @@ where
     // still a typed fault, not a panic.
     let mut pipeline = match Pipeline::new(table, &mut ring[..], gpa, gti) {
         Ok(pipeline) => pipeline,
-        Err(_) => {
+        Err(error) => {
+            defmt::error!("pipeline refused: {}", error);
             link.fault(FaultCode::CameraTooLarge, 0);
             return link.finish();
         }
@@ -415,13 +411,12 @@ where
             }
         };
         let cycle_start = counter.now();
-        let Odometry { frame, t_s, x_mm, z_mm, yaw_deg } = odometry;
-        let pose = PoseSample { t_s, pose: Pose { x_mm, z_mm, yaw_deg } };
-        let motion = match pipeline.begin(frame, Some(pose)) {
+        let frame = odometry.frame;
+        let motion = match pipeline.begin(frame, Some(PoseSample::from(odometry))) {
             Ok(motion) => motion,
-            Err(_) => {
+            Err(error) => {
                 // The pose cannot be trusted: the frame is skipped and the next one restarts.
-                defmt::warn!("frame {=u32}: time goes backwards; frame skipped", frame);
+                defmt::warn!("frame {=u32} skipped: {}", frame, error);
                 let _ = alarm.set_low();
                 continue;
             }

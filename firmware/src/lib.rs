@@ -26,7 +26,7 @@ use frame_loop::{Board, Options};
 /// --full-frame`). A real board has no command line: it runs as `flatland
 /// detect` does.
 pub fn command_line_options(profile_clock: Option<fn() -> u32>) -> Options {
-    let mut buf = [0u8; 512];
+    let mut buf = [0u8; rt::COMMAND_LINE_CAPACITY];
     let line = rt::command_line(&mut buf);
     let has = |flag: &[u8]| rt::words(line).any(|word| word == flag);
     let mm_per_px = rt::words(line)

@@ -58,6 +58,10 @@ unsafe fn DefaultHandler(irqn: i16) {
 
 defmt::timestamp!("{=u32}", crate::board::emulated::instructions_now());
 
+/// Room for the semihosting command line: QEMU's kernel path, then the
+/// options (a few words).
+pub const COMMAND_LINE_CAPACITY: usize = 512;
+
 /// The semihosting command line (QEMU's `-append`), copied into `buf`.
 /// Empty when the host gives none or it does not fit (QEMU prefixes the
 /// kernel's path, so leave room).

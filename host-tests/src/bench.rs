@@ -12,10 +12,11 @@
 //! counter; its reads add a little.
 
 use crate::detect::{push_frame, DetectConfig, Detector, Heights};
-use crate::recording::{PoseRow, Recording};
+use crate::recording::Recording;
 use flatland_core::geometry::{Aoi, Pixel, Rig};
 use flatland_core::gpa::{GpaConfig, GpaProfile};
-use flatland_core::grid::{GridConfig, KgGrid, MAX_GRID_SIDE};
+use flatland_core::grid::{GridConfig, KgGrid};
+use flatland_core::limits::MAX_GRID_SIDE;
 use flatland_core::pipeline::{FrameTiming, PoseSample};
 use std::fmt::Write as _;
 use std::hint::black_box;
@@ -108,7 +109,7 @@ impl FullFrame {
             format!("a 256x256 square AOI at {mm_per_px} mm/px ({:.0} mm) does not fit in the camera's view", side_mm(mm_per_px))
         })?;
         let near_mm = rig.aoi().near_mm.clamp(first, last);
-        let rig = square_rig(rig, mm_per_px, near_mm).map_err(|e| format!("full-frame rig: {e:?}"))?;
+        let rig = square_rig(rig, mm_per_px, near_mm).map_err(|e| format!("full-frame rig: {e}"))?;
         let full = FullFrame { rig, mm_per_px };
         // Rounding of an inexact resolution can add a row or lose an AOI column.
         let grid = KgGrid::for_rig(&rig, &full.grid_config()).map_err(|e| format!("full-frame grid at {mm_per_px} mm/px: {e}"))?;
@@ -170,6 +171,31 @@ fn near_edges(rig: &Rig, mm_per_px: f64) -> Option<(f64, f64)> {
 
 /// Runs the benchmark; returns the `key: value` lines. `full_frame`: the
 /// worst case of [`FullFrame`] instead of the rig's AOI and margins.
+/// The benchmark's set-up: recording, grid, search window, pairs, samples.
+fn header(recording: &Recording, rig: &Rig, detector: &Detector, search: usize, full_frame: bool, pairs: usize) -> String {
+    let mut out = String::new();
+    let (grid, table) = (&detector.front_end.grid, &detector.front_end.table);
+    let aoi = grid.aoi_pixels(rig);
+    let valid: usize = (0..grid.height()).map(|j| table.valid_columns(j).len()).sum();
+    let _ = writeln!(out, "recording: {}", recording.dir.display());
+    if full_frame {
+        let a = rig.aoi();
+        let _ = writeln!(
+            out,
+            "full_frame: AOI x +-{} mm, z {}..{} mm, no margins",
+            a.half_width_mm, a.near_mm, a.far_mm
+        );
+    }
+    let _ = writeln!(out, "grid: {}x{}", grid.width(), grid.height());
+    let _ = writeln!(out, "mm_per_px: {}", grid.mm_per_px);
+    let _ = writeln!(out, "search: {search} ({} shifts)", (2 * search + 1).pow(2));
+    let _ = writeln!(out, "aoi_pixels: {}", aoi.area());
+    let _ = writeln!(out, "valid_kg_pixels: {valid} of {} ({:.1} %, seen by the camera)", grid.len(), 100.0 * valid as f64 / grid.len() as f64);
+    let _ = writeln!(out, "pairs: {pairs}");
+    let _ = writeln!(out, "samples: {SAMPLES} after {WARM_UP} warm-up, median, one thread");
+    out
+}
+
 pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, full_frame: bool) -> Result<String, String> {
     let (rig, grid_config) = if full_frame {
         let full = FullFrame::for_rig(&recording.rig, mm_per_px)?;
@@ -188,33 +214,13 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
             continue;
         }
         let frames = (recording.load_frame(a).map_err(|e| e.to_string())?, recording.load_frame(b).map_err(|e| e.to_string())?);
-        let sample = |row: &PoseRow| PoseSample { t_s: row.t_s, pose: row.pose };
-        pairs.push(((a, sample(pa), frames.0), (b, sample(pb), frames.1)));
+        pairs.push(((a, PoseSample::from(pa), frames.0), (b, PoseSample::from(pb), frames.1)));
     }
     if pairs.is_empty() {
         return Err("no consecutive frames with poses".into());
     }
 
-    let mut out = String::new();
-    let (grid, table) = (&detector.front_end.grid, &detector.front_end.table);
-    let aoi = grid.aoi_pixels(&rig);
-    let valid: usize = (0..grid.height()).map(|j| table.valid_columns(j).len()).sum();
-    let _ = writeln!(out, "recording: {}", recording.dir.display());
-    if full_frame {
-        let a = rig.aoi();
-        let _ = writeln!(
-            out,
-            "full_frame: AOI x +-{} mm, z {}..{} mm, no margins",
-            a.half_width_mm, a.near_mm, a.far_mm
-        );
-    }
-    let _ = writeln!(out, "grid: {}x{}", grid.width(), grid.height());
-    let _ = writeln!(out, "mm_per_px: {}", grid.mm_per_px);
-    let _ = writeln!(out, "search: {search} ({} shifts)", (2 * search + 1).pow(2));
-    let _ = writeln!(out, "aoi_pixels: {}", aoi.area());
-    let _ = writeln!(out, "valid_kg_pixels: {valid} of {} ({:.1} %, seen by the camera)", grid.len(), 100.0 * valid as f64 / grid.len() as f64);
-    let _ = writeln!(out, "pairs: {}", pairs.len());
-    let _ = writeln!(out, "samples: {SAMPLES} after {WARM_UP} warm-up, median, one thread");
+    let mut out = header(recording, &rig, &detector, search, full_frame, pairs.len());
 
     // Each sample: frame a becomes the keyframe, then b is the detection
     // cycle, timed per stage by the pipeline with the profile clock.

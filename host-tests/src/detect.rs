@@ -63,7 +63,7 @@ impl Detector {
     pub fn with_pipeline<T>(&mut self, heights: Heights, drive: impl FnOnce(&mut Pipeline) -> Result<T, String>) -> Result<T, String> {
         let KgFrontEnd { grid, table, ring } = &mut self.front_end;
         let table: &RemapTable = table;
-        let mut gpa = Gpa::new(&self.rig, grid, table, self.config.gpa, &mut self.keyframe).map_err(|e| format!("detector: {e:?}"))?;
+        let mut gpa = Gpa::new(&self.rig, grid, table, self.config.gpa, &mut self.keyframe).map_err(|e| format!("detector: {e}"))?;
         let mut gti = match heights {
             Heights::WithGti => Some(Box::new(GtiStage::new(&self.rig, grid).map_err(|e| format!("GTI: {e}"))?)),
             Heights::GpaOnly => None,
@@ -107,7 +107,7 @@ impl Detector {
                 if pose.is_none() {
                     eprintln!("flatland: frame {index}: no row in poses.csv; restarting the keyframe");
                 }
-                if let Err(error) = pipeline.begin(index, pose.map(|row| PoseSample { t_s: row.t_s, pose: row.pose })) {
+                if let Err(error) = pipeline.begin(index, pose.map(PoseSample::from)) {
                     let line = pose.map_or(0, |row| row.line);
                     let error = RecordingError::Csv { path: recording.dir.join("poses.csv"), line, message: error.to_string() };
                     on_frame(FrameOutcome::Skipped { frame: index, error }, pipeline);

@@ -47,13 +47,13 @@ pub fn run_gti_perturbed(
 }
 
 /// Heights in whole mm, positions in whole mm: what reaches the serial link.
-pub fn csv_row(frame: u32, p: &HeightPoint) -> String {
+fn csv_row(frame: u32, p: &HeightPoint) -> String {
     // Rounded to integers first: "{:.0}" would print -0 for small negatives.
     let whole = |v: f32| v.round() as i64;
     format!("{frame},{},{},{},{}", whole(p.x_mm), whole(p.z_mm), whole(p.h_mm), p.quality)
 }
 
-pub const CSV_HEADER: &str = "frame,x_mm,z_mm,h_mm,quality";
+const CSV_HEADER: &str = "frame,x_mm,z_mm,h_mm,quality";
 
 /// What the pictures need, collected frame by frame.
 #[derive(Default)]

@@ -129,9 +129,7 @@ pub fn build_full_frame_firmware() -> Result<PathBuf> {
 /// `$FLODO` per poses.csv row, `$FLEND`.
 pub fn host_messages(recording: &Recording) -> Vec<Message> {
     let mut messages = vec![Message::Rig(RigRecord::from(&recording.rig))];
-    messages.extend(recording.poses.iter().map(|row| {
-        Message::Odometry(Odometry { frame: row.frame, t_s: row.t_s, x_mm: row.pose.x_mm, z_mm: row.pose.z_mm, yaw_deg: row.pose.yaw_deg })
-    }));
+    messages.extend(recording.poses.iter().map(|row| Message::Odometry(Odometry::from(row))));
     messages.push(Message::End);
     messages
 }

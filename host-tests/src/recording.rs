@@ -6,7 +6,8 @@
 use flatland_core::geometry::{Rig, RigError};
 use flatland_core::motion::Pose;
 use flatland_core::pgm::{Pgm, PgmError};
-use flatland_core::protocol::RigRecord;
+use flatland_core::pipeline::PoseSample;
+use flatland_core::protocol::{Odometry, RigRecord};
 use serde::Deserialize;
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -194,6 +195,20 @@ pub struct PoseRow {
     pub line: usize,
     pub t_s: f64,
     pub pose: Pose,
+}
+
+/// The pipeline's input for this row.
+impl From<&PoseRow> for PoseSample {
+    fn from(row: &PoseRow) -> Self {
+        PoseSample { t_s: row.t_s, pose: row.pose }
+    }
+}
+
+/// The `$FLODO` message a robot controller sends for this row.
+impl From<&PoseRow> for Odometry {
+    fn from(row: &PoseRow) -> Self {
+        Odometry { frame: row.frame, t_s: row.t_s, x_mm: row.pose.x_mm, z_mm: row.pose.z_mm, yaw_deg: row.pose.yaw_deg }
+    }
 }
 
 /// Parses poses.csv: `frame,t_s,x_mm,z_mm,yaw_deg` header, then one row per frame.

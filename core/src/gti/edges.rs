@@ -13,7 +13,7 @@ use heapless::Vec;
 use libm::fabsf;
 
 /// Samples either side of an edge in its matching patch.
-pub const PATCH_RADIUS: usize = 3;
+pub(super) const PATCH_RADIUS: usize = 3;
 pub(super) const PATCH: usize = 2 * PATCH_RADIUS + 1;
 /// Threshold of the weak edges relative to the detection threshold.
 const WEAK_EDGE_SCALE: f32 = 0.5;

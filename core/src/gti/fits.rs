@@ -7,11 +7,11 @@ use crate::limits::MAX_OBSERVATIONS;
 use libm::{fabsf, roundf, sqrtf};
 
 /// Observations at which the quality stops growing with their count.
-pub const FULL_QUALITY_OBSERVATIONS: usize = 10;
+const FULL_QUALITY_OBSERVATIONS: usize = 10;
 /// Height error (mm) at which quality is halved.
-pub const QUALITY_SIGMA_MM: f32 = 3.0;
+const QUALITY_SIGMA_MM: f32 = 3.0;
 /// Good points [`super::Gti::height_in_region`] needs at one height.
-pub const MIN_SUPPORT: usize = 3;
+pub(super) const MIN_SUPPORT: usize = 3;
 /// Points within this height (or this fraction of it) support each other in
 /// [`super::Gti::height_in_region`].
 const SUPPORT_TOLERANCE_MM: f32 = 6.0;
@@ -19,12 +19,13 @@ const SUPPORT_TOLERANCE_FRACTION: f32 = 0.06;
 
 /// Height (mm) of a point whose apparent ground position moves `slope` times
 /// the distance travelled: eq. (12), h = H (1 - 1/s).
-pub fn height_from_slope(mount_height_mm: f32, slope: f32) -> f32 {
+fn height_from_slope(mount_height_mm: f32, slope: f32) -> f32 {
     mount_height_mm * (1.0 - 1.0 / slope)
 }
 
-/// Inverse of [`height_from_slope`]: s = H / (H - h).
-pub fn slope_from_height(mount_height_mm: f32, height_mm: f32) -> f32 {
+/// Inverse of [`height_from_slope`]: s = H / (H - h) (the tests' way to a slope).
+#[cfg(test)]
+fn slope_from_height(mount_height_mm: f32, height_mm: f32) -> f32 {
     mount_height_mm / (mount_height_mm - height_mm)
 }
 
@@ -36,7 +37,7 @@ pub(super) fn slope_plausible(slope: f32) -> bool {
 
 /// A straight-line fit `y = intercept + slope * x`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LineFit {
+pub(super) struct LineFit {
     pub slope: f32,
     pub intercept: f32,
     /// Robust residual scale of the inliers (RMS), in y units.
@@ -66,7 +67,7 @@ pub(super) fn median(values: &mut [f32]) -> Option<f32> {
 /// of pairwise slopes, median intercept), then least squares over the points
 /// within 3 robust sigmas of it. None with fewer than 2 points, unequal
 /// lengths, or all x equal.
-pub fn robust_line_fit(x: &[f32], y: &[f32]) -> Option<LineFit> {
+pub(super) fn robust_line_fit(x: &[f32], y: &[f32]) -> Option<LineFit> {
     let n = x.len();
     if n < 2 || n != y.len() || n > MAX_OBSERVATIONS {
         return None;
@@ -164,7 +165,7 @@ pub(super) fn support_tolerance(h_mm: f32) -> f32 {
 /// most the support tolerance, and its median. A lone stray point cannot set
 /// it, and lower points on an obstacle's side do not drag it down.
 /// Reorders `heights`.
-pub fn top_supported_height(heights: &mut [f32]) -> Option<f32> {
+pub(super) fn top_supported_height(heights: &mut [f32]) -> Option<f32> {
     heights.sort_unstable_by(|a, b| b.total_cmp(a));
     heights
         .windows(MIN_SUPPORT)

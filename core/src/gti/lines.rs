@@ -8,7 +8,7 @@ use crate::geometry::Rig;
 use crate::grid::KgGrid;
 use crate::limits::{MAX_LINES, MAX_LINE_SAMPLES};
 use core::ops::Range;
-use libm::{cosf, floorf, roundf, sinf};
+use libm::{cosf, fabsf, floorf, roundf, sinf};
 
 /// One GT line: fixed in the robot frame for a frame, parallel to the
 /// translation. Points on it are `offset * normal + t * direction` (mm).
@@ -40,6 +40,12 @@ impl GtLine {
         let z = self.offset_mm * self.normal[1] + t * self.direction[1];
         ((grid.z_far_mm as f32 - z) / grid.mm_per_px as f32, lateral)
     }
+}
+
+/// A point `lateral` mm from a line ([`GtLine::row_of`]) is off it: more than
+/// two KG pixels away, outside what the line's samples saw.
+pub(super) fn off_line(lateral: f32, mm_per_px: f32) -> bool {
+    fabsf(lateral) > 2.0 * mm_per_px
 }
 
 /// One line's samples for the current frame, indexed by KG row.

@@ -54,11 +54,6 @@ mod lines;
 mod tracks;
 mod travel;
 
-pub use edges::PATCH_RADIUS;
-pub use fits::{
-    height_from_slope, robust_line_fit, slope_from_height, top_supported_height, LineFit, FULL_QUALITY_OBSERVATIONS,
-    MIN_SUPPORT, QUALITY_SIGMA_MM,
-};
 pub use lines::GtLine;
 
 use crate::geometry::Rig;
@@ -67,7 +62,7 @@ use crate::limits::{MAX_LINES, MAX_LINE_SAMPLES, MAX_LINE_WIDTH_PX, MAX_MAP_POIN
 use crate::motion::Motion;
 use core::ops::Range;
 use edges::LineEdges;
-use fits::support_tolerance;
+use fits::{support_tolerance, top_supported_height, MIN_SUPPORT};
 use heapless::Deque;
 use libm::{atan2f, fabsf, roundf};
 use lines::Lines;

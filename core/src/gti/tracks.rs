@@ -6,8 +6,8 @@
 
 use super::edges::{Edge, LineEdges, PATCH};
 use super::fits::{robust_line_fit, slope_plausible, FittedHeight, LineFit};
-use super::lines::GtLine;
-use super::travel::Travel;
+use super::lines::{off_line, GtLine};
+use super::travel::{along_across, Travel};
 use super::{Gti, HeightPoint};
 use crate::grid::KgGrid;
 use crate::limits::{MAX_EDGES_PER_LINE, MAX_OBSERVATIONS, MAX_TRACKS, MAX_WEAK_EDGES_PER_LINE};
@@ -108,9 +108,8 @@ impl Track {
     fn observe(&mut self, travel: &Travel, point: [f32; 2], edge: &Edge) {
         let q = travel.rotation().to_f32().to_world(point);
         let (c, across) = travel.since(self.origin, self.axis);
-        let u = self.axis;
-        let y = q[0] * u[0] + q[1] * u[1] - self.y0;
-        let w = q[0] * u[1] - q[1] * u[0];
+        let (along, w) = along_across(q, self.axis);
+        let y = along - self.y0;
         if fabsf(c) > OBS_LIMIT_MM || fabsf(y) > OBS_LIMIT_MM {
             self.misses = u8::MAX; // outgrew its storage: end it
             return;
@@ -265,7 +264,7 @@ impl Gti {
             Some(fit) if track.observations.len() >= 3 => {
                 let p = track.predict_apparent(&self.travel, -fit.slope, Some(&fit))?;
                 let (row, lateral) = line.row_of(grid, p);
-                if fabsf(lateral) > 2.0 * mm_per_px {
+                if off_line(lateral, mm_per_px) {
                     return None;
                 }
                 let gate = widen + 3.0 * fit.residual / mm_per_px;
@@ -281,7 +280,7 @@ impl Gti {
                 let a = track.predict_apparent(&self.travel, low, None)?;
                 let b = track.predict_apparent(&self.travel, high, None)?;
                 let ((ra, la), (rb, lb)) = (line.row_of(grid, a), line.row_of(grid, b));
-                if fabsf(la).min(fabsf(lb)) > 2.0 * mm_per_px {
+                if off_line(fabsf(la).min(fabsf(lb)), mm_per_px) {
                     return None;
                 }
                 Some(Gate { low: ra.min(rb) - widen, high: ra.max(rb) + widen, predicted: None })

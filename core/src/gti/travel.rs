@@ -4,12 +4,18 @@
 
 use super::edges::{Edge, LineEdges};
 use super::fits::median;
-use super::lines::GtLine;
+use super::lines::{off_line, GtLine};
 use super::tracks::{zncc, Track};
 use super::Gti;
 use crate::limits::MAX_TRACKS;
 use crate::motion::{Motion, Rotation};
 use libm::{fabsf, sqrtf};
+
+/// `v` along a unit `axis` and across it (towards `(u_z, -u_x)`): the frame
+/// a track's locus is measured in.
+pub(super) fn along_across(v: [f32; 2], axis: [f32; 2]) -> (f32, f32) {
+    (v[0] * axis[0] + v[1] * axis[1], v[0] * axis[1] - v[1] * axis[0])
+}
 
 /// Travel (mm) measured by the floor before its scale is applied to odometry.
 const SCALE_MIN_TRAVEL_MM: f64 = 100.0;
@@ -46,8 +52,7 @@ impl Travel {
     /// robot was at `origin`.
     pub(super) fn since(&self, origin: [f32; 2], axis: [f32; 2]) -> (f32, f32) {
         let d = [(self.position[0] - f64::from(origin[0])) as f32, (self.position[1] - f64::from(origin[1])) as f32];
-        let u = axis;
-        (d[0] * u[0] + d[1] * u[1], d[0] * u[1] - d[1] * u[0])
+        along_across(d, axis)
     }
 
     /// Moves the pose by `motion`; returns the step in the world.
@@ -78,7 +83,7 @@ impl Gti {
     /// Odometry's scale as the floor measured it so far (1 until it has):
     /// a constant error (wheel diameter) is then gone from the steps before
     /// the floor corrects them, and from steps where it cannot.
-    pub fn odometry_scale(&self) -> f32 {
+    fn odometry_scale(&self) -> f32 {
         let [measured, odometry] = self.travel.step_sums;
         if !(odometry > SCALE_MIN_TRAVEL_MM) {
             return 1.0;
@@ -157,7 +162,7 @@ impl Gti {
         if track.misses != 0 || track.observations.len() < 3 {
             return None;
         }
-        let along = d[0] * track.axis[0] + d[1] * track.axis[1];
+        let (along, _) = along_across(d, track.axis);
         if along < 0.7 {
             return None; // the track's axis is not the travel's: its y says little
         }
@@ -168,7 +173,7 @@ impl Gti {
         // Where it is with slope 1 and the odometry step.
         let predicted = track.predict_apparent(&self.travel, 1.0, None)?;
         let (row, lateral) = line.row_of(&self.grid, predicted);
-        if fabsf(lateral) > 2.0 * mm_per_px {
+        if off_line(lateral, mm_per_px) {
             return None;
         }
         let window = self.config.gate_px + 3.0 * self.config.odometry_sigma * length / mm_per_px;
@@ -183,12 +188,8 @@ impl Gti {
             }
         }
         let (observed_row, _) = best?;
-        let u = track.axis;
         let rotation = self.travel.rotation().to_f32();
-        let y_of = |p: [f32; 2]| {
-            let q = rotation.to_world(p);
-            q[0] * u[0] + q[1] * u[1]
-        };
+        let y_of = |p: [f32; 2]| along_across(rotation.to_world(p), track.axis).0;
         let y_predicted = y_of(line.point_at_row(&self.grid, row));
         let y_observed = y_of(line.point_at_row(&self.grid, observed_row));
         Some((y_predicted - y_observed) / along)

@@ -3,7 +3,7 @@
 //! row copy), with one selection of the instruction set.
 //!
 //! Three backends hold the same functions:
-//! - [`portable`]: plain Rust, the reference, and the SIMD backends' tails;
+//! - `portable`: plain Rust, the reference, and the SIMD backends' tails;
 //! - `sse2`: x86_64 (SSE2 is baseline there);
 //! - `dsp`: Cortex-M4/M7, `asm!` with the DSP extension (cfg `flatland_dsp`,
 //!   set by build.rs for `thumbv7em`).
@@ -13,15 +13,18 @@
 //! `checks` compares them with the portable ones and with per-pixel
 //! loops, on the host and on the emulated M4 (`cargo fw-test`).
 
-pub mod portable;
+// Where a SIMD backend is selected, only its tails and the checks call the
+// portable one, each a part of it.
+#[cfg_attr(any(flatland_dsp, target_arch = "x86_64"), allow(dead_code))]
+mod portable;
 
 #[cfg(flatland_dsp)]
-pub mod dsp;
+mod dsp;
 #[cfg(flatland_dsp)]
 use dsp as selected;
 
 #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
-pub mod sse2;
+mod sse2;
 #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
 use sse2 as selected;
 
@@ -131,7 +134,7 @@ const WEIGHT_BITS: u32 = 8;
 /// Bilinear sample at (u, v) Q16.16 from two camera rows, in integers: the
 /// definition every remap path reproduces.
 #[inline(always)]
-pub fn bilinear(upper: &[u8], lower: &[u8], u: i32, v: i32) -> u8 {
+pub(crate) fn bilinear(upper: &[u8], lower: &[u8], u: i32, v: i32) -> u8 {
     let x0 = (u >> FRAC_BITS) as usize;
     let x1 = (x0 + 1).min(upper.len() - 1);
     let wx = ((u >> (FRAC_BITS - WEIGHT_BITS)) & 0xFF) as u32;

@@ -8,11 +8,11 @@
 
 use cortex_m_rt::entry;
 use flatland_core::selftest::TESTS;
-use flatland_firmware::rt::{command_line, exit, words, Exit};
+use flatland_firmware::rt::{command_line, exit, words, Exit, COMMAND_LINE_CAPACITY};
 
 #[entry]
 fn main() -> ! {
-    let mut buf = [0u8; 512];
+    let mut buf = [0u8; COMMAND_LINE_CAPACITY];
     // QEMU prefixes the kernel's file name; the request is the last word.
     let request = words(command_line(&mut buf)).last().unwrap_or(b"");
     match request {
