@@ -106,7 +106,7 @@ impl GtiStage {
 
     /// Adds GTI's heights to GPA's report (call after [`GtiStage::end_frame`]).
     ///
-    /// - GPA alarm: `obstacle_h_mm` is GTI's height over the obstacle's box
+    /// - GPA alarm on an obstacle (a drop keeps GPA's depth): `obstacle_h_mm` is GTI's height over the obstacle's box
     ///   (`left_mm..right_mm`, `nearest_mm..nearest_mm + OBSTACLE_DEPTH_MM`,
     ///   grown by `OBSTACLE_MARGIN_MM`) when GTI has a supported height there
     ///   of at least the minimum obstacle height; a lower GTI reading means
@@ -117,6 +117,11 @@ impl GtiStage {
     pub fn enrich(&self, report: &mut FrameReport) {
         let min_obstacle = self.gti.config().min_obstacle_mm;
         if report.alarm {
+            // A drop's depth is GPA's own: GTI's heights over the hole's box
+            // belong to the floor before its edge.
+            if report.obstacle_h_mm.is_some_and(|h| h < 0) {
+                return;
+            }
             let (Some(near), Some(left), Some(right)) = (report.nearest_mm, report.left_mm, report.right_mm) else {
                 return;
             };

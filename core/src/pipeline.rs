@@ -262,7 +262,8 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         let mut report = self.gpa.end_frame();
         let gti_start = self.now();
         if let Some(gti) = self.gti.as_deref_mut() {
-            gti.end_frame(current.motion);
+            // Without odometry GTI follows the ground's motion as GPA measured it.
+            gti.end_frame(current.motion.or_else(|| self.gpa.measured_step()));
             if let Some(report) = report.as_mut() {
                 gti.enrich(report);
             }

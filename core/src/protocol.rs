@@ -861,6 +861,8 @@ pub mod checks {
             Message::Odometry(sample_odometry(None, None)),
             Message::Frame(sample_report()),
             Message::Frame(FrameReport::default()),
+            // A drop's depth: obstacle_h_mm is signed on the wire (issue 14).
+            Message::Frame(FrameReport { obstacle_h_mm: Some(-150), ..sample_report() }),
             Message::Stats(stats),
             Message::Fault(Fault { code: FaultCode::FrameRead, frame: 12 }),
             Message::End,

@@ -42,7 +42,8 @@ pub struct FrameReport {
     /// Refined motion since `ref_frame`, in 1/[`MOTION_SCALE`] mm, robot frame of `ref_frame`.
     pub tx: i32,
     pub tz: i32,
-    /// Estimated height of the nearest obstacle (GTI), mm.
+    /// Estimated height of the nearest hazard (GTI's, else GPA's parallax),
+    /// mm; negative for a drop: its depth below the floor (issue 14).
     pub obstacle_h_mm: Option<i32>,
     /// Estimated turn (yaw, left positive), pitch and roll change since
     /// `ref_frame`, in 1/[`ANGLE_SCALE`] degrees.

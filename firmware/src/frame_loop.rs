@@ -353,7 +353,8 @@ fn log_bench(frame: u32, read: u32, cycle: u32, timing: &FrameTiming, profile: &
 
 fn log_report(report: &FrameReport) {
     if report.alarm {
-        // Human-readable alarm line; absent distances print as -1.
+        // Human-readable alarm line; absent distances print as -1, and a
+        // drop's height is negative (its depth, -20 mm or lower).
         defmt::warn!(
             "ALARM frame {=u32} (vs {=u32}): obstacle at {=i32} mm, x {=i32}..{=i32} mm, height {=i32} mm",
             report.frame,

@@ -1,6 +1,6 @@
 //! Scoring detections against truth.toml: a confusion table with grace frames.
 
-use crate::recording::Truth;
+use crate::recording::{Hazard, Truth};
 use flatland_core::report::FrameReport;
 
 /// Counts of one recording's frames.
@@ -30,25 +30,39 @@ pub fn is_grace(truth: &Truth, frame: u32) -> bool {
     differs(frame.checked_sub(1)) || differs(frame.checked_add(1))
 }
 
+/// What a report's alarm is about: a negative height is a drop's depth.
+pub fn reported_hazard(report: &FrameReport) -> Option<Hazard> {
+    report.alarm.then(|| if report.obstacle_h_mm.is_some_and(|h| h < 0) { Hazard::Drop } else { Hazard::Obstacle })
+}
+
 /// Scores reports (one per frame at most) against the truth.
 pub fn score(truth: &Truth, reports: &[FrameReport]) -> (Confusion, Vec<(u32, bool, bool)>) {
+    score_hazard(truth, reports, None)
+}
+
+/// Scores one kind of hazard alone (None: both): a frame whose truth
+/// alarm is of the other kind is left out, and an alarm of the other kind
+/// on a clear frame counts as clear.
+pub fn score_hazard(truth: &Truth, reports: &[FrameReport], kind: Option<Hazard>) -> (Confusion, Vec<(u32, bool, bool)>) {
     let mut confusion = Confusion::default();
     let mut rows = Vec::new();
-    for pair in &truth.pair {
+    let of_kind = |hazard: Option<Hazard>| kind.is_none() || hazard.is_none() || hazard == kind;
+    for pair in truth.pair.iter().filter(|pair| of_kind(pair.hazard())) {
         let Some(report) = reports.iter().find(|r| r.frame == pair.frame) else {
             confusion.unreported += 1;
             continue;
         };
-        rows.push((pair.frame, pair.alarm, report.alarm));
+        let alarm = report.alarm && (pair.alarm || of_kind(reported_hazard(report)));
+        rows.push((pair.frame, pair.alarm, alarm));
         if is_grace(truth, pair.frame) {
-            if report.alarm == pair.alarm {
+            if alarm == pair.alarm {
                 confusion.grace_right += 1;
             } else {
                 confusion.grace_wrong += 1;
             }
             continue;
         }
-        match (pair.alarm, report.alarm) {
+        match (pair.alarm, alarm) {
             (true, true) => confusion.true_alarm += 1,
             (true, false) => confusion.missed += 1,
             (false, true) => confusion.false_alarm += 1,

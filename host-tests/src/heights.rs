@@ -105,8 +105,14 @@ impl Drawing {
 }
 
 /// Colour for a height: blue at the floor, green at `full_mm / 2`, red at
-/// `full_mm` and above.
+/// `full_mm` and above; below the floor (past a drop's edge, more than
+/// [`BELOW_FLOOR_MM`] down) violet, darker with depth down to `full_mm`.
 fn height_colour(h_mm: f32, full_mm: f32) -> [u8; 3] {
+    if h_mm < -BELOW_FLOOR_MM {
+        let k = (-h_mm / full_mm).clamp(0.0, 1.0);
+        let level = (230.0 * (1.0 - 0.6 * k)) as u8;
+        return [level, 0, level];
+    }
     let t = (h_mm / full_mm).clamp(0.0, 1.0);
     if t < 0.5 {
         let k = t * 2.0;
@@ -178,6 +184,10 @@ impl Coverage {
         why
     }
 }
+
+/// Points lower than this below the floor are drawn apart (a fit's noise
+/// scatters floor points a few mm either way).
+const BELOW_FLOOR_MM: f32 = 10.0;
 
 /// Runs GTI and writes the CSV to `out`; with `png_dir`, also writes
 /// `gt_line_NN.png` (GT-images, time to the right, KG row down, observed

@@ -72,6 +72,8 @@ use flatland_core::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE};
 const GREEN: [u8; 3] = [40, 220, 60];
 const RED: [u8; 3] = [255, 40, 40];
 const ORANGE: [u8; 3] = [255, 160, 0];
+/// Drop cells: the lower level past an edge.
+const CYAN: [u8; 3] = [0, 220, 255];
 const MAGENTA: [u8; 3] = [230, 60, 230];
 
 /// The detection picture: keyframe aligned by the refined motion, the current
@@ -133,10 +135,14 @@ pub fn detect_picture(rig: &Rig, grid: &KgGrid, reference: &[u8], current: &[u8]
             let (rows, columns) = gpa.cells();
             for row in 0..rows {
                 for column in 0..columns {
-                    if gpa.cell_height(row, column) >= 20 {
-                        let (l, t) = (left + column * cell, row * cell);
-                        picture.rect(l + 1, t + 1, l + cell - 2, t + cell - 2, MAGENTA);
-                    }
+                    // Obstacle cells (standing 20 mm up) and drop cells (20 mm down).
+                    let colour = match gpa.cell_height(row, column) {
+                        h if h >= 20 => MAGENTA,
+                        h if h <= -20 => CYAN,
+                        _ => continue,
+                    };
+                    let (l, t) = (left + column * cell, row * cell);
+                    picture.rect(l + 1, t + 1, l + cell - 2, t + cell - 2, colour);
                 }
             }
         }

@@ -4,7 +4,8 @@ use clap::{Args, Parser, Subcommand};
 use flatland_core::grid::GridConfig;
 use flatland_core::report::{FrameReport, CSV_HEADER, MOTION_SCALE, SHIFT_SCALE};
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
-use flatland_host::evaluate::{is_grace, score};
+use flatland_host::evaluate::{is_grace, score, score_hazard};
+use flatland_host::recording::Hazard;
 use flatland_host::images::{detect_picture, save_gray};
 use flatland_host::perturb::Perturbation;
 use flatland_host::recording::Truth;
@@ -345,6 +346,17 @@ fn print_confusion(truth: &Truth, reports: &[FrameReport]) {
     eprintln!("truth clear      {:>14}   {:>14}", c.false_alarm, c.true_clear);
     eprintln!("grace frames: {} right, {} wrong; unreported: {}", c.grace_right, c.grace_wrong, c.unreported);
     eprintln!("errors outside grace frames: {}{}", c.errors(), if wrong.is_empty() { String::new() } else { format!(" [{}]", wrong.join(", ")) });
+    for (name, kind) in [("obstacles", Hazard::Obstacle), ("drops", Hazard::Drop)] {
+        let (c, _) = score_hazard(truth, reports, Some(kind));
+        eprintln!(
+            "{name:>9} alone: {} alarms right, {} missed, {} false, {} clear; errors outside grace frames: {}",
+            c.true_alarm,
+            c.missed,
+            c.false_alarm,
+            c.true_clear,
+            c.errors()
+        );
+    }
 }
 
 fn run_serial_decode(file: Option<&Path>) -> ExitCode {

@@ -490,6 +490,27 @@ pub struct TruthMarking {
     pub depth_mm: f64,
 }
 
+/// Where the ground falls away (truth.toml): the hole in the upper floor,
+/// world frame; a ledge, stairs down or a pit.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TruthDrop {
+    pub x_mm: f64,
+    pub z_mm: f64,
+    pub width_mm: f64,
+    pub depth_mm: f64,
+    /// How far the lower level lies below the floor.
+    pub drop_mm: f64,
+}
+
+/// What gives a pair's `nearest_mm`.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Hazard {
+    Obstacle,
+    Drop,
+}
+
 /// The expected answer for one frame (compared with any earlier frame).
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -497,6 +518,15 @@ pub struct TruthPair {
     pub frame: u32,
     pub alarm: bool,
     pub nearest_mm: Option<f64>,
+    /// Absent in older recordings (which have no drops): an obstacle.
+    pub hazard: Option<Hazard>,
+}
+
+impl TruthPair {
+    /// What raises this pair's alarm, if anything.
+    pub fn hazard(&self) -> Option<Hazard> {
+        self.alarm.then(|| self.hazard.unwrap_or(Hazard::Obstacle))
+    }
 }
 
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
@@ -506,6 +536,8 @@ pub struct Truth {
     pub obstacle: Vec<TruthObstacle>,
     #[serde(default)]
     pub marking: Vec<TruthMarking>,
+    #[serde(default)]
+    pub drop: Vec<TruthDrop>,
     #[serde(default)]
     pub pair: Vec<TruthPair>,
 }

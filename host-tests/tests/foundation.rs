@@ -187,5 +187,5 @@ fn every_bundled_recording_opens_and_remaps() {
         assert!(recording.truth.is_some());
         seen += 1;
     }
-    assert_eq!(seen, 12);
+    assert_eq!(seen, 13);
 }

@@ -120,3 +120,9 @@ fn parity_exposure_rolling() {
 fn parity_slip() {
     parity("slip");
 }
+
+/// Issue 14: a drop's alarm, negative obstacle_h_mm through the protocol.
+#[test]
+fn parity_ledge() {
+    parity("ledge");
+}

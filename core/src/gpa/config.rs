@@ -30,8 +30,12 @@ pub struct GpaConfig {
     pub parallax_gain_percent: u32,
     /// ...and by at least this many gray levels per pixel (or the noise level, if higher).
     pub parallax_min_gain: f64,
-    /// Obstacles are at least this tall (mm); lower bumps are ground.
+    /// Obstacles are at least this tall (mm), drops at least this deep;
+    /// lower bumps and shallower dips are ground.
     pub min_obstacle_height_mm: f64,
+    /// The deepest drop the depth hypotheses look for (mm below the ground);
+    /// a deeper one matches the deepest hypothesis and is reported at it.
+    pub max_drop_mm: f64,
     /// Odometry error to tolerate, as a fraction of the step since the last
     /// frame (the part of the motion the shift search has not refined yet):
     /// height hypotheses whose displacement stays within it count as ground.
@@ -52,6 +56,11 @@ pub struct GpaConfig {
     pub imu_sigma_deg: f64,
     /// Without an IMU: the largest attitude change from the keyframe, degrees.
     pub max_attitude_change_deg: f64,
+    /// Drops are looked for only while the measured attitude change from
+    /// the keyframe stays within this (degrees): past it, the attitude
+    /// model's error at the far AOI edge is as large as a drop's parallax
+    /// (which is small: T*d/(H+d)). Obstacles standing up are unaffected.
+    pub drop_attitude_limit_deg: f64,
 }
 
 impl Default for GpaConfig {
@@ -75,6 +84,7 @@ impl GpaConfig {
         parallax_gain_percent: 30,
         parallax_min_gain: 3.0,
         min_obstacle_height_mm: 20.0,
+        max_drop_mm: 300.0,
         odometry_error_fraction: 0.05,
         odometry_yaw_error_deg: 0.1,
         odometry_sigma_fraction: 0.1,
@@ -84,6 +94,7 @@ impl GpaConfig {
         max_step_yaw_deg: 24.0,
         imu_sigma_deg: 0.1,
         max_attitude_change_deg: 3.0,
+        drop_attitude_limit_deg: 0.5,
     };
 
     /// [`GpaError::Config`] unless the search radius is in
@@ -97,6 +108,7 @@ impl GpaConfig {
             self.min_residue_mm2,
             self.parallax_min_gain,
             self.min_obstacle_height_mm,
+            self.max_drop_mm,
             self.odometry_error_fraction,
             self.odometry_yaw_error_deg,
             self.odometry_sigma_fraction,
@@ -106,6 +118,7 @@ impl GpaConfig {
             self.max_step_yaw_deg,
             self.imu_sigma_deg,
             self.max_attitude_change_deg,
+            self.drop_attitude_limit_deg,
         ];
         if self.search_radius == 0 || self.search_radius > MAX_SEARCH_RADIUS || !finite.iter().all(|v| v.is_finite() && *v > 0.0) {
             return Err(GpaError::Config);

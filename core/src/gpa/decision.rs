@@ -79,12 +79,16 @@ impl Noise {
     }
 }
 
-/// The alarm, with the obstacle it holds.
+/// A decided hazard: where it is, and its parallax height (mm, negative
+/// for a drop; None for residue, which measures none).
+pub(super) type Hazard = (Footprint, Option<i32>);
+
+/// The alarm, with the hazard it holds.
 pub(super) struct Alarm {
     source: AlarmSource,
-    /// The last decided obstacle, held through frames whose baseline is too
+    /// The last decided hazard, held through frames whose baseline is too
     /// short to see it.
-    previous: Option<Footprint>,
+    previous: Option<Hazard>,
 }
 
 impl Alarm {
@@ -99,37 +103,48 @@ impl Alarm {
         self.previous = None;
     }
 
-    /// The obstacle of this frame from its evidence: parallax first (it
-    /// measures height and footprint directly), then residue. Too short a
-    /// baseline (`short_baseline`) shows too little parallax to clear an
-    /// alarm: then the last obstacle, moved by the odometry `step`, is held
-    /// until a frame with enough baseline decides again.
+    /// The hazard of this frame from its evidence: parallax first (it
+    /// measures height and footprint directly), then residue. A frame at
+    /// `baseline_mm` from its keyframe shows too little parallax to clear
+    /// an alarm when the baseline is short (under half the keyframe
+    /// travel); a drop's parallax is smaller still (T*d/(H+d), under T
+    /// however deep), so a drop is held through baselines under three
+    /// quarters of the travel. A held hazard is moved by the odometry `step`.
     pub(super) fn decide(
         &mut self,
-        parallax: Option<Footprint>,
+        parallax: Option<(Footprint, i32)>,
         residue: Option<Footprint>,
-        short_baseline: bool,
+        baseline_mm: f64,
+        config: &GpaConfig,
         step: &Motion,
-    ) -> Option<Footprint> {
+    ) -> Option<Hazard> {
         self.source = match (parallax, residue) {
             (Some(_), _) => AlarmSource::Parallax,
             (None, Some(_)) => AlarmSource::Residue,
             (None, None) => AlarmSource::None,
         };
-        let obstacle = match (parallax.or(residue), self.previous) {
+        let found = parallax.map(|(footprint, height)| (footprint, Some(height))).or(residue.map(|footprint| (footprint, None)));
+        let too_short = |held: &Hazard| {
+            let is_drop = held.1.is_some_and(|h| h < 0);
+            let needed = if is_drop { 0.75 } else { 0.5 } * config.keyframe_travel_mm;
+            baseline_mm < needed
+        };
+        let hazard = match (found, self.previous) {
             (Some(found), _) => Some(found),
-            (None, Some(held)) if short_baseline => {
+            (None, Some(held)) if too_short(&held) => {
                 self.source = AlarmSource::Held;
                 let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
-                Some(Footprint {
-                    near_mm: moved(held.near_mm, step.tz_mm),
-                    left_mm: moved(held.left_mm, step.tx_mm),
-                    right_mm: moved(held.right_mm, step.tx_mm),
-                })
+                let (footprint, height) = held;
+                let moved_footprint = Footprint {
+                    near_mm: moved(footprint.near_mm, step.tz_mm),
+                    left_mm: moved(footprint.left_mm, step.tx_mm),
+                    right_mm: moved(footprint.right_mm, step.tx_mm),
+                };
+                Some((moved_footprint, height))
             }
             _ => None,
         };
-        self.previous = obstacle;
-        obstacle
+        self.previous = hazard;
+        hazard
     }
 }

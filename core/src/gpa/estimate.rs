@@ -14,6 +14,10 @@
 //!    squares (Tukey weights: obstacles, whose blocks move by parallax, are
 //!    outliers) with the priors as extra observations. Blocks are matched
 //!    again around the fitted model, and the fit repeated.
+//! 4. `nearest_surface`: the ground is the surface under the robot. When
+//!    the nearest third of the blocks mostly disagree with the fit (a curb
+//!    top or a lower level filling most of the view won the vote), their
+//!    own fit replaces it if it explains more of them.
 //!
 //! The remap table stays fixed: an attitude change moves the ground in the
 //! KG plane non-uniformly (see [`GroundMotion::to_keyframe`]), which the
@@ -225,6 +229,13 @@ impl Estimator {
     /// coarse search's reach (3 sigma); a reach of more than a few cells is
     /// searched on cells twice as large first.
     pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior) -> Option<GroundMotion> {
+        let start = self.coarse_start(scene, prior);
+        let fitted = self.refine(scene, prior, start, 0)?;
+        Some(self.nearest_surface(scene, prior, fitted))
+    }
+
+    /// Steps 1: where the blocks start from.
+    fn coarse_start(&mut self, scene: &Scene, prior: &Prior) -> Params {
         let fine_mm = COARSE_CELL_MM.max(2.0 * scene.grid.mm_per_px);
         let reach = |sigma: f64, unit: f64| 3.0 * sigma / unit;
         let mut p = params(&prior.motion);
@@ -242,14 +253,47 @@ impl Estimator {
         // from it level (the fit then splits the two, with the prior).
         p[3] = 0.0;
         p[4] = 0.0;
-        let mut estimate = None;
+        p
+    }
+
+    /// Steps 2 and 3 from `start`, twice, on the blocks whose centres lie
+    /// from `from_row` on.
+    fn refine(&mut self, scene: &Scene, prior: &Prior, start: Params, from_row: usize) -> Option<Fit> {
+        let mut p = start;
+        let mut fitted = None;
         for _ in 0..2 {
-            self.match_blocks(scene, &p);
-            let fitted = fit(scene, &self.matches, &p, prior)?;
-            p = params(&fitted);
-            estimate = Some(fitted);
+            self.match_blocks(scene, &p, from_row);
+            let fit = fit(scene, &self.matches, &p, prior)?;
+            p = params(&fit.motion);
+            fitted = Some(fit);
         }
-        estimate
+        fitted
+    }
+
+    /// Step 4: the ground is the surface the robot stands on. A curb top
+    /// or a lower level that fills most of the view wins the vote of the
+    /// whole view, or bends its fit. The blocks nearest the robot fitted
+    /// on their own (from the prior, then from the whole view's fit)
+    /// replace it when that fit explains clearly more of them.
+    fn nearest_surface(&mut self, scene: &Scene, prior: &Prior, fitted: Fit) -> GroundMotion {
+        let near_row = near_row(scene);
+        let near = self
+            .refine(scene, prior, params(&prior.motion), near_row)
+            .or_else(|| self.refine(scene, prior, params(&fitted.motion), near_row));
+        let chosen = match near {
+            Some(near) => {
+                // One yardstick for both: the tighter fit's.
+                let within = 3.0 * near.scale.min(fitted.scale);
+                let near_agreeing = agreeing(scene, &self.matches, &near.motion, within);
+                let fitted_agreeing = agreeing(scene, &self.matches, &fitted.motion, within);
+                let clearly_more = fitted_agreeing + (MIN_INLIERS / 2).max(fitted_agreeing / 4);
+                if near_agreeing >= clearly_more { near.motion } else { fitted.motion }
+            }
+            None => fitted.motion,
+        };
+        // Every block again, around the choice: the gain is their median.
+        self.match_blocks(scene, &params(&chosen), 0);
+        chosen
     }
 
     /// Step 1: the planar motion (tx, tz, yaw) on images of `cell_mm`
@@ -353,19 +397,21 @@ impl Estimator {
         p
     }
 
-    /// Step 2: every textured block of the current image, matched in the
-    /// keyframe around where `p` puts it.
-    fn match_blocks(&mut self, scene: &Scene, p: &Params) {
+    /// Step 2: every textured block of the current image whose centre
+    /// lies from `from_row` on, matched in the keyframe around where `p`
+    /// puts it.
+    fn match_blocks(&mut self, scene: &Scene, p: &Params, from_row: usize) {
         self.matches.clear();
         let map = scene.ground_map(p);
         let (w, h) = (scene.grid.width(), scene.grid.height());
         let half = (BLOCK_PX / 2) as f64;
         let mut bj = 0;
         while bj + BLOCK_PX <= h {
+            let centre_row = bj as f64 + half - 0.5;
             let mut bi = 0;
-            while bi + BLOCK_PX <= w {
-                if let Some((found, gain)) = match_block(scene, &map, bi, bj) {
-                    let centre = (bi as f64 + half - 0.5, bj as f64 + half - 0.5);
+            while centre_row >= from_row as f64 && bi + BLOCK_PX <= w {
+                if let Ok((found, gain)) = match_block(scene, &map, bi, bj) {
+                    let centre = (bi as f64 + half - 0.5, centre_row);
                     if self.matches.push(BlockMatch { current: centre, keyframe: found, gain }).is_err() {
                         return;
                     }
@@ -377,13 +423,24 @@ impl Estimator {
     }
 }
 
+/// Why a block gave no match.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Miss {
+    /// Partly out of the current view.
+    Unseen,
+    /// Too little texture to measure anything.
+    Flat,
+    /// Textured, but not found (weak or ambiguous, or its patch out of the
+    /// keyframe's view).
+    Unmatched,
+}
+
 /// The keyframe position of the centre of the block at (`bi`, `bj`) and
-/// the brightness gain there, or None when it is off the view, flat, or
-/// ambiguous.
-fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Option<((f64, f64), f32)> {
+/// the brightness gain there.
+fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Result<((f64, f64), f32), Miss> {
     let w = scene.grid.width();
     if !(bj..bj + BLOCK_PX).all(|j| scene.seen(bi, j) && scene.seen(bi + BLOCK_PX - 1, j)) {
-        return None;
+        return Err(Miss::Unseen);
     }
     // The current block, zero-mean; flat blocks measure nothing.
     let mut block = [[0f32; BLOCK_PX]; BLOCK_PX];
@@ -402,22 +459,22 @@ fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Option<(
     }
     // Below ~3 gray levels RMS it is sensor noise, not texture.
     if energy < 9.0 * (BLOCK_PX * BLOCK_PX) as f32 {
-        return None;
+        return Err(Miss::Flat);
     }
     // The keyframe patch around the model's footprint: the model as an
     // affine map about the block's centre.
     let half = (BLOCK_PX / 2) as f64;
     let (ci, cj) = (bi as f64 + half - 0.5, bj as f64 + half - 0.5);
-    let origin = scene.map(map, ci, cj)?;
-    let along = scene.map(map, ci + 1.0, cj)?;
-    let down = scene.map(map, ci, cj + 1.0)?;
+    let origin = scene.map(map, ci, cj).ok_or(Miss::Unmatched)?;
+    let along = scene.map(map, ci + 1.0, cj).ok_or(Miss::Unmatched)?;
+    let down = scene.map(map, ci, cj + 1.0).ok_or(Miss::Unmatched)?;
     let (du, dv) = ((along.0 - origin.0, along.1 - origin.1), (down.0 - origin.0, down.1 - origin.1));
     let mut patch = [[0f32; PATCH]; PATCH];
     let first = -(half - 0.5) - f64::from(BLOCK_REACH);
     for (v, row) in patch.iter_mut().enumerate() {
         for (u, value) in row.iter_mut().enumerate() {
             let (a, b) = (first + u as f64, first + v as f64);
-            *value = scene.keyframe_at(origin.0 + a * du.0 + b * dv.0, origin.1 + a * du.1 + b * dv.1)?;
+            *value = scene.keyframe_at(origin.0 + a * du.0 + b * dv.0, origin.1 + a * du.1 + b * dv.1).ok_or(Miss::Unmatched)?;
         }
     }
     // Zero-mean normalised correlation at every shift.
@@ -452,13 +509,13 @@ fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Option<(
     let best = scores[best_v][best_u];
     // On the reach's edge, weakly correlated, or as good a step away: no measurement.
     if best_u == 0 || best_v == 0 || best_u == window - 1 || best_v == window - 1 || best < 0.6 {
-        return None;
+        return Err(Miss::Unmatched);
     }
     for (sv, row) in scores.iter().enumerate().take(window) {
         for (su, &score) in row.iter().enumerate().take(window) {
             let apart = sv.abs_diff(best_v).max(su.abs_diff(best_u)) >= 2;
             if apart && score > best - 0.02 {
-                return None;
+                return Err(Miss::Unmatched);
             }
         }
     }
@@ -467,12 +524,38 @@ fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Option<(
     let sv = best_v as f64 - reach as f64 + f64::from(peak(scores[best_v - 1][best_u], best, scores[best_v + 1][best_u]));
     let keyframe_sum: f32 = (0..BLOCK_PX).map(|v| patch[v + best_v][best_u..best_u + BLOCK_PX].iter().sum::<f32>()).sum();
     let gain = (mean + 1.0) / (keyframe_sum / n + 1.0);
-    Some(((origin.0 + su * du.0 + sv * dv.0, origin.1 + su * du.1 + sv * dv.1), gain))
+    Ok(((origin.0 + su * du.0 + sv * dv.0, origin.1 + su * du.1 + sv * dv.1), gain))
+}
+
+/// A fitted motion and the robust scale of its block residuals (KG px).
+#[derive(Clone, Copy, Debug)]
+struct Fit {
+    motion: GroundMotion,
+    scale: f64,
+}
+
+/// How far the model `map` puts a block from where it was found, KG px.
+fn residual(scene: &Scene, map: &GroundMap, m: &BlockMatch) -> Option<f64> {
+    scene.map(map, m.current.0, m.current.1).map(|at| libm::hypot(at.0 - m.keyframe.0, at.1 - m.keyframe.1))
+}
+
+/// How many of the `matches` `motion` puts within `within` KG px.
+fn agreeing(scene: &Scene, matches: &[BlockMatch], motion: &GroundMotion, within: f64) -> usize {
+    let map = scene.ground_map(&params(motion));
+    matches.iter().filter(|m| residual(scene, &map, m).is_some_and(|r| r < within)).count()
+}
+
+/// The first row of the nearest third of the rows the camera sees.
+fn near_row(scene: &Scene) -> usize {
+    let rows = scene.grid.height();
+    let first = (0..rows).find(|&j| scene.coverage.seen(j).is_some()).unwrap_or(0);
+    let last = (0..rows).rev().find(|&j| scene.coverage.seen(j).is_some()).unwrap_or(0);
+    last - (last - first) / 3
 }
 
 /// Step 3: the parameters that put the blocks where they were found,
 /// robustly (Tukey), with the prior as five more observations.
-fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> Option<GroundMotion> {
+fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> Option<Fit> {
     if matches.len() < MIN_INLIERS {
         return None;
     }
@@ -493,10 +576,7 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> 
         }
         let mut count = 0;
         for (m, r) in matches.iter().zip(residuals.iter_mut()) {
-            *r = match scene.map(&map, m.current.0, m.current.1) {
-                Some(at) => libm::hypot(at.0 - m.keyframe.0, at.1 - m.keyframe.1),
-                None => f64::MAX,
-            };
+            *r = residual(scene, &map, m).unwrap_or(f64::MAX);
             count += 1;
         }
         let mut sorted = residuals;
@@ -553,16 +633,12 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> 
     }
     // Inliers: within 3 scales of the final model.
     let map = scene.ground_map(&p);
-    let inliers = matches
-        .iter()
-        .filter_map(|m| scene.map(&map, m.current.0, m.current.1).map(|at| libm::hypot(at.0 - m.keyframe.0, at.1 - m.keyframe.1)))
-        .filter(|&r| r < 3.0 * scale)
-        .count();
+    let inliers = matches.iter().filter_map(|m| residual(scene, &map, m)).filter(|&r| r < 3.0 * scale).count();
     // A model most blocks disagree with is a wrong one (or the view is mostly obstacle).
     if inliers < MIN_INLIERS || 3 * inliers < matches.len() {
         return None;
     }
-    Some(motion(&p))
+    Some(Fit { motion: motion(&p), scale })
 }
 
 /// Solves the 5x5 symmetric positive definite system (Cholesky); None if singular.
@@ -656,11 +732,13 @@ mod tests {
     }
 
     fn estimate_of(motion: &GroundMotion, prior: &Prior, raised: impl Fn(f64, f64) -> bool) -> GroundMotion {
+        estimate_between(&render(&GroundMotion::default(), |_, _| false), &render(motion, raised), prior)
+    }
+
+    fn estimate_between(keyframe: &[u8], current: &[u8], prior: &Prior) -> GroundMotion {
         let grid = grid();
-        let keyframe = render(&GroundMotion::default(), |_, _| false);
-        let current = render(motion, raised);
         let coverage = Coverage::full(&grid);
-        let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0 };
+        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0 };
         let mut estimator = std::boxed::Box::new(Estimator::EMPTY);
         estimator.estimate(&scene, prior).expect("a textured floor is measured")
     }
@@ -700,5 +778,40 @@ mod tests {
         // A box a fifth as wide as the view, from 900 to 1200 mm.
         let found = estimate_of(&TRUTH, &prior, |x, z| (-60.0..80.0).contains(&x) && (900.0..1200.0).contains(&z));
         assert_close(&found, &TRUTH);
+    }
+
+    /// The KG image, seen from `pose` (a planar motion from the keyframe),
+    /// of a floor with a plateau `height_mm` high beyond `edge_z_mm`
+    /// (keyframe frame), textured as the floor.
+    fn render_plateau(pose: &Motion, edge_z_mm: f64, height_mm: f64) -> Vec<u8> {
+        let grid = grid();
+        let map = GroundMap::new(&GroundMotion { planar: *pose, attitude: Attitude::default() }, 400.0);
+        let mut image = Vec::new();
+        for j in 0..grid.height() {
+            for i in 0..grid.width() {
+                let (x, z) = grid.pixel_to_ground(i as f64, j as f64);
+                let (xk, zk) = map.to_keyframe(x, z).unwrap();
+                // The ray meets the plateau at (H - h) / H of its ground distance.
+                let scale = (400.0 - height_mm) / 400.0;
+                let (xt, zt) = map.to_keyframe(x * scale, z * scale).unwrap();
+                let value = if zt >= edge_z_mm { floor(xt, zt) } else { floor(xk, zk) };
+                image.push(value.clamp(0.0, 255.0) as u8);
+            }
+        }
+        image
+    }
+
+    #[test]
+    fn the_ground_is_the_surface_under_the_robot() {
+        // A 60 mm curb from 700 mm on (keyframe): its top fills most of the
+        // view and moves 18 % faster than the floor the robot stands on.
+        let step = Motion { tx_mm: 0.0, tz_mm: 80.0, dyaw_deg: 0.0 };
+        let keyframe = render_plateau(&Motion::default(), 700.0, 60.0);
+        let current = render_plateau(&step, 700.0, 60.0);
+        // Odometry (or, without it, the last step) 10 % long.
+        let predicted = GroundMotion { planar: Motion { tz_mm: 88.0, ..step }, attitude: Attitude::default() };
+        let prior = Prior { motion: predicted, sigma: [12.0, 12.0, 1.0, 1.0, 1.0] };
+        let found = estimate_between(&keyframe, &current, &prior);
+        assert_close(&found, &GroundMotion { planar: step, attitude: Attitude::default() });
     }
 }

@@ -3,8 +3,17 @@
 
 use crate::geometry::Rig;
 use crate::grid::{KgGrid, PixelRect};
-use crate::limits::{MAX_CELLS, MAX_CELLS_SIDE};
+use crate::limits::{MAX_CELLS, MAX_CELLS_SIDE, MAX_GRID_SIDE};
 use core::ops::Range;
+
+/// The largest cell side, px: a cell holds at most 225 pixels, so its sums
+/// over a cell row fit 8 bits (count) and 16 bits (SAD, 225 * 255).
+pub(super) const MAX_CELL_PX: usize = 15;
+// The loop in `Layout::new` never grows cells past it: 7 px already fits
+// the largest grid into the cell limits.
+const _: () = assert!(
+    MAX_GRID_SIDE.div_ceil(7) <= MAX_CELLS_SIDE && MAX_GRID_SIDE.div_ceil(7) * MAX_GRID_SIDE.div_ceil(7) <= MAX_CELLS
+);
 
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Layout {
@@ -49,7 +58,7 @@ impl Layout {
         let rows = aoi.bottom;
         // At least 5 px: a coherent sample for the parallax test; and large
         // enough that the cells fit MAX_CELLS_SIDE per side and MAX_CELLS in all.
-        let mut px = (libm::round(cell_mm / grid.mm_per_px) as usize).clamp(5, 15);
+        let mut px = (libm::round(cell_mm / grid.mm_per_px) as usize).clamp(5, MAX_CELL_PX);
         while grid.width().div_ceil(px) * rows.div_ceil(px) > MAX_CELLS
             || grid.width().div_ceil(px) > MAX_CELLS_SIDE
             || rows.div_ceil(px) > MAX_CELLS_SIDE
@@ -92,5 +101,25 @@ impl Cells {
             c = end;
             cell_column += 1;
         }
+    }
+}
+
+/// A set of cells, one bit each (a `[bool; MAX_CELLS]` would cost 1.7 KB
+/// of the M4's stack per flood).
+pub(super) struct CellSet([u32; MAX_CELLS.div_ceil(32)]);
+
+impl CellSet {
+    pub(super) const EMPTY: CellSet = CellSet([0; MAX_CELLS.div_ceil(32)]);
+
+    pub(super) fn contains(&self, cell: usize) -> bool {
+        self.0[cell / 32] & (1 << (cell % 32)) != 0
+    }
+
+    pub(super) fn insert(&mut self, cell: usize) {
+        self.0[cell / 32] |= 1 << (cell % 32);
+    }
+
+    pub(super) fn remove(&mut self, cell: usize) {
+        self.0[cell / 32] &= !(1 << (cell % 32));
     }
 }

@@ -38,6 +38,8 @@ mod parallax;
 mod prediction;
 mod residue;
 mod row;
+#[cfg(test)]
+mod scenes;
 mod shift_search;
 mod warp;
 
@@ -47,7 +49,7 @@ use crate::kernels;
 pub use config::GpaConfig;
 pub use decision::AlarmSource;
 pub use obstacles::Blob;
-pub use parallax::HEIGHT_FRACTIONS;
+pub use parallax::{DROP_STEPS, HEIGHT_FRACTIONS};
 pub use shift_search::{SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
 
 use crate::geometry::Rig;
@@ -152,6 +154,8 @@ pub struct Gpa<'b> {
     measured: GroundMotion,
     /// Whether this frame's odometry disagreed with the ground.
     odometry_fault: Option<bool>,
+    /// The last frame's step from the frame before, if it was compared.
+    last_step: Option<Motion>,
     /// This frame's motion as a warp.
     warp: Warp,
     band: Band,
@@ -202,6 +206,7 @@ impl<'b> Gpa<'b> {
             attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
         },
         odometry_fault: None,
+        last_step: None,
         warp: Warp::NONE,
         band: Band::EMPTY,
         residue: Residue::EMPTY,
@@ -357,6 +362,7 @@ impl<'b> Gpa<'b> {
     /// Finishes the frame: measures the motion, compares every row, decides.
     /// Returns None for a frame that only (re)started the keyframe.
     pub fn end_frame(&mut self) -> Option<FrameReport> {
+        self.last_step = None;
         if !self.frame_active {
             return None;
         }
@@ -370,6 +376,7 @@ impl<'b> Gpa<'b> {
             Some(keyframe_frame) => self.compare(keyframe_frame),
             None => None,
         };
+        self.last_step = report.is_some().then_some(self.prediction.step);
         let new_keyframe = self.keyframe.finish(self.frame);
         if new_keyframe {
             self.keyframe_imu = self.imu;
@@ -469,7 +476,7 @@ impl<'b> Gpa<'b> {
         self.prediction.predicted = planar;
         self.prediction.step = step;
         let grid = &self.layout.grid;
-        self.parallax.hypotheses = Hypotheses::plan(&planar, &step, grid, &self.config);
+        self.parallax.hypotheses = Hypotheses::plan(&planar, &step, grid, &self.config, self.layout.camera_height_mm);
         self.warp = Warp::new(grid, &measured, self.layout.camera_height_mm);
         self.search.clear();
         self.residue.clear();
@@ -513,12 +520,16 @@ impl<'b> Gpa<'b> {
         let (seed_sum, seed_count) = kernels::seed_statistics(&seed.histogram());
         let seed_fit = seed.fit(self.config.search_radius, predicted, &self.layout);
         let (shift_k, shift_g) = (seed_fit.shift_k, seed_fit.shift_g);
-        let short_baseline = self.prediction.predicted.distance_mm() < 0.5 * self.config.keyframe_travel_mm;
+        let baseline_mm = self.prediction.predicted.distance_mm();
+        let short_baseline = baseline_mm < 0.5 * self.config.keyframe_travel_mm;
         let (layout, config) = (&self.layout, &self.config);
-        let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &self.residue, config, short_baseline);
+        let attitude = self.measured.attitude;
+        let drops = libm::fabs(attitude.pitch_deg).max(libm::fabs(attitude.roll_deg)) <= config.drop_attitude_limit_deg;
+        let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &self.residue, config, short_baseline, drops);
         self.blobs = obstacles::residue_blobs(layout, &self.residue, config);
         let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &self.residue, config);
-        let obstacle = self.alarm.decide(parallax.map(|(footprint, _)| footprint), residue, short_baseline, &self.prediction.step);
+        let hazard = self.alarm.decide(parallax, residue, baseline_mm, config, &self.prediction.step);
+        let obstacle = hazard.map(|(footprint, _)| footprint);
         let motion = self.prediction.to_last();
         let angle = |degrees: f64| libm::round(degrees * f64::from(ANGLE_SCALE)) as i32;
         FrameReport {
@@ -534,8 +545,7 @@ impl<'b> Gpa<'b> {
             shift_g: libm::round(shift_g * f64::from(SHIFT_SCALE)) as i32,
             tx: libm::round(motion.tx_mm * f64::from(MOTION_SCALE)) as i32,
             tz: libm::round(motion.tz_mm * f64::from(MOTION_SCALE)) as i32,
-            // A parallax obstacle always raises the alarm.
-            obstacle_h_mm: parallax.map(|(_, height)| height),
+            obstacle_h_mm: hazard.and_then(|(_, height)| height),
             dyaw: angle(motion.dyaw_deg),
             dpitch: angle(self.measured.attitude.pitch_deg),
             droll: angle(self.measured.attitude.roll_deg),
@@ -547,13 +557,14 @@ impl<'b> Gpa<'b> {
     pub fn blobs(&self) -> &[Blob] {
         &self.blobs
     }
-    /// Parallax height (mm) of a cell in the last frame, 0 for ground.
-    pub fn cell_height(&self, row: usize, column: usize) -> u8 {
+    /// Parallax height (mm) of a cell in the last frame, 0 for ground,
+    /// negative below it (a drop's lower level).
+    pub fn cell_height(&self, row: usize, column: usize) -> i16 {
         let cells = &self.layout.cells;
         if row >= cells.high || column >= cells.wide {
             return 0;
         }
-        self.parallax.height[row * cells.wide + column]
+        self.parallax.height.get(row * cells.wide + column)
     }
     /// Coherence cells (rows, columns).
     pub fn cells(&self) -> (usize, usize) {
@@ -568,6 +579,12 @@ impl<'b> Gpa<'b> {
     }
     pub fn predicted(&self) -> Motion {
         self.prediction.predicted
+    }
+    /// The ground's motion from the frame before to the last frame, as
+    /// its comparison measured it; None when the last frame was not
+    /// compared (it started a keyframe, or was dropped).
+    pub fn measured_step(&self) -> Option<Motion> {
+        self.last_step
     }
 }
 

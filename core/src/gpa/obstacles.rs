@@ -1,14 +1,16 @@
 //! Obstacles from a frame's evidence: connected groups of coherence cells
-//! and where they stand. Parallax cells give heights and true footprints;
+//! and where they stand. Parallax cells give heights and true footprints
+//! (above the ground an obstacle, below it a drop: a ledge, stairs down, a pit);
 //! residue blobs catch what has no consistent parallax. The whole grid
 //! ahead of the AOI is analysed, and a blob counts when its base (nearest
 //! point) lies in the AOI; blobs are measured in mm² of ground, so
 //! thresholds carry across cameras.
 
 use super::config::GpaConfig;
-use super::layout::Layout;
+use super::parallax::CellHeights;
+use super::layout::{CellSet, Layout};
 use super::residue::Residue;
-use crate::limits::{MAX_BLOBS, MAX_BLOB_CELLS, MAX_CELLS, MAX_FLOOD_CELLS};
+use crate::limits::{MAX_BLOBS, MAX_BLOB_CELLS, MAX_CELLS_SIDE, MAX_FLOOD_CELLS};
 
 /// A connected group of hot cells.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -42,13 +44,13 @@ fn flood_cells(
     size: (usize, usize),
     radius: i32,
     start: usize,
-    seen: &mut [bool],
+    seen: &mut CellSet,
     member: impl Fn(usize) -> bool,
     mut visit: impl FnMut(usize, usize, usize),
 ) {
     let (w, h) = size;
     let mut stack: heapless::Vec<u16, MAX_FLOOD_CELLS> = heapless::Vec::new();
-    seen[start] = true;
+    seen.insert(start);
     let _ = stack.push(start as u16);
     while let Some(cell) = stack.pop() {
         let cell = usize::from(cell);
@@ -61,8 +63,8 @@ fn flood_cells(
                     continue;
                 }
                 let neighbour = nr as usize * w + nc as usize;
-                if !seen[neighbour] && member(neighbour) {
-                    seen[neighbour] = true;
+                if !seen.contains(neighbour) && member(neighbour) {
+                    seen.insert(neighbour);
                     let _ = stack.push(neighbour as u16);
                 }
             }
@@ -70,51 +72,120 @@ fn flood_cells(
     }
 }
 
-/// Groups cells whose parallax height (`heights`, mm) reaches the obstacle
-/// height; returns the nearest footprint inside the AOI and its height (mm).
-/// A `short_baseline` measures heights coarsely: only a large group counts.
-///
-/// A cell at apparent ground position p with height h stands on p*(H-h)/H,
-/// so every cell of a vertical face points at the face's own footprint.
+/// Cells a group needs where heights are coarse (short baselines, drops).
+const LARGE_GROUP_CELLS: usize = 8;
+
+/// Which side of the ground a group of parallax cells lies on.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Side {
+    /// Standing up: an obstacle.
+    Above,
+    /// Below the floor: the lower level past a drop's edge.
+    Below,
+}
+
+/// The nearest parallax hazard inside the AOI, obstacle or drop, and its
+/// signed height (mm; a drop's is minus its depth); drops only when `drops`.
+/// See [`parallax_group`].
 pub(super) fn parallax_obstacle(
     layout: &Layout,
-    heights: &[u8; MAX_CELLS],
+    heights: &CellHeights,
     residue: &Residue,
     config: &GpaConfig,
     short_baseline: bool,
+    drops: bool,
+) -> Option<(Footprint, i32)> {
+    let drop = if drops { parallax_group(layout, heights, residue, config, short_baseline, Side::Below, 0) } else { None };
+    // Past a drop's edge the floor is gone: what stands there is reached
+    // only after the drop, and cells that seem to stand up there are the
+    // lower level's blur, which can fake an obstacle nearer than the edge.
+    let cells = &layout.cells;
+    let first_before_edge = drop.map_or(0, |(edge, _)| {
+        let centre_z = |r: usize| layout.grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1;
+        (0..cells.high).find(|&r| centre_z(r) < f64::from(edge.near_mm)).unwrap_or(cells.high)
+    });
+    let obstacle = parallax_group(layout, heights, residue, config, short_baseline, Side::Above, first_before_edge);
+    match (obstacle, drop) {
+        (Some(o), Some(d)) if d.0.near_mm < o.0.near_mm => Some(d),
+        (o, d) => o.or(d),
+    }
+}
+
+/// Groups cells whose parallax height (`heights`, mm) reaches the obstacle
+/// height on `side` of the ground; returns the nearest footprint inside
+/// the AOI and its height (mm). A `short_baseline` measures heights
+/// coarsely: only a large group counts. Cell rows above `first_row` are
+/// left out.
+///
+/// Above: a cell at apparent ground position p with height h stands on
+/// p*(H-h)/H, so every cell of a vertical face points at the face's own
+/// footprint. Below: the nearest visible point of the lower level is seen
+/// past the floor's edge, so its apparent position is the edge itself:
+/// the hole starts at the nearest cells' near side.
+fn parallax_group(
+    layout: &Layout,
+    heights: &CellHeights,
+    residue: &Residue,
+    config: &GpaConfig,
+    short_baseline: bool,
+    side: Side,
+    first_row: usize,
 ) -> Option<(Footprint, i32)> {
     let (grid, cells, camera_height_mm) = (&layout.grid, &layout.cells, layout.camera_height_mm);
     let (w, h) = (cells.wide, cells.high);
-    // Heights are whole mm, so h >= min_height exactly when h >= ceil(min_height):
+    // Heights are whole mm, so |h| >= min_height exactly when |h| >= ceil(min_height):
     // an integer compare per cell instead of a soft-float one on the M4.
-    let min_height = libm::ceil(config.min_obstacle_height_mm) as u32;
-    let tall = |cell: usize| u32::from(heights[cell]) >= min_height;
+    let min_height = libm::ceil(config.min_obstacle_height_mm) as i32;
+    let member = |cell: usize| cell >= first_row * w && match side {
+        Side::Above => i32::from(heights.get(cell)) >= min_height,
+        Side::Below => i32::from(heights.get(cell)) <= -min_height,
+    };
     let aoi = layout.aoi_mm();
-    let mut seen = [false; MAX_CELLS];
+    let mut seen = CellSet::EMPTY;
     let mut best: Option<(f64, f64, f64, f64)> = None;
     for start in 0..h * w {
-        if seen[start] || !tall(start) {
+        if seen.contains(start) || !member(start) {
             continue;
         }
         let mut with_residue = false;
         let mut footprints: heapless::Vec<f64, MAX_BLOB_CELLS> = heapless::Vec::new();
+        // Below: per cell column, 1 + the nearest cell row (0: none).
+        let mut nearest_rows = [0u8; MAX_CELLS_SIDE];
+        // Above: the tallest cell; below: the cells' depths, for their median
+        // (past an edge every cell sees the same lower level).
+        let mut depths: heapless::Vec<i16, MAX_BLOB_CELLS> = heapless::Vec::new();
         let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
         let mut group = 0usize;
         // Parallax is measured only where there is texture, so a face can
         // leave a cell out here and there: bridge one-cell gaps (radius 2).
-        flood_cells((w, h), 2, start, &mut seen, tall, |cell, r, c| {
+        flood_cells((w, h), 2, start, &mut seen, member, |cell, r, c| {
             group += 1;
             with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
-            let height = f64::from(heights[cell]);
-            // The cell's measured height belongs to its centre.
-            let scale = (camera_height_mm - height) / camera_height_mm;
-            let centre_row = (r as f64 + 0.5) * cells.px as f64 - 0.5;
-            let (x_left, z_centre) = grid.pixel_to_ground((c * cells.px) as f64, centre_row);
+            let height = f64::from(heights.get(cell));
+            let scale = match side {
+                // The cell's measured height belongs to its centre.
+                Side::Above => {
+                    let scale = (camera_height_mm - height) / camera_height_mm;
+                    let centre_row = (r as f64 + 0.5) * cells.px as f64 - 0.5;
+                    let (_, z_centre) = grid.pixel_to_ground(0.0, centre_row);
+                    let _ = footprints.push(z_centre * scale);
+                    scale
+                }
+                Side::Below => {
+                    nearest_rows[c] = nearest_rows[c].max(r as u8 + 1);
+                    1.0
+                }
+            };
+            let (x_left, _) = grid.pixel_to_ground((c * cells.px) as f64, 0.0);
             let (x_right, _) = grid.pixel_to_ground(((c + 1) * cells.px) as f64 - 1.0, 0.0);
-            let _ = footprints.push(z_centre * scale);
             left = left.min(x_left * scale);
             right = right.max(x_right * scale);
-            tallest = tallest.max(height);
+            match side {
+                Side::Above => tallest = tallest.max(height),
+                Side::Below => {
+                    let _ = depths.push(heights.get(cell));
+                }
+            }
         });
         // One cell alone is too easily a fluke of texture, and a small
         // patch of parallax without any residue is a blur difference on a
@@ -123,23 +194,50 @@ pub(super) fn parallax_obstacle(
         // parallax over a wider patch.
         // A short baseline measures heights coarsely, so its footprints
         // wander: there a blob must be large to raise an alarm by itself.
-        if group < 3 || (!with_residue && group < 4) || (short_baseline && group < 8) {
+        let large = group >= LARGE_GROUP_CELLS;
+        if group < 3 || (!with_residue && group < 4) || (short_baseline && !large) {
             continue;
         }
-        // Every cell of a vertical face points at the same footprint; the
-        // lower quartile is robust to the odd cell whose height is off.
+
+        let height = match side {
+            Side::Above => tallest,
+            Side::Below => {
+                // A cell's near side: the bottom of its last pixel row.
+                let near_side = |rows: u8| (usize::from(rows) * cells.px) as f64 - 0.5;
+                let edges = nearest_rows.iter().filter(|&&rows| rows > 0).map(|&rows| grid.pixel_to_ground(0.0, near_side(rows)).1);
+                footprints.extend(edges);
+                depths.sort_unstable();
+                f64::from(depths[depths.len() / 2])
+            }
+        };
+        // Above, every cell of a vertical face points at the same footprint:
+        // the lower quartile is robust to the odd cell whose height is off.
+        // Below, a cell straddling the edge mostly sees the floor, so every
+        // column's nearest drop cell starts up to a cell past the edge: the
+        // nearest column is the edge.
         footprints.sort_unstable_by(|a, b| a.total_cmp(b));
-        let nearest = footprints[(footprints.len() - 1) / 4];
+        let nearest = match side {
+            Side::Above => footprints[(footprints.len() - 1) / 4],
+            Side::Below => footprints[0],
+        };
         // A footprint is good to a fraction of a cell (the heights are):
-        // one measured a little beyond the far edge may stand on it.
+        // one measured a little beyond the far edge may stand on it. A hole
+        // reaches on from its edge, so it is in the AOI while the edge is
+        // not beyond it.
         let cell_mm = cells.px as f64 * grid.mm_per_px;
-        let inside = nearest <= aoi.far + 0.5 * cell_mm
-            && nearest >= aoi.near - cell_mm
-            && right >= -aoi.half_width
-            && left <= aoi.half_width;
+        let near_enough = side == Side::Below || nearest >= aoi.near - cell_mm;
+        let inside = nearest <= aoi.far + 0.5 * cell_mm && near_enough && right >= -aoi.half_width && left <= aoi.half_width;
         if inside && best.is_none_or(|b| nearest < b.0) {
-            best = Some((nearest, left.max(-aoi.half_width), right.min(aoi.half_width), tallest));
+            best = Some((nearest, left.max(-aoi.half_width), right.min(aoi.half_width), height));
         }
+    }
+    // A drop must show over an area: its parallax is at most T*d/(H+d),
+    // so an odometry or heading error fakes a small shallow patch more
+    // easily, and a hole a wheel can fall into shows its lower level over
+    // many cells (though, far and seen at a grazing angle, in scattered
+    // ones; the groups in front mark its edge).
+    if side == Side::Below && (0..h * w).filter(|&cell| member(cell)).count() < LARGE_GROUP_CELLS {
+        return None;
     }
     best.map(|(z, left, right, height)| {
         let z = z.clamp(aoi.near, aoi.far);
@@ -154,11 +252,11 @@ pub(super) fn residue_blobs(layout: &Layout, residue: &Residue, config: &GpaConf
     let mut blobs: heapless::Vec<Blob, MAX_BLOBS> = heapless::Vec::new();
     let cells = &layout.cells;
     let (w, h) = (cells.wide, cells.high);
-    let mut label = [false; MAX_CELLS];
+    let mut label = CellSet::EMPTY;
     let percent = |cell: usize| residue.percent(cell, cells.px);
     let active = |cell: usize| percent(cell) >= config.active_cell_percent;
     for start in 0..h * w {
-        if label[start] || !active(start) {
+        if label.contains(start) || !active(start) {
             continue;
         }
         let (sr, sc) = ((start / w) as u8, (start % w) as u8);

@@ -1,13 +1,15 @@
-//! The parallax test: does a cell stand above the ground? A point at height
-//! h = f*H shows, beyond the ground prediction, an extra displacement of
-//! T * f / (1 - f) (T the baseline). Each cell's SAD is summed per height
-//! hypothesis over a cell row; a hypothesis that clearly beats the ground,
-//! refined by a parabola, gives the cell's height.
+//! The parallax test: does a cell stand above the ground, or lie below it?
+//! A point at height h = f*H shows, beyond the ground prediction, an extra
+//! displacement of T * f / (1 - f) (T the baseline); a point d below the
+//! floor (the lower level past a ledge) is h = -d: it moves less than the
+//! floor. Each cell's SAD is summed per height hypothesis over a cell row;
+//! a hypothesis that clearly beats the ground, refined by a parabola in
+//! displacement, gives the cell's signed height.
 
 use super::config::GpaConfig;
 use super::decision::Noise;
 use super::keyframe::Keyframe;
-use super::layout::Cells;
+use super::layout::{CellSet, Cells};
 use super::warp::{clip, to_q16, RowWarp};
 use crate::grid::{KgGrid, MAX_GRID_SIDE};
 use crate::limits::{MAX_CELLS, MAX_CELLS_SIDE};
@@ -19,34 +21,63 @@ use core::ops::Range;
 /// camera height H (index 0 is the ground). A point at height h = f*H shows,
 /// beyond the ground prediction, an extra displacement of T * f / (1 - f).
 pub const HEIGHT_FRACTIONS: [f64; 8] = [0.0, 0.04, 0.08, 0.13, 0.19, 0.27, 0.37, 0.5];
-pub(super) const HYPOTHESES: usize = HEIGHT_FRACTIONS.len();
+/// Depth hypotheses below the ground, as fractions of the displacement
+/// deficit of the deepest drop looked for (`GpaConfig::max_drop_mm`, at
+/// d = D it is D / (H + D)). Few: each costs a pass over the keyframe, and
+/// a drop only needs its depth past the 20 mm limit and its edge, which
+/// the apparent position gives. The first sits near that limit (the 10 mm
+/// dip against the 25 mm drop is decided by the parabola around it), the
+/// last at the deepest, with one between for the parabola.
+pub const DROP_STEPS: [f64; 4] = [0.1, 0.2, 0.45, 1.0];
+pub(super) const HYPOTHESES: usize = HEIGHT_FRACTIONS.len() + DROP_STEPS.len();
+/// Where the ground (index 0) sits when the hypotheses are ordered by
+/// displacement: after the drops, deepest first.
+const GROUND_RANK: usize = DROP_STEPS.len();
 
 /// This frame's hypotheses: where each one samples the keyframe and which
 /// of them take part.
 pub(super) struct Hypotheses {
-    /// Extra keyframe offset (KG px, Q16.16) per hypothesis.
+    /// Extra keyframe offset (KG px, Q16.16) per hypothesis: index 0 the
+    /// ground, then [`HEIGHT_FRACTIONS`], then [`DROP_STEPS`].
     pub(super) offset: [(i32, i32); HYPOTHESES],
-    /// Hypotheses whose samples stay clear of the in-place keyframe update.
+    /// Extra displacement per hypothesis, as a fraction of the baseline:
+    /// f / (1 - f) for a height f*H, negative below the ground.
+    displacement: [f64; HYPOTHESES],
+    /// Hypotheses 0..usable of the heights above the ground stay clear of
+    /// the in-place keyframe update (the drops always do: they reach less
+    /// far than the ground).
     pub(super) usable: usize,
     /// Per axis (K, G): may the odometry error exceed half a pixel this frame?
     pub(super) full_tolerance: (bool, bool),
-    /// Hypotheses 0..ground_like whose displacement the odometry error could
-    /// explain: they all stand for the ground.
-    pub(super) ground_like: usize,
+    /// Ranks (hypotheses ordered by displacement) whose displacement the
+    /// odometry error could explain: they all stand for the ground.
+    ground_like: Range<usize>,
 }
 
 impl Hypotheses {
-    pub(super) const NONE: Hypotheses =
-        Hypotheses { offset: [(0, 0); HYPOTHESES], usable: 0, full_tolerance: (false, false), ground_like: 1 };
+    pub(super) const NONE: Hypotheses = Hypotheses {
+        offset: [(0, 0); HYPOTHESES],
+        displacement: [0.0; HYPOTHESES],
+        usable: 0,
+        full_tolerance: (false, false),
+        ground_like: GROUND_RANK..GROUND_RANK + 1,
+    };
 
     /// The hypotheses of a frame at `predicted` from the keyframe, `step`
     /// from the last frame (the part of the motion the shift search has not
-    /// refined yet, so the part whose odometry error they must tolerate).
-    pub(super) fn plan(predicted: &Motion, step: &Motion, grid: &KgGrid, config: &GpaConfig) -> Hypotheses {
+    /// refined yet, so the part whose odometry error they must tolerate),
+    /// for a camera `camera_height_mm` above the ground.
+    pub(super) fn plan(predicted: &Motion, step: &Motion, grid: &KgGrid, config: &GpaConfig, camera_height_mm: f64) -> Hypotheses {
+        let mut displacement = [0.0; HYPOTHESES];
+        let deepest = -config.max_drop_mm / (camera_height_mm + config.max_drop_mm);
+        let heights = HEIGHT_FRACTIONS.iter().map(|f| f / (1.0 - f));
+        let drops = DROP_STEPS.iter().map(|step| step * deepest);
+        for (slot, g) in displacement.iter_mut().zip(heights.chain(drops)) {
+            *slot = g;
+        }
         let mut offset = [(0, 0); HYPOTHESES];
         let (di, dj) = (predicted.tx_mm / grid.mm_per_px, -predicted.tz_mm / grid.mm_per_px);
-        for (slot, f) in offset.iter_mut().zip(HEIGHT_FRACTIONS) {
-            let g = f / (1.0 - f);
+        for (slot, g) in offset.iter_mut().zip(displacement) {
             *slot = (to_q16(di * g), to_q16(dj * g));
         }
         let error = config.odometry_error_fraction;
@@ -54,8 +85,16 @@ impl Hypotheses {
         let full_tolerance = (error * libm::fabs(step.tx_mm) > half_px, error * libm::fabs(step.tz_mm) > half_px);
         let tolerance_mm = error * step.distance_mm() + half_px;
         let baseline = predicted.distance_mm();
-        let ground_like = HEIGHT_FRACTIONS.iter().take_while(|f| baseline * **f / (1.0 - **f) <= tolerance_mm).count().max(1);
-        Hypotheses { offset, usable: HYPOTHESES, full_tolerance, ground_like }
+        let explained = |rank: &usize| baseline * libm::fabs(displacement[by_rank(*rank)]) <= tolerance_mm;
+        let above = (GROUND_RANK + 1..HYPOTHESES).take_while(explained).count();
+        let below = (0..GROUND_RANK).rev().take_while(explained).count();
+        let ground_like = GROUND_RANK - below..GROUND_RANK + 1 + above;
+        Hypotheses { offset, displacement, usable: HEIGHT_FRACTIONS.len(), full_tolerance, ground_like }
+    }
+
+    /// The hypotheses this frame compares besides the ground.
+    pub(super) fn active(&self) -> impl Iterator<Item = usize> {
+        (1..self.usable).chain(if self.usable > 0 { HEIGHT_FRACTIONS.len()..HYPOTHESES } else { 0..0 })
     }
 
     /// How far (K, G) the ground hypothesis's residue of row `j` reaches: a
@@ -67,24 +106,25 @@ impl Hypotheses {
         (self.full_tolerance.0 || yaw_blur, self.full_tolerance.1)
     }
 
-    /// The height (as a fraction of H) that a cell's hypothesis SADs point
+    /// The height (as a fraction of H, negative below the ground) that a
+    /// cell's hypothesis SADs (by index, u32::MAX where not compared) point
     /// at, or None if the ground explains the cell as well. `noise_floor`
     /// is the median plain |diff| per pixel.
-    fn height_fraction(&self, sads: &[u32], pixels: u16, min_gain: f64, noise_floor: u8, gain_percent: u32) -> Option<f64> {
+    fn height_fraction(&self, sads: &[u32; HYPOTHESES], pixels: u16, min_gain: f64, noise_floor: u8, gain_percent: u32) -> Option<f64> {
+        // Ordered by displacement, so neighbours are neighbouring heights.
+        let sad = |rank: usize| sads[by_rank(rank)];
+        let g = |rank: usize| self.displacement[by_rank(rank)];
         // The ground: the tolerant residue, or any height so small that the
         // odometry error alone could produce its displacement.
-        let ground_like = self.ground_like.min(sads.len());
-        let ground = sads[..ground_like].iter().copied().min().unwrap_or(u32::MAX);
-        let mut best = 0;
-        for k in ground_like..sads.len() {
-            if best == 0 || sads[k] < sads[best] {
-                best = k;
+        let ground = self.ground_like.clone().map(sad).min().unwrap_or(u32::MAX);
+        let mut best: Option<usize> = None;
+        for rank in (0..HYPOTHESES).filter(|rank| !self.ground_like.contains(rank)) {
+            if sad(rank) != u32::MAX && best.is_none_or(|b| sad(rank) < sad(b)) {
+                best = Some(rank);
             }
         }
-        if best == 0 || sads[best] >= ground {
-            return None;
-        }
-        let best_sad = sads[best];
+        let best = best.filter(|&b| sad(b) < ground)?;
+        let best_sad = sad(best);
         let gain = ground - best_sad;
         // Sensor noise puts a floor under every plain SAD (the ground's
         // tolerant residue sits lower); compare what lies above it.
@@ -96,31 +136,78 @@ impl Hypotheses {
         // Uniqueness, as in stereo matching: structure that is uniform along
         // the motion (a tape strip driven along) matches every height
         // equally; only a distinct minimum is a measurement.
-        let runner_up = (1..sads.len()).filter(|k| k.abs_diff(best) > 1).map(|k| sads[k]).min().unwrap_or(0);
+        let runner_up = (0..HYPOTHESES)
+            .filter(|&rank| rank != GROUND_RANK && rank.abs_diff(best) > 1)
+            .map(sad)
+            .filter(|&sad| sad != u32::MAX)
+            .min()
+            .unwrap_or(0);
         let distinct = above(best_sad) * 100 <= above(runner_up) * keep;
         if !(relative && absolute && distinct) {
             return None;
         }
         // Parabola through the neighbouring hypotheses, in the displacement
         // they stand for (f / (1 - f)), not in index.
-        let g = |k: usize| HEIGHT_FRACTIONS[k] / (1.0 - HEIGHT_FRACTIONS[k]);
-        if best + 1 >= sads.len() || sads[best + 1] == u32::MAX {
-            return Some(HEIGHT_FRACTIONS[best]);
-        }
-        let offset = subpixel::minimum_offset(f64::from(sads[best - 1]), f64::from(best_sad), f64::from(sads[best + 1]));
-        let displacement = if offset < 0.0 {
-            g(best) + offset * (g(best) - g(best - 1))
+        let displacement = if best == 0 || best + 1 >= HYPOTHESES || sad(best + 1) == u32::MAX || sad(best - 1) == u32::MAX {
+            g(best)
         } else {
-            g(best) + offset * (g(best + 1) - g(best))
+            let offset = subpixel::minimum_offset(f64::from(sad(best - 1)), f64::from(best_sad), f64::from(sad(best + 1)));
+            if offset < 0.0 {
+                g(best) + offset * (g(best) - g(best - 1))
+            } else {
+                g(best) + offset * (g(best + 1) - g(best))
+            }
         };
         Some(displacement / (1.0 + displacement))
     }
 }
 
-/// Per-hypothesis SAD and pixel count of the cells of the current cell row.
+/// The hypothesis index at `rank` in displacement order: the drops deepest
+/// first, the ground, then the heights.
+fn by_rank(rank: usize) -> usize {
+    match rank {
+        r if r < GROUND_RANK => HYPOTHESES - 1 - r,
+        r => r - GROUND_RANK,
+    }
+}
+
+/// Parallax height per cell (mm, 0 = ground or undecided, negative below
+/// the ground), up to 255 mm either way: one byte and one bit a cell, for
+/// the M4's RAM.
+pub(super) struct CellHeights {
+    magnitude: [u8; MAX_CELLS],
+    below: CellSet,
+}
+
+impl CellHeights {
+    pub(super) const EMPTY: CellHeights = CellHeights { magnitude: [0; MAX_CELLS], below: CellSet::EMPTY };
+
+    pub(super) fn get(&self, cell: usize) -> i16 {
+        let magnitude = i16::from(self.magnitude[cell]);
+        if self.below.contains(cell) {
+            -magnitude
+        } else {
+            magnitude
+        }
+    }
+
+    /// Sets a cell's height, clamped to ±255 mm.
+    pub(super) fn set(&mut self, cell: usize, height: i16) {
+        self.magnitude[cell] = height.unsigned_abs().min(u16::from(u8::MAX)) as u8;
+        if height < 0 {
+            self.below.insert(cell);
+        } else {
+            self.below.remove(cell);
+        }
+    }
+}
+
+/// Per-hypothesis SAD and pixel count of the cells of the current cell
+/// row: a cell is at most [`super::layout::MAX_CELL_PX`] square, so 16
+/// and 8 bits hold them.
 pub(super) struct CellRowSums {
-    pub(super) sad: [[u32; MAX_CELLS_SIDE]; HYPOTHESES],
-    pub(super) pixels: [[u16; MAX_CELLS_SIDE]; HYPOTHESES],
+    pub(super) sad: [[u16; MAX_CELLS_SIDE]; HYPOTHESES],
+    pub(super) pixels: [[u8; MAX_CELLS_SIDE]; HYPOTHESES],
 }
 
 impl CellRowSums {
@@ -135,8 +222,8 @@ impl CellRowSums {
     /// Adds `pixels` pixels of SAD `sad` to hypothesis `k` of cell `column`.
     #[inline(always)]
     pub(super) fn add(&mut self, k: usize, column: usize, pixels: u16, sad: u32) {
-        self.pixels[k][column] += pixels;
-        self.sad[k][column] += sad;
+        self.pixels[k][column] += pixels as u8;
+        self.sad[k][column] += sad as u16;
     }
 }
 
@@ -145,16 +232,16 @@ pub(super) struct Parallax {
     pub(super) hypotheses: Hypotheses,
     /// Hypothesis 0, the ground, is summed by the residue stage.
     pub(super) sums: CellRowSums,
-    /// Parallax height (mm, 0 = ground or undecided) per cell, this frame.
-    pub(super) height: [u8; MAX_CELLS],
+    /// Parallax height per cell, this frame.
+    pub(super) height: CellHeights,
 }
 
 impl Parallax {
     pub(super) const EMPTY: Parallax =
-        Parallax { hypotheses: Hypotheses::NONE, sums: CellRowSums::EMPTY, height: [0; MAX_CELLS] };
+        Parallax { hypotheses: Hypotheses::NONE, sums: CellRowSums::EMPTY, height: CellHeights::EMPTY };
 
     pub(super) fn clear(&mut self) {
-        self.height = [0; MAX_CELLS];
+        self.height = CellHeights::EMPTY;
         self.sums.clear();
     }
 
@@ -171,7 +258,7 @@ impl Parallax {
         cells: &Cells,
     ) {
         let mut samples = [0u8; MAX_GRID_SIDE];
-        for k in 1..self.hypotheses.usable {
+        for k in self.hypotheses.active() {
             let (oi, oj) = self.hypotheses.offset[k];
             let sampled = keyframe.sample_line(warp.moved(oi, oj), seen.clone(), &mut samples);
             for &run in runs {
@@ -189,12 +276,12 @@ impl Parallax {
                 }
                 cells.segments(columns, |cell_column, columns| {
                     // Counted before the sum is taken: nothing stays live across it.
-                    self.sums.pixels[k][cell_column] += columns.len() as u16;
+                    self.sums.pixels[k][cell_column] += columns.len() as u8;
                     #[cfg(flatland_dsp)]
                     let sum = super::kernels::sad(&row[columns.clone()], &samples[columns]);
                     #[cfg(not(flatland_dsp))]
                     let sum: u32 = samples[columns].iter().map(|&d| u32::from(d)).sum();
-                    self.sums.sad[k][cell_column] += sum;
+                    self.sums.sad[k][cell_column] += sum as u16;
                 });
             }
         }
@@ -206,30 +293,30 @@ impl Parallax {
         if cell_row >= cells.high {
             return;
         }
-        let usable = self.hypotheses.usable;
         let min_pixels = (cells.px * cells.px / 2) as u16;
         let min_gain = config.parallax_min_gain.max(noise.level());
         for column in 0..cells.wide {
-            let pixels = self.sums.pixels[0][column];
+            let pixels = u16::from(self.sums.pixels[0][column]);
             let cell = cell_row * cells.wide + column;
-            self.height[cell] = 0;
-            if pixels < min_pixels || usable < 2 {
+            self.height.set(cell, 0);
+            if pixels < min_pixels || self.hypotheses.usable == 0 {
                 continue;
             }
             // Each hypothesis' SAD scaled to the cell's pixel count; one that
             // saw less than 3/4 of the cell (off the keyframe) does not compete.
             let mut sads = [u32::MAX; HYPOTHESES];
-            for (k, sad) in sads.iter_mut().enumerate().take(usable) {
+            for k in core::iter::once(0).chain(self.hypotheses.active()) {
+                let sad = &mut sads[k];
                 let seen = u32::from(self.sums.pixels[k][column]);
                 if seen * 4 >= u32::from(pixels) * 3 {
                     *sad = ((u64::from(self.sums.sad[k][column]) * u64::from(pixels)) / u64::from(seen.max(1))) as u32;
                 }
             }
-            let fraction =
-                self.hypotheses.height_fraction(&sads[..usable], pixels, min_gain, noise.floor(), config.parallax_gain_percent);
+            let fraction = self.hypotheses.height_fraction(&sads, pixels, min_gain, noise.floor(), config.parallax_gain_percent);
             if let Some(fraction) = fraction {
-                let height = fraction * camera_height_mm;
-                self.height[cell] = libm::round(height).clamp(1.0, 255.0) as u8;
+                let height = libm::round(fraction * camera_height_mm);
+                let magnitude = libm::fabs(height).clamp(1.0, f64::from(u8::MAX)) as i16;
+                self.height.set(cell, if height > 0.0 { magnitude } else { -magnitude });
             }
         }
         self.sums.clear();

@@ -99,9 +99,8 @@ impl Gpa<'_> {
         // Height hypotheses (0 = the ground prediction itself, band[S]).
         // A sample off the keyframe is None: that hypothesis skips the pixel.
         let hypotheses = &self.parallax.hypotheses;
-        let usable_hypotheses = hypotheses.usable;
         let mut hypothesis_rows = [[None; MAX_GRID_SIDE]; HYPOTHESES];
-        for k in 1..usable_hypotheses {
+        for k in hypotheses.active() {
             let (oi, oj) = hypotheses.offset[k];
             for c in cur_lo..cur_hi {
                 let (i_ref, j_ref) = warp.at(c);
@@ -158,11 +157,11 @@ impl Gpa<'_> {
                 // The ground is the null hypothesis: it gets the half-pixel
                 // tolerance, the heights must beat it outright.
                 sums.pixels[0][cell_column] += 1;
-                sums.sad[0][cell_column] += u32::from(ground_residue);
-                for k in 1..usable_hypotheses {
+                sums.sad[0][cell_column] += u16::from(ground_residue);
+                for k in hypotheses.active() {
                     if let Some(sample) = hypothesis_rows[k][c] {
                         sums.pixels[k][cell_column] += 1;
-                        sums.sad[k][cell_column] += u32::from(value.abs_diff(sample));
+                        sums.sad[k][cell_column] += u16::from(value.abs_diff(sample));
                     }
                 }
             }
@@ -186,7 +185,7 @@ impl Gpa<'_> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::super::{Gpa, GpaConfig};
     use crate::geometry::{Aoi, Intrinsics, Mount, Rig};
     use crate::grid::{GridConfig, KgGrid};
@@ -195,7 +194,7 @@ mod tests {
     use crate::remap::RemapTable;
     use core::ops::Range;
 
-    fn rig() -> Rig {
+    pub(in crate::gpa) fn rig() -> Rig {
         Rig::new_checked(
             Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
             Mount { height_mm: 400.0, tilt_deg: 32.0 },
@@ -205,7 +204,7 @@ mod tests {
     }
 
     /// Ground texture at world (x, z): smooth structure, edges and noise-like detail.
-    fn texture(x: f64, z: f64) -> u8 {
+    pub(in crate::gpa) fn texture(x: f64, z: f64) -> u8 {
         let smooth = 90.0 * libm::sin(x * 0.031) * libm::cos(z * 0.027);
         let edges = if (libm::floor(x / 37.0) as i64 + libm::floor(z / 53.0) as i64) % 3 == 0 { 45.0 } else { 0.0 };
         let hash = ((libm::floor(x / 3.0) as i64).wrapping_mul(73_856_093) ^ (libm::floor(z / 3.0) as i64).wrapping_mul(19_349_663)) & 31;
@@ -240,7 +239,7 @@ mod tests {
         v.push(gpa.search.compared_pixels);
         v.extend(gpa.residue.cell_residue.iter().map(|&x| u32::from(x)));
         v.extend(gpa.residue.cell_valid.iter().map(|&x| u32::from(x)));
-        v.extend(gpa.parallax.height.iter().map(|&x| u32::from(x)));
+        v.extend((0..crate::limits::MAX_CELLS).map(|cell| gpa.parallax.height.get(cell) as u32));
         v.extend(gpa.residue.row_residue.iter().map(|&x| u32::from(x)));
         let s = gpa.config.search_radius;
         let span = band_columns.start + MAX_SEARCH_RADIUS..band_columns.end + MAX_SEARCH_RADIUS;

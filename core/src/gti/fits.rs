@@ -29,9 +29,10 @@ fn slope_from_height(mount_height_mm: f32, height_mm: f32) -> f32 {
     mount_height_mm / (mount_height_mm - height_mm)
 }
 
-/// Slope range a locus may have (h from below the floor to near the camera).
+/// Slope range a locus may have: h from a drop as deep as the camera is
+/// high (a lower level past an edge, s = 1/2) to near the camera.
 pub(super) fn slope_plausible(slope: f32) -> bool {
-    (0.7..=20.0).contains(&slope)
+    (0.5..=20.0).contains(&slope)
 }
 
 /// A straight-line fit `y = intercept + slope * x`.
