@@ -158,6 +158,7 @@ fn run_recording(args: &Args, elf: &Path) -> Result<String> {
         elf,
         dir: &args.recording,
         script: qemu::host_script(&recording)?,
+        then: None,
         bench: args.mode == Mode::Bench,
         bench_mm_per_px: mm_per_px,
         bench_no_margins: args.full_frame,
