@@ -185,6 +185,9 @@ fn run_recording(args: &Args, elf: &Path) -> Result<String> {
         for fault in summary.frame_faults {
             eprintln!("fw: firmware skipped frame {}: {}", fault.frame, fault.code.as_str());
         }
+        for fault in summary.sensor_faults {
+            eprintln!("fw: {} after frame {} (alarm asserted)", fault.code.as_str(), fault.frame);
+        }
     }
     if outcome.serial.stats.is_none() {
         return Err("the firmware ended without its statistics message".into());
