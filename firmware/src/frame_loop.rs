@@ -282,6 +282,9 @@ fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Resu
     Ok((rig, grid))
 }
 
+/// Cycles between two polls of an idle serial port: 100 us at 168 MHz.
+const IDLE_POLL_CYCLES: u32 = 16_800;
+
 /// What the loop does while it waits: feeds the watchdog, watches the
 /// odometry's timer and drives the alarm.
 struct Guard<'a, A, K, W> {
@@ -302,6 +305,13 @@ impl<A: OutputPin, K: Clock, W: Watchdog> Guard<'_, A, K, W> {
             if let Some(message) = link.poll() {
                 return message;
             }
+            // Nothing waits: pause before polling again. Under QEMU a tight
+            // loop of register reads (each takes the emulator's global lock)
+            // held back the thread that feeds USART1 from the socket: three
+            // parity runs saw `$FLODO` lines already sent come > 0.5 s late
+            // (a false `odometry_lost`); with the pause they pass. On the
+            // board received bytes wait in RAM (interrupt-driven).
+            cortex_m::asm::delay(IDLE_POLL_CYCLES);
             if let Some(fault) = self.monitor.poll(self.clock.now_us()) {
                 self.alarm.follow(self.monitor, self.last_frame);
                 defmt::warn!("{=str}: no $FLODO after frame {=u32} for 0.5 s", fault.as_str(), self.last_frame);
