@@ -21,6 +21,7 @@
 //! - [`pipeline`]: one frame through remap, GPA, GTI and fusion, behind the
 //!   odometry gate; what the firmware and the host both drive.
 //! - [`pgm`]: checked view of binary PGM (P5) headers.
+//! - [`health`]: sensor health and the fail-safe alarm rule.
 //! - [`report`]: the per-frame result, shared by the CLI and the serial protocol.
 //! - [`protocol`]: the serial protocol between the firmware and its host.
 //! - [`limits`]: every capacity (buffer sizes, input sizes, search bounds) in one place.
@@ -35,6 +36,7 @@ pub mod fusion;
 pub mod geometry;
 pub mod gpa;
 pub mod grid;
+pub mod health;
 pub mod gti;
 pub mod kernels;
 pub mod limits;

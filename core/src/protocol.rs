@@ -137,7 +137,8 @@ pub struct LinkStats {
     pub aborted: u32,
 }
 
-/// A fatal condition the firmware reports before it gives up on a frame or the run.
+/// A condition the firmware reports: it gives up on a frame or the rig, or
+/// a sensor went quiet. Every one of them asserts the alarm.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FaultCode {
     /// `Rig::new_checked` refused the rig.
@@ -156,11 +157,17 @@ pub enum FaultCode {
     GridTooLarge,
     /// The camera rows need more row memory than the target has.
     CameraTooLarge,
+    /// The camera delivered no frame within `health::CAMERA_TIMEOUT_US` of
+    /// being asked (the frame is abandoned).
+    CameraTimeout,
+    /// No `$FLODO` for `health::ODOMETRY_TIMEOUT_US` while the firmware
+    /// waited for one; `frame` is the last frame whose `$FLODO` came.
+    OdometryLost,
 }
 
 impl FaultCode {
     /// Every code, in wire order.
-    pub const ALL: [FaultCode; 8] = [
+    pub const ALL: [FaultCode; 10] = [
         FaultCode::RigRejected,
         FaultCode::TableRejected,
         FaultCode::FrameMissing,
@@ -169,6 +176,8 @@ impl FaultCode {
         FaultCode::RemapFailed,
         FaultCode::GridTooLarge,
         FaultCode::CameraTooLarge,
+        FaultCode::CameraTimeout,
+        FaultCode::OdometryLost,
     ];
 
     /// The wire name (also used in logs).
@@ -182,6 +191,8 @@ impl FaultCode {
             FaultCode::RemapFailed => "remap_failed",
             FaultCode::GridTooLarge => "grid_too_large",
             FaultCode::CameraTooLarge => "camera_too_large",
+            FaultCode::CameraTimeout => "camera_timeout",
+            FaultCode::OdometryLost => "odometry_lost",
         }
     }
 

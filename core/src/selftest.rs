@@ -51,6 +51,11 @@ checks! {
         pinhole_rows_equal_bilinear,
         copy_row_copies,
     ],
+    health: [
+        alarm_is_asserted_until_a_frame_is_judged_clear,
+        lost_frame_asserts_until_the_next_clear_frame,
+        odometry_timeout_counts_only_while_waiting,
+    ],
     protocol: [
         every_message_round_trips,
         rig_converts_both_ways,

@@ -13,14 +13,22 @@
 //!   already sent stand and the loop goes on with the next pose;
 //! - a frame whose time goes backwards is skipped without a fault;
 //! - with `bench`, each compared frame's stage timing is logged.
+//!
+//! Fail-safe (`flatland_core::health`): the alarm pin is asserted from the
+//! start and released only right after a frame judged clear. A keyframe
+//! restart, a skipped or lost frame, a camera that does not deliver a frame
+//! within 0.5 s, odometry that stops for 0.5 s while the loop waits, and the
+//! end of input all assert it. The loop never blocks on the serial port: it
+//! polls, feeds the watchdog and checks the odometry timer while it waits.
 
 use embedded_hal::digital::OutputPin;
-use embedded_io::{Read, Write};
+use embedded_io::{Read, ReadReady, Write};
 
 use flatland_core::geometry::Rig;
 use flatland_core::fusion::GtiStage;
 use flatland_core::gpa::{Gpa, GpaConfig, GpaProfile};
 use flatland_core::grid::{GridConfig, KgGrid};
+use flatland_core::health::{Monitor, SensorFault, CAMERA_TIMEOUT_US};
 #[cfg(feature = "full-frame")]
 use flatland_core::limits::MAX_GRID_SIDE;
 use flatland_core::pipeline::{FrameError, FrameTiming, Outcome, Pipeline, PoseSample};
@@ -29,7 +37,7 @@ use flatland_core::remap::{RemapError, RemapTable};
 use flatland_core::report::FrameReport;
 use static_cell::ConstStaticCell;
 
-use crate::board::{CycleCounter, RowSource, RowSourceError};
+use crate::board::{Clock, CycleCounter, RowSource, RowSourceError, Watchdog};
 
 /// Widest camera row supported (VGA); wider rigs are refused at start-up.
 pub const MAX_CAMERA_WIDTH: usize = 640;
@@ -120,11 +128,55 @@ fn bump(counter: &mut u32) {
 }
 
 /// The board parts the loop needs.
-pub struct Board<S, A, C, R> {
+pub struct Board<S, A, C, R, K, W> {
     pub serial: S,
+    /// High = alarm; the board hands it over asserted.
     pub alarm: A,
     pub counter: C,
     pub frames: R,
+    pub clock: K,
+    pub watchdog: W,
+}
+
+/// The alarm pin driven from the [`Monitor`]: the pin is written, and the
+/// change logged, only when the level changes.
+struct AlarmOutput<A> {
+    pin: A,
+    asserted: bool,
+}
+
+impl<A: OutputPin> AlarmOutput<A> {
+    /// Asserts the pin (the board should have already).
+    fn new(mut pin: A) -> Self {
+        let _ = pin.set_high();
+        defmt::info!("alarm: on (start)");
+        AlarmOutput { pin, asserted: true }
+    }
+
+    /// No more frames will be judged.
+    fn assert_at_end(&mut self) {
+        if !self.asserted {
+            self.asserted = true;
+            let _ = self.pin.set_high();
+            defmt::info!("alarm: on (end of input)");
+        }
+    }
+
+    /// Follows the monitor; `frame` is the frame that changed it.
+    fn follow(&mut self, monitor: &Monitor, frame: u32) {
+        let asserted = monitor.alarm();
+        if asserted == self.asserted {
+            return;
+        }
+        self.asserted = asserted;
+        if asserted {
+            let _ = self.pin.set_high();
+            defmt::info!("alarm: on (frame {=u32}: {})", frame, monitor.health());
+        } else {
+            let _ = self.pin.set_low();
+            defmt::info!("alarm: off (frame {=u32} clear)", frame);
+        }
+    }
 }
 
 pub struct Options {
@@ -145,10 +197,11 @@ struct Link<S> {
     counters: LoopCounters,
 }
 
-impl<S: Read + Write> Link<S> {
-    /// Next well-formed message; malformed input is counted and skipped.
-    fn receive(&mut self) -> Message {
-        loop {
+impl<S: Read + ReadReady + Write> Link<S> {
+    /// The next well-formed message among the bytes waiting; None once no
+    /// byte waits. Malformed input is counted and skipped.
+    fn poll(&mut self) -> Option<Message> {
+        while self.serial.read_ready().unwrap_or(true) {
             let mut byte = [0u8; 1];
             match self.serial.read(&mut byte) {
                 Ok(1) => {}
@@ -159,11 +212,12 @@ impl<S: Read + Write> Link<S> {
                 }
             }
             match self.decoder.push(byte[0]) {
-                Some(Ok(message)) => return message,
+                Some(Ok(message)) => return Some(message),
                 Some(Err(error)) => defmt::warn!("serial: dropped a line ({})", error),
                 None => {}
             }
         }
+        None
     }
 
     fn send(&mut self, message: &Message) {
@@ -228,16 +282,56 @@ fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Resu
     Ok((rig, grid))
 }
 
+/// Cycles between two polls of an idle serial port: 100 us at 168 MHz.
+const IDLE_POLL_CYCLES: u32 = 16_800;
+
+/// What the loop does while it waits: feeds the watchdog, watches the
+/// odometry's timer and drives the alarm.
+struct Guard<'a, A, K, W> {
+    alarm: &'a mut AlarmOutput<A>,
+    monitor: &'a mut Monitor,
+    clock: &'a K,
+    watchdog: &'a mut W,
+    /// The last frame whose `$FLODO` came (0 before any).
+    last_frame: u32,
+}
+
+impl<A: OutputPin, K: Clock, W: Watchdog> Guard<'_, A, K, W> {
+    /// Waits for the next well-formed message. A newly stopped odometry
+    /// stream asserts the alarm and is reported as `$FLERR,odometry_lost`.
+    fn receive<S: Read + ReadReady + Write>(&mut self, link: &mut Link<S>) -> Message {
+        loop {
+            self.watchdog.feed();
+            if let Some(message) = link.poll() {
+                return message;
+            }
+            // Nothing waits: pause before polling again. Under QEMU a tight
+            // loop of register reads (each takes the emulator's global lock)
+            // held back the thread that feeds USART1 from the socket: three
+            // parity runs saw `$FLODO` lines already sent come > 0.5 s late
+            // (a false `odometry_lost`); with the pause they pass. On the
+            // board received bytes wait in RAM (interrupt-driven).
+            cortex_m::asm::delay(IDLE_POLL_CYCLES);
+            if let Some(fault) = self.monitor.poll(self.clock.now_us()) {
+                self.alarm.follow(self.monitor, self.last_frame);
+                defmt::warn!("{=str}: no $FLODO after frame {=u32} for 0.5 s", fault.as_str(), self.last_frame);
+                link.fault(FaultCode::OdometryLost, self.last_frame);
+            }
+        }
+    }
+}
+
 /// Waits for a rig that fits, builds the remap table, and announces it.
 /// None when the input ends first.
-fn configure<S: Read + Write, C: CycleCounter>(
+fn configure<S: Read + ReadReady + Write, C: CycleCounter, A: OutputPin, K: Clock, W: Watchdog>(
     link: &mut Link<S>,
+    guard: &mut Guard<A, K, W>,
     counter: &C,
     table: &mut RemapTable,
     options: &Options,
 ) -> Option<(Rig, KgGrid)> {
     loop {
-        let record = match link.receive() {
+        let record = match guard.receive(link) {
             Message::Rig(record) => record,
             Message::End => return None,
             other => {
@@ -246,6 +340,7 @@ fn configure<S: Read + Write, C: CycleCounter>(
             }
         };
         let started = counter.now();
+        guard.watchdog.feed();
         let (rig, grid) = match set_up(&record, table, options) {
             Ok(built) => built,
             Err(error) => {
@@ -283,6 +378,23 @@ struct FrameFailure {
     mid_frame: bool,
 }
 
+impl FrameFailure {
+    fn sensor_fault(&self) -> SensorFault {
+        match self.code {
+            FaultCode::CameraTimeout => SensorFault::CameraTimeout,
+            _ => SensorFault::FrameLost,
+        }
+    }
+}
+
+/// The parts of the board [`stream_frame`] uses.
+struct Camera<'a, R, C, K, W> {
+    frames: &'a mut R,
+    counter: &'a C,
+    clock: &'a K,
+    watchdog: &'a mut W,
+}
+
 /// The fault a pipeline error is sent as.
 fn fault_code(error: FrameError) -> FaultCode {
     match error {
@@ -291,25 +403,31 @@ fn fault_code(error: FrameError) -> FaultCode {
     }
 }
 
+fn row_fault(error: RowSourceError) -> FaultCode {
+    match error {
+        RowSourceError::Missing => FaultCode::FrameMissing,
+        RowSourceError::Format | RowSourceError::RowLength => FaultCode::FrameFormat,
+        RowSourceError::Read => FaultCode::FrameRead,
+        RowSourceError::Timeout => FaultCode::CameraTimeout,
+    }
+}
+
 /// Streams frame `index` from the row source through the pipeline and
 /// finishes it; `read` accumulates the ticks spent reading rows (the
-/// pipeline times its own stages). On failure the caller gives the frame up.
-fn stream_frame<R: RowSource, C: CycleCounter>(
-    frames: &mut R,
-    counter: &C,
+/// pipeline times its own stages). A frame whose last row has not come
+/// [`CAMERA_TIMEOUT_US`] after it was asked for is given up as
+/// `camera_timeout`. On failure the caller gives the frame up.
+fn stream_frame<R: RowSource, C: CycleCounter, K: Clock, W: Watchdog>(
+    camera_parts: Camera<R, C, K, W>,
     pipeline: &mut Pipeline,
     index: u32,
     camera: (usize, usize),
     read: &mut u32,
 ) -> Result<Outcome, FrameFailure> {
+    let Camera { frames, counter, clock, watchdog } = camera_parts;
+    let asked = clock.now_us();
     let early = |code| FrameFailure { code, mid_frame: false };
-    let size = frames.begin_frame(index).map_err(|error| {
-        early(match error {
-            RowSourceError::Missing => FaultCode::FrameMissing,
-            RowSourceError::Format | RowSourceError::RowLength => FaultCode::FrameFormat,
-            RowSourceError::Read => FaultCode::FrameRead,
-        })
-    })?;
+    let size = frames.begin_frame(index).map_err(|error| early(row_fault(error)))?;
     let (width, height) = (usize::from(size.width), usize::from(size.height));
     // The host skips a frame whose size is not the rig's; so do we, before the detector sees it.
     if (width, height) != camera {
@@ -319,13 +437,22 @@ fn stream_frame<R: RowSource, C: CycleCounter>(
     let row = row_buffer.get_mut(..width).ok_or(early(FaultCode::FrameFormat))?;
     let mid = |code| FrameFailure { code, mid_frame: true };
     for _ in 0..height {
+        watchdog.feed();
         let start = counter.now();
-        frames.read_row(row).map_err(|_| mid(FaultCode::FrameRead))?;
+        frames.read_row(row).map_err(|error| {
+            mid(if error == RowSourceError::Timeout { FaultCode::CameraTimeout } else { FaultCode::FrameRead })
+        })?;
         *read = read.wrapping_add(counter.now().wrapping_sub(start));
+        if clock.now_us().wrapping_sub(asked) > CAMERA_TIMEOUT_US {
+            return Err(mid(FaultCode::CameraTimeout));
+        }
         pipeline.push_row(row).map_err(|error| mid(fault_code(error)))?;
     }
     frames.end_frame();
-    pipeline.finish().map_err(|error| mid(fault_code(error)))
+    watchdog.feed();
+    let outcome = pipeline.finish().map_err(|error| mid(fault_code(error)));
+    watchdog.feed();
+    outcome
 }
 
 /// `cycle`: odometry received to report sent, the board's whole cycle
@@ -375,31 +502,59 @@ fn log_report(report: &FrameReport) {
     }
 }
 
-/// Runs until the host sends `$FLEND`; returns the final counters.
-pub fn run<S, A, C, R>(board: Board<S, A, C, R>, options: &Options) -> LinkStats
+/// Runs until the host sends `$FLEND`; returns the final counters. The
+/// alarm pin is left asserted, and kept (not dropped, which on a real board
+/// would float it): nothing is judged any more.
+pub fn run<S, A, C, R, K, W>(board: Board<S, A, C, R, K, W>, options: &Options) -> LinkStats
 where
-    S: Read + Write,
+    S: Read + ReadReady + Write,
     A: OutputPin,
     C: CycleCounter,
     R: RowSource,
+    K: Clock,
+    W: Watchdog,
 {
-    let Board { serial, mut alarm, counter, mut frames } = board;
+    let Board { serial, alarm, counter, mut frames, clock, mut watchdog } = board;
     let mut link = Link { serial, decoder: Decoder::new(), counters: LoopCounters::default() };
+    let mut alarm = AlarmOutput::new(alarm);
+    let mut monitor = Monitor::new();
+    let guard = Guard { alarm: &mut alarm, monitor: &mut monitor, clock: &clock, watchdog: &mut watchdog, last_frame: 0 };
+    let stats = serve_frames(&mut link, guard, &counter, &mut frames, options);
+    alarm.assert_at_end();
+    core::mem::forget(alarm);
+    stats
+}
+
+fn serve_frames<S, A, C, R, K, W>(
+    link: &mut Link<S>,
+    mut guard: Guard<A, K, W>,
+    counter: &C,
+    frames: &mut R,
+    options: &Options,
+) -> LinkStats
+where
+    S: Read + ReadReady + Write,
+    A: OutputPin,
+    C: CycleCounter,
+    R: RowSource,
+    K: Clock,
+    W: Watchdog,
+{
     let table: &'static mut RemapTable = TABLE.take();
     let ring: &'static mut [u8; RING_CAPACITY] = RING.take();
     let image: &'static mut [u8; IMAGE_CAPACITY] = IMAGE.take();
     let Some(ccm_image) = ccm_image() else { return link.finish() };
     let gpa: &'static mut Gpa<'static> = DETECTOR.take();
-    let _ = alarm.set_low();
 
     // Bytes that arrive before the USART is enabled are lost: say when we listen.
     link.send(&Message::Ready);
-    let Some((rig, grid)) = configure(&mut link, &counter, table, options) else {
+    let Some((rig, grid)) = configure(link, &mut guard, counter, table, options) else {
         defmt::warn!("no rig before the end of input");
         return link.finish();
     };
     let table: &RemapTable = table;
     let camera = (table.camera_width(), table.camera_height());
+    guard.watchdog.feed();
     // The detector lives in a static, initialised in place: by value LLVM
     // keeps stack temporaries of it, and it is kilobytes.
     if let Err(error) = gpa.init_split(&rig, &grid, table, GpaConfig::default(), &mut image[..], &mut ccm_image[..]) {
@@ -407,7 +562,7 @@ where
         link.fault(SetupError::Detector(error).fault_code(), 0);
         return link.finish();
     }
-    let Some(gti) = gti_stage(&mut link, &rig, &grid) else { return link.finish() };
+    let Some(gti) = gti_stage(link, &rig, &grid) else { return link.finish() };
     // `set_up` checked the ring size, so this only fails on a core change;
     // still a typed fault, not a panic.
     let mut pipeline = match Pipeline::new(table, &mut ring[..], gpa, gti) {
@@ -422,7 +577,7 @@ where
 
     let mut started = false;
     loop {
-        let odometry = match link.receive() {
+        let odometry = match guard.receive(link) {
             Message::Odometry(odometry) => odometry,
             Message::End => break,
             other => {
@@ -432,56 +587,91 @@ where
         };
         let cycle_start = counter.now();
         let frame = odometry.frame;
-        let follows = pipeline.follows(frame);
-        if let Err(error) = pipeline.begin(frame, Some(PoseSample::from(odometry))) {
-            // The pose cannot be trusted: the frame is skipped and the next one restarts.
-            defmt::warn!("frame {=u32} skipped: {}", frame, error);
-            let _ = alarm.set_low();
-            continue;
-        }
-        if !follows && started {
-            defmt::warn!("frame {=u32}: the frame before was not processed; keyframe restarts", frame);
-            bump(&mut link.counters.frame_gaps);
-        }
-        started = true;
-
-        let mut read = 0;
-        match stream_frame(&mut frames, &counter, &mut pipeline, frame, camera, &mut read) {
-            Ok(Outcome::Compared(report)) => {
-                let _ = if report.alarm { alarm.set_high() } else { alarm.set_low() };
-                link.send(&Message::Frame(report));
-                log_report(&report);
-                let cycle = counter.now().wrapping_sub(cycle_start);
-                // Benchmark figures are for detection cycles (frames compared with a keyframe).
-                if options.bench {
-                    log_bench(frame, read, cycle, &pipeline.timing(), &pipeline.gpa().profile());
-                }
-            }
-            Ok(Outcome::Keyframe { .. }) => {
-                // No comparison, so no alarm can be claimed.
-                let _ = alarm.set_low();
-                defmt::info!("frame {=u32}: new keyframe, nothing to compare", frame);
-            }
-            Err(failure) => {
-                frames.end_frame();
-                pipeline.abort();
-                if failure.mid_frame {
-                    bump(&mut link.counters.aborted);
-                }
-                let _ = alarm.set_low();
-                link.fault(failure.code, frame);
-                continue;
-            }
-        }
-        bump(&mut link.counters.frames);
+        guard.monitor.odometry(guard.clock.now_us());
+        guard.last_frame = frame;
+        serve_frame(link, &mut guard, counter, frames, &mut pipeline, odometry, camera, &mut started, options, cycle_start);
+        // The odometry timer counts from here: the frame's own time is not the robot's silence.
+        guard.monitor.waiting(guard.clock.now_us());
     }
     link.finish()
+}
+
+/// One `$FLODO`'s frame, from the pose gate to the report and the alarm.
+#[allow(clippy::too_many_arguments)]
+fn serve_frame<S, A, C, R, K, W>(
+    link: &mut Link<S>,
+    guard: &mut Guard<A, K, W>,
+    counter: &C,
+    frames: &mut R,
+    pipeline: &mut Pipeline,
+    odometry: flatland_core::protocol::Odometry,
+    camera: (usize, usize),
+    started: &mut bool,
+    options: &Options,
+    cycle_start: u32,
+) where
+    S: Read + ReadReady + Write,
+    A: OutputPin,
+    C: CycleCounter,
+    R: RowSource,
+    K: Clock,
+    W: Watchdog,
+{
+    let frame = odometry.frame;
+    let follows = pipeline.follows(frame);
+    if let Err(error) = pipeline.begin(frame, Some(PoseSample::from(odometry))) {
+        // The pose cannot be trusted: the frame is skipped and the next one restarts.
+        defmt::warn!("frame {=u32} skipped: {}", frame, error);
+        guard.monitor.unjudged();
+        guard.alarm.follow(guard.monitor, frame);
+        return;
+    }
+    if !follows && *started {
+        defmt::warn!("frame {=u32}: the frame before was not processed; keyframe restarts", frame);
+        bump(&mut link.counters.frame_gaps);
+    }
+    *started = true;
+
+    let mut read = 0;
+    let parts = Camera { frames: &mut *frames, counter, clock: guard.clock, watchdog: &mut *guard.watchdog };
+    match stream_frame(parts, pipeline, frame, camera, &mut read) {
+        Ok(Outcome::Compared(report)) => {
+            // The pin first: it is what the robot acts on.
+            guard.monitor.judged(report.alarm);
+            guard.alarm.follow(guard.monitor, frame);
+            link.send(&Message::Frame(report));
+            log_report(&report);
+            let cycle = counter.now().wrapping_sub(cycle_start);
+            // Benchmark figures are for detection cycles (frames compared with a keyframe).
+            if options.bench {
+                log_bench(frame, read, cycle, &pipeline.timing(), &pipeline.gpa().profile());
+            }
+        }
+        Ok(Outcome::Keyframe { .. }) => {
+            // No comparison: nothing is known about the path.
+            guard.monitor.unjudged();
+            guard.alarm.follow(guard.monitor, frame);
+            defmt::info!("frame {=u32}: new keyframe, nothing to compare", frame);
+        }
+        Err(failure) => {
+            frames.end_frame();
+            pipeline.abort();
+            if failure.mid_frame {
+                bump(&mut link.counters.aborted);
+            }
+            guard.monitor.frame_failed(failure.sensor_fault());
+            guard.alarm.follow(guard.monitor, frame);
+            link.fault(failure.code, frame);
+            return;
+        }
+    }
+    bump(&mut link.counters.frames);
 }
 
 /// GTI (19.6 KB) is configured in place in its static, as the detector.
 /// None on a refused rig (the fault is sent).
 #[cfg(not(feature = "full-frame"))]
-fn gti_stage<S: Read + Write>(link: &mut Link<S>, rig: &Rig, grid: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
+fn gti_stage<S: Read + ReadReady + Write>(link: &mut Link<S>, rig: &Rig, grid: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
     let gti: &'static mut GtiStage = GTI.take();
     match gti.configure(rig, grid) {
         Ok(()) => Some(Some(gti)),

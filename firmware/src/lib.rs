@@ -14,9 +14,9 @@ pub mod frame_loop;
 pub mod rt;
 
 use embedded_hal::digital::OutputPin;
-use embedded_io::{Read, Write};
+use embedded_io::{Read, ReadReady, Write};
 
-use board::{CycleCounter, RowSource};
+use board::{Clock, CycleCounter, RowSource, Watchdog};
 use frame_loop::{Board, Options};
 
 /// The frame loop's options, from the semihosting command line (QEMU's
@@ -39,12 +39,18 @@ pub fn command_line_options(profile_clock: Option<fn() -> u32>) -> Options {
 /// Announces the firmware on `board_name`, sets the board up (`take`), runs
 /// the frame loop until the host's `$FLEND` and logs its counters and the
 /// stack's high-water mark, which it returns.
-pub fn serve<S, A, C, R>(board_name: &str, take: impl FnOnce() -> Board<S, A, C, R>, options: &Options) -> rt::StackUse
+pub fn serve<S, A, C, R, K, W>(
+    board_name: &str,
+    take: impl FnOnce() -> Board<S, A, C, R, K, W>,
+    options: &Options,
+) -> rt::StackUse
 where
-    S: Read + Write,
+    S: Read + ReadReady + Write,
     A: OutputPin,
     C: CycleCounter,
     R: RowSource,
+    K: Clock,
+    W: Watchdog,
 {
     defmt::info!("flatland firmware {=str} ({=str})", env!("CARGO_PKG_VERSION"), board_name);
     let stats = frame_loop::run(take(), options);

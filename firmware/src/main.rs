@@ -14,12 +14,25 @@ use flatland_firmware::board::emulated::{instructions_now, EmulatedBoard};
 use flatland_firmware::frame_loop::Board;
 use flatland_firmware::rt::{exit, Exit};
 
+/// The emulated watchdog's timeout. QEMU's time is the host's (without
+/// `-icount`), and a frame's ~275 M instructions take a few seconds of it on
+/// a busy machine, so this is far above the real board's 5 s: it catches a
+/// hung loop, not a slow host.
+const WATCHDOG_TIMEOUT_MS: u32 = 60_000;
+
 #[entry]
 fn main() -> ! {
     let options = flatland_firmware::command_line_options(Some(instructions_now));
     let take = || {
-        let parts = EmulatedBoard::take();
-        Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames }
+        let parts = EmulatedBoard::take(WATCHDOG_TIMEOUT_MS);
+        Board {
+            serial: parts.serial,
+            alarm: parts.alarm,
+            counter: parts.counter,
+            frames: parts.frames,
+            clock: parts.clock,
+            watchdog: parts.watchdog,
+        }
     };
     let stack = flatland_firmware::serve("QEMU netduinoplus2", take, &options);
     if options.bench {

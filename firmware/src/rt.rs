@@ -4,6 +4,12 @@
 //! Under QEMU every way out ends the emulator through semihosting
 //! (`SYS_EXIT_EXTENDED`), so a fault is a nonzero exit status with a message,
 //! never a hang.
+//!
+//! A panic, a HardFault or an unexpected interrupt first asserts the alarm
+//! pins through the registers ([`crate::board::assert_alarm_after_fault`]),
+//! then logs. On a real board the core then parks with the pins high until
+//! the independent watchdog resets it, and the firmware starts again with
+//! the alarm asserted.
 
 use cortex_m_rt::{exception, ExceptionFrame, STACK_PAINT_VALUE};
 
@@ -40,19 +46,22 @@ pub fn exit(status: Exit) -> ! {
 
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
-    defmt::error!("panic: {}", defmt::Display2Format(info));
+    crate::board::assert_alarm_after_fault();
+    defmt::error!("panic: {}; alarm asserted", defmt::Display2Format(info));
     exit(Exit::Failure)
 }
 
 #[exception]
 unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
-    defmt::error!("HardFault at pc={=u32:#010x} lr={=u32:#010x}", frame.pc(), frame.lr());
+    crate::board::assert_alarm_after_fault();
+    defmt::error!("HardFault at pc={=u32:#010x} lr={=u32:#010x}; alarm asserted", frame.pc(), frame.lr());
     exit(Exit::Failure)
 }
 
 #[exception]
 unsafe fn DefaultHandler(irqn: i16) {
-    defmt::error!("unexpected interrupt {=i16}", irqn);
+    crate::board::assert_alarm_after_fault();
+    defmt::error!("unexpected interrupt {=i16}; alarm asserted", irqn);
     exit(Exit::Failure)
 }
 

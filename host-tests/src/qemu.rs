@@ -263,12 +263,33 @@ pub struct SerialOutcome {
     pub stats: Option<LinkStats>,
 }
 
+/// More bytes for the firmware once it has answered frame `after_frame`
+/// (`$FLFRM` or `$FLERR` of that frame): each chunk after its pause. What a
+/// robot does in time, as opposed to the script sent at once: stop sending
+/// for a while, send noise for a while.
+#[derive(Clone, Debug, Default)]
+pub struct Continuation {
+    pub after_frame: u32,
+    pub chunks: Vec<(Duration, Vec<u8>)>,
+}
+
+/// The frame a firmware message answers, if it answers one.
+fn answered_frame(message: &Message) -> Option<u32> {
+    match message {
+        Message::Frame(report) => Some(report.frame),
+        Message::Fault(fault) if fault.frame != 0 => Some(fault.frame),
+        _ => None,
+    }
+}
+
 /// Talks to the firmware over USART1: waits for `$FLRDY`, sends `script`
 /// (from a thread: QEMU reads the socket only as fast as the firmware
-/// drains USART1), and collects everything it sends back until `$FLSTA`.
+/// drains USART1), then `then` when its frame is answered, and collects
+/// everything it sends back until `$FLSTA`.
 fn converse(
     listener: TcpListener,
     script: Vec<u8>,
+    then: Option<Continuation>,
     deadline: Instant,
     on_message: &mut dyn FnMut(&Message),
 ) -> Result<SerialOutcome> {
@@ -285,7 +306,9 @@ fn converse(
     stream.set_nonblocking(false).map_err(|e| e.to_string())?;
     stream.set_read_timeout(Some(Duration::from_millis(200))).map_err(|e| e.to_string())?;
     let mut writer: Option<TcpStream> = Some(stream.try_clone().map_err(|e| e.to_string())?);
+    let mut later_writer: Option<TcpStream> = Some(stream.try_clone().map_err(|e| e.to_string())?);
     let mut script = Some(script);
+    let mut then = then;
     let mut reader = stream;
     let (done_tx, done_rx) = mpsc::channel::<io::Result<()>>();
     let mut decoder = Decoder::new();
@@ -320,6 +343,18 @@ fn converse(
                 Message::Stats(stats) => outcome.stats = Some(stats),
                 _ => {}
             }
+            if then.as_ref().is_some_and(|c| answered_frame(&message) == Some(c.after_frame)) {
+                if let (Some(mut out), Some(continuation)) = (later_writer.take(), then.take()) {
+                    let done = done_tx.clone();
+                    thread::spawn(move || {
+                        let sent = continuation.chunks.iter().try_for_each(|(pause, bytes)| {
+                            thread::sleep(*pause);
+                            out.write_all(bytes)
+                        });
+                        let _ = done.send(sent);
+                    });
+                }
+            }
             outcome.messages.push(message);
         }
         if outcome.stats.is_some() {
@@ -337,6 +372,8 @@ pub struct RunRequest<'a> {
     pub dir: &'a Path,
     /// Bytes sent on USART1 after `$FLRDY`.
     pub script: Vec<u8>,
+    /// Bytes sent later, once a frame is answered.
+    pub then: Option<Continuation>,
     /// `-icount shift=0` and the `bench` command line; `Some(x)` also fixes
     /// the KG resolution (`mm_per_px=x`), `bench_no_margins` makes the grid
     /// the AOI alone (`no_margins`, the full-frame benchmark).
@@ -373,7 +410,7 @@ pub fn run_firmware(request: RunRequest, on_message: &mut dyn FnMut(&Message)) -
     qemu.current_dir(request.dir);
     let deadline = Instant::now() + request.timeout;
     let emulator = Emulator::start(qemu, request.elf, request.echo_log)?;
-    let serial = converse(listener, request.script, deadline, on_message);
+    let serial = converse(listener, request.script, request.then, deadline, on_message);
     let (status, log) = emulator.finish(deadline)?;
     let serial = serial.map_err(|e| format!("{e}; firmware exit {status}; log:\n{log}"))?;
     Ok(RunOutcome { status, log, serial })

@@ -12,8 +12,12 @@ use flatland_core::report::CSV_HEADER;
 #[derive(Debug, Default)]
 pub struct DecodeSummary {
     pub rows: usize,
-    /// Faults about one frame (missing, broken, stopped mid-frame).
+    /// Faults about one frame (missing, broken, stopped mid-frame, the
+    /// camera too late).
     pub frame_faults: Vec<Fault>,
+    /// A sensor stream that stopped (`odometry_lost`, with the last frame
+    /// whose odometry came): no frame was skipped, the alarm was asserted.
+    pub sensor_faults: Vec<Fault>,
     /// The firmware's final counters, if the stream has them.
     pub stats: Option<LinkStats>,
 }
@@ -95,6 +99,9 @@ pub fn run_serial_decode(input: &mut dyn Read, out: &mut dyn Write) -> Result<De
                 }
                 Some(Ok(Message::Fault(fault))) if is_run_fault(fault.code) => {
                     first_fault.get_or_insert(fault);
+                }
+                Some(Ok(Message::Fault(fault))) if fault.code == FaultCode::OdometryLost => {
+                    summary.sensor_faults.push(fault)
                 }
                 Some(Ok(Message::Fault(fault))) => summary.frame_faults.push(fault),
                 Some(Ok(Message::Stats(stats))) => summary.stats = Some(stats),
@@ -194,5 +201,19 @@ mod tests {
         let stream = encode_line(&Message::Fault(skipped)).unwrap();
         let summary = run_serial_decode(&mut stream.as_bytes(), &mut Vec::new()).unwrap();
         assert_eq!(summary.frame_faults, vec![skipped]);
+    }
+
+    #[test]
+    fn fail_safe_faults_are_listed_not_errors() {
+        let late = Fault { code: FaultCode::CameraTimeout, frame: 6 };
+        let stopped = Fault { code: FaultCode::OdometryLost, frame: 7 };
+        let mut stream = encode_line(&Message::Fault(late)).unwrap().as_bytes().to_vec();
+        stream.extend_from_slice(encode_line(&Message::Frame(report(8))).unwrap().as_bytes());
+        stream.extend_from_slice(encode_line(&Message::Fault(stopped)).unwrap().as_bytes());
+        let mut out = Vec::new();
+        let summary = run_serial_decode(&mut stream.as_slice(), &mut out).unwrap();
+        assert_eq!(summary.frame_faults, vec![late], "the camera's late frame was skipped");
+        assert_eq!(summary.sensor_faults, vec![stopped], "stopped odometry skipped no frame");
+        assert_eq!(String::from_utf8(out).unwrap().lines().count(), 2, "header and frame 8");
     }
 }

@@ -13,10 +13,19 @@ use flatland_firmware::frame_loop::Board;
 fn main() -> ! {
     let take = || {
         let parts = DiscoveryBoard::take();
-        Board { serial: parts.serial, alarm: parts.alarm, counter: parts.counter, frames: parts.frames }
+        Board {
+            serial: parts.serial,
+            alarm: parts.alarm,
+            counter: parts.counter,
+            frames: parts.frames,
+            clock: parts.clock,
+            watchdog: parts.watchdog,
+        }
     };
     // A robot has no end of input: after `$FLEND` the loop returns with its
-    // counters (already sent as `$FLSTA`) and the board waits for a reset.
+    // counters (already sent as `$FLSTA`) and the alarm asserted; nothing
+    // feeds the watchdog any more, which resets the board within seconds
+    // (it then announces `$FLRDY` again).
     let options = flatland_firmware::command_line_options(None);
     flatland_firmware::serve("STM32F4DISCOVERY + OV7670", take, &options);
     loop {

@@ -2,7 +2,8 @@
 //! and prints `N passed, N failed`; the exit status is nonzero on any failure.
 //!
 //! The semihosting command line can also ask for a deliberate fault, so the
-//! fault paths are tested too: `panic` or `hardfault`.
+//! fault paths are tested too: `panic` or `hardfault`, and `hang`: the
+//! emulated watchdog started with a short timeout and never fed.
 #![no_std]
 #![no_main]
 
@@ -18,6 +19,7 @@ fn main() -> ! {
     match request {
         b"panic" => deliberate_panic(),
         b"hardfault" => cortex_m::asm::udf(),
+        b"hang" => hang(),
         _ => {}
     }
 
@@ -36,6 +38,18 @@ fn main() -> ! {
     }
     defmt::println!("{=u32} passed, {=u32} failed", passed, failed);
     exit(if failed == 0 { Exit::Success } else { Exit::Failure })
+}
+
+/// The emulated watchdog's timeout for `hang`.
+const HANG_WATCHDOG_TIMEOUT_MS: u32 = 200;
+
+/// A loop that never feeds the watchdog: its exception must end the run.
+fn hang() -> ! {
+    let _watchdog = flatland_firmware::board::emulated::SysTickWatchdog::start(HANG_WATCHDOG_TIMEOUT_MS);
+    defmt::println!("hanging with a {=u32} ms watchdog", HANG_WATCHDOG_TIMEOUT_MS);
+    loop {
+        cortex_m::asm::nop();
+    }
 }
 
 #[inline(never)]

@@ -13,11 +13,17 @@
 //!   F407's DCMI cannot drop the chroma bytes itself (no byte-select mode).
 //! - Serial: USART2 (PA2 TX, PA3 RX), 115200 8N1, interrupt-driven with RAM
 //!   buffers, so odometry lines that arrive while a frame is processed wait.
-//! - Alarm: red LED PD14 and PD11 (for the robot's controller) together;
+//! - Alarm: red LED PD14 and PD11 (for the robot's controller) together,
+//!   driven high (alarm) from the moment they become outputs;
 //!   green LED PD12 toggles once per frame; orange LED PD13 = a camera fault
 //!   since reset (set-up failed, DCMI error, ring overrun or no data).
 //! - Cycle counter: DWT CYCCNT (168 MHz). TIM2 runs at 1 MHz for the defmt
-//!   timestamps (rt.rs reads TIM2, as on the emulated board): microseconds.
+//!   timestamps (rt.rs reads TIM2, as on the emulated board) and is the
+//!   fail-safe [`Clock`]: microseconds.
+//! - Watchdog: the independent watchdog (IWDG, on the 32 kHz LSI), started
+//!   at the end of [`DiscoveryBoard::take`] with [`WATCHDOG_TIMEOUT_US`];
+//!   once started nothing stops it. It is frozen while a debugger halts the
+//!   core (DBGMCU), so stepping does not reset the board.
 //!
 //! Pins are checked by the type system (embassy's `dcmi::D0Pin` etc.), so a
 //! pin that cannot carry the signal does not compile.
@@ -37,7 +43,9 @@ use embassy_stm32::{bind_interrupts, pac, peripherals, Peri};
 use static_cell::ConstStaticCell;
 
 use super::ov7670::{self, Window};
-use super::{CycleCounter, FrameSize, RowSource, RowSourceError};
+use embassy_stm32::wdg::IndependentWatchdog;
+
+use super::{Clock, CycleCounter, FrameSize, RowSource, RowSourceError, Watchdog};
 
 /// SYSCLK, for the millisecond busy-waits.
 pub const SYSCLK_HZ: u32 = 168_000_000;
@@ -55,6 +63,11 @@ pub const CAMERA_RING_LINES: usize = 16;
 const RING_WORDS: usize = CAMERA_RING_LINES * LINE_WORDS;
 /// No camera data for this long is a dead camera (> 3 frames at 6.7 fps).
 const LINE_TIMEOUT_CYCLES: u32 = SYSCLK_HZ / 2;
+/// The IWDG's timeout, nominal (LSI 32 kHz). The LSI may run anywhere
+/// from 17 to 47 kHz, which makes it 3.4 to 9.4 s: above the longest stretch
+/// the loop goes without feeding it, a frame's end (~1.6 s, README
+/// "Performance"), with a margin of two.
+pub const WATCHDOG_TIMEOUT_US: u32 = 5_000_000;
 /// USART2 buffers: a $FLRIG line is < 200 B, a $FLODO < 60 B.
 const SERIAL_RX_BYTES: usize = 1024;
 const SERIAL_TX_BYTES: usize = 256;
@@ -79,6 +92,8 @@ pub struct DiscoveryBoard {
     pub alarm: AlarmOutputs,
     pub counter: DwtCounter,
     pub frames: CameraRows,
+    pub clock: Tim2Clock,
+    pub watchdog: Iwdg,
 }
 
 impl DiscoveryBoard {
@@ -87,6 +102,12 @@ impl DiscoveryBoard {
     /// every frame is then answered with `$FLERR,frame_missing`.
     pub fn take() -> DiscoveryBoard {
         let p = embassy_stm32::init(clock_config());
+        // The alarm first: asserted from the moment the pins drive (before
+        // this they float; README "Wiring" asks for a pull-up on PD11).
+        let alarm = AlarmOutputs {
+            led: Output::new(p.PD14, Level::High, Speed::Low),
+            line: Output::new(p.PD11, Level::High, Speed::Low),
+        };
         let mut core = cortex_m::Peripherals::take();
         if let Some(core) = core.as_mut() {
             core.DCB.enable_trace();
@@ -111,10 +132,6 @@ impl DiscoveryBoard {
                 Usart2 { inner: None }
             });
 
-        let alarm = AlarmOutputs {
-            led: Output::new(p.PD14, Level::Low, Speed::Low),
-            line: Output::new(p.PD11, Level::Low, Speed::Low),
-        };
         let heartbeat = Output::new(p.PD12, Level::Low, Speed::Low);
         let mut fault_led = Output::new(p.PD13, Level::Low, Speed::Low);
 
@@ -175,10 +192,17 @@ impl DiscoveryBoard {
         // Runs for good; DCMI gates the data, so the DMA only moves camera lines.
         ring.start();
 
+        // Last: set-up above takes ~0.4 s of delays; from here the loop feeds it.
+        pac::DBGMCU.apb1fzr().modify(|w| w.set_iwdg(true));
+        let mut iwdg = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
+        iwdg.unleash();
+
         DiscoveryBoard {
             serial,
             alarm,
             counter: DwtCounter { _private: () },
+            clock: Tim2Clock { _private: () },
+            watchdog: Iwdg { inner: iwdg },
             frames: CameraRows {
                 ring,
                 camera_ok,
@@ -312,7 +336,7 @@ impl CameraRows {
                     }
                     if DWT::cycle_count().wrapping_sub(last_progress) > LINE_TIMEOUT_CYCLES {
                         defmt::error!("camera: no line for 0.5 s ({=u16} rows left)", self.rows_left);
-                        return Err(self.fail(RowSourceError::Read));
+                        return Err(self.fail(RowSourceError::Timeout));
                     }
                 }
                 Ok((count, _)) => {
@@ -456,6 +480,16 @@ impl embedded_io::Read for Usart2 {
     }
 }
 
+impl embedded_io::ReadReady for Usart2 {
+    fn read_ready(&mut self) -> Result<bool, SerialError> {
+        match self.inner.as_mut() {
+            Some(inner) => embedded_io_async_07::ReadReady::read_ready(inner).map_err(|_| SerialError),
+            // No serial port: nothing will ever arrive.
+            None => Ok(false),
+        }
+    }
+}
+
 impl embedded_io::Write for Usart2 {
     fn write(&mut self, buf: &[u8]) -> Result<usize, SerialError> {
         match self.inner.as_mut() {
@@ -504,5 +538,28 @@ pub struct DwtCounter {
 impl CycleCounter for DwtCounter {
     fn now(&self) -> u32 {
         DWT::cycle_count()
+    }
+}
+
+/// TIM2 at 1 MHz (set up in [`DiscoveryBoard::take`]): the fail-safe clock.
+pub struct Tim2Clock {
+    _private: (),
+}
+
+impl Clock for Tim2Clock {
+    fn now_us(&self) -> u32 {
+        pac::TIM2.cnt().read()
+    }
+}
+
+/// The independent watchdog, started: it resets the chip unless fed within
+/// [`WATCHDOG_TIMEOUT_US`].
+pub struct Iwdg {
+    inner: IndependentWatchdog<'static, peripherals::IWDG>,
+}
+
+impl Watchdog for Iwdg {
+    fn feed(&mut self) {
+        self.inner.pet();
     }
 }

@@ -9,7 +9,14 @@
 //!   (the DWT cycle counter reads 0);
 //! - there is no CCM RAM;
 //! - GPIO ports are unimplemented devices: writes are accepted and ignored,
-//!   so the alarm pin also keeps its level in RAM for the loop and the logs.
+//!   so the alarm pin also keeps its level in RAM for the loop and the logs;
+//! - the independent watchdog (IWDG) is an unimplemented device too (`-d
+//!   unimp` lists the writes): the emulated board's watchdog is SysTick
+//!   (which QEMU models, 168 MHz) counting down in its exception, which
+//!   logs and ends the run where a real board would reset;
+//! - QEMU's timers count virtual nanoseconds (1 GHz): TIM5, prescaled to
+//!   1 MHz, is the fail-safe clock. Without `-icount` virtual time is the
+//!   host's time.
 //!
 //! Frames come from the host through ARM semihosting (SYS_OPEN / SYS_READ of
 //! `frames/NNNNNN.pgm`, relative to QEMU's working directory, which the
@@ -17,12 +24,16 @@
 
 use core::convert::Infallible;
 use core::ptr::{read_volatile, write_volatile};
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m_rt::exception;
 
 use cortex_m_semihosting::{nr, syscall};
 
 use flatland_core::pgm::{PgmError, PgmHeader};
 
-use super::{CycleCounter, FrameSize, RowSource, RowSourceError};
+use super::{Clock, CycleCounter, FrameSize, RowSource, RowSourceError, Watchdog};
 
 const USART1: usize = 0x4001_1000;
 const USART_SR: usize = 0x00;
@@ -43,11 +54,21 @@ const TIM_CNT: usize = 0x24;
 const TIM_PSC: usize = 0x28;
 const TIM_ARR: usize = 0x2C;
 
+/// TIM5 (32-bit), prescaled to microseconds: the [`Clock`].
+const TIM5: usize = 0x4000_0C00;
+/// QEMU's STM32 timers count at 1 GHz (virtual nanoseconds).
+const QEMU_TIMER_HZ: u32 = 1_000_000_000;
+
 const GPIOD: usize = 0x4002_0C00;
 const GPIO_MODER: usize = 0x00;
 const GPIO_BSRR: usize = 0x18;
 /// PD14: the red LED on STM32F4-Discovery-style boards.
 const ALARM_PIN: u32 = 14;
+
+/// The core clock QEMU gives the netduinoplus2 (SysTick's processor clock).
+const CORE_HZ: u32 = 168_000_000;
+/// SysTick period of the emulated watchdog.
+const WATCHDOG_TICK_MS: u32 = 10;
 
 fn write_register(address: usize, value: u32) {
     // SAFETY: `address` is one of the memory-mapped registers above, which
@@ -70,12 +91,19 @@ pub struct EmulatedBoard {
     pub serial: Usart1,
     pub alarm: AlarmPin,
     pub counter: Tim2Counter,
+    pub clock: Tim5Clock,
+    pub watchdog: SysTickWatchdog,
     pub frames: SemihostingFrames,
 }
 
 impl EmulatedBoard {
-    /// Configures the peripherals. Call once.
-    pub fn take() -> EmulatedBoard {
+    /// Configures the peripherals, the alarm asserted first, and starts the
+    /// watchdog with `watchdog_timeout_ms`. Call once.
+    pub fn take(watchdog_timeout_ms: u32) -> EmulatedBoard {
+        // PD14 high, then a push-pull output: asserted from the first moment it drives.
+        write_register(GPIOD + GPIO_BSRR, 1 << ALARM_PIN);
+        let moder = read_register(GPIOD + GPIO_MODER) & !(0b11 << (2 * ALARM_PIN));
+        write_register(GPIOD + GPIO_MODER, moder | (0b01 << (2 * ALARM_PIN)));
         // No RCC in QEMU: the peripheral clocks and the PLL are not set up.
         // USART1: 8N1, transmitter and receiver on. BRR is ignored by QEMU;
         // 115200 baud at 84 MHz APB2 on a real board.
@@ -86,16 +114,85 @@ impl EmulatedBoard {
         write_register(TIM2 + TIM_ARR, u32::MAX);
         write_register(TIM2 + TIM_EGR, 1);
         write_register(TIM2 + TIM_CR1, 1);
-        // PD14 as a push-pull output.
-        let moder = read_register(GPIOD + GPIO_MODER) & !(0b11 << (2 * ALARM_PIN));
-        write_register(GPIOD + GPIO_MODER, moder | (0b01 << (2 * ALARM_PIN)));
+        // TIM5: 32-bit, 1 MHz, free-running.
+        write_register(TIM5 + TIM_PSC, QEMU_TIMER_HZ / 1_000_000 - 1);
+        write_register(TIM5 + TIM_ARR, u32::MAX);
+        write_register(TIM5 + TIM_EGR, 1);
+        write_register(TIM5 + TIM_CR1, 1);
         EmulatedBoard {
             serial: Usart1 { _private: () },
-            alarm: AlarmPin { high: false },
+            alarm: AlarmPin { high: true },
             counter: Tim2Counter { _private: () },
+            clock: Tim5Clock { _private: () },
+            watchdog: SysTickWatchdog::start(watchdog_timeout_ms),
             frames: SemihostingFrames::new(),
         }
     }
+}
+
+/// TIM5 in microseconds.
+pub struct Tim5Clock {
+    _private: (),
+}
+
+impl Clock for Tim5Clock {
+    fn now_us(&self) -> u32 {
+        read_register(TIM5 + TIM_CNT)
+    }
+}
+
+/// SysTick periods left before the emulated watchdog fires; u32::MAX: not started.
+static WATCHDOG_TICKS_LEFT: AtomicU32 = AtomicU32::new(u32::MAX);
+/// The timeout in SysTick periods, what a feed restores.
+static WATCHDOG_TIMEOUT_TICKS: AtomicU32 = AtomicU32::new(u32::MAX);
+
+/// The emulated board's watchdog: SysTick every [`WATCHDOG_TICK_MS`]
+/// counts down; at zero its exception logs and ends the run with status 1,
+/// where the real board's IWDG resets the chip.
+pub struct SysTickWatchdog {
+    _private: (),
+}
+
+impl SysTickWatchdog {
+    /// Starts the watchdog (once: SysTick is taken from the core peripherals).
+    pub fn start(timeout_ms: u32) -> SysTickWatchdog {
+        let ticks = timeout_ms.div_ceil(WATCHDOG_TICK_MS).max(1);
+        WATCHDOG_TIMEOUT_TICKS.store(ticks, Ordering::Relaxed);
+        WATCHDOG_TICKS_LEFT.store(ticks, Ordering::Relaxed);
+        match cortex_m::Peripherals::take() {
+            Some(mut core) => {
+                core.SYST.set_clock_source(SystClkSource::Core);
+                core.SYST.set_reload(CORE_HZ / 1000 * WATCHDOG_TICK_MS - 1);
+                core.SYST.clear_current();
+                core.SYST.enable_interrupt();
+                core.SYST.enable_counter();
+            }
+            None => defmt::error!("watchdog: SysTick already taken; running without a watchdog"),
+        }
+        SysTickWatchdog { _private: () }
+    }
+}
+
+impl Watchdog for SysTickWatchdog {
+    fn feed(&mut self) {
+        WATCHDOG_TICKS_LEFT.store(WATCHDOG_TIMEOUT_TICKS.load(Ordering::Relaxed), Ordering::Relaxed);
+    }
+}
+
+#[exception]
+fn SysTick() {
+    let left = WATCHDOG_TICKS_LEFT.load(Ordering::Relaxed);
+    if left == u32::MAX {
+        return;
+    }
+    if left > 1 {
+        WATCHDOG_TICKS_LEFT.store(left - 1, Ordering::Relaxed);
+        return;
+    }
+    super::assert_alarm_after_fault();
+    let timeout_ms = WATCHDOG_TIMEOUT_TICKS.load(Ordering::Relaxed).saturating_mul(WATCHDOG_TICK_MS);
+    defmt::error!("watchdog: not fed for {=u32} ms; alarm asserted, a real board resets here", timeout_ms);
+    crate::rt::exit(crate::rt::Exit::Failure)
 }
 
 /// USART1, polled.
@@ -136,6 +233,13 @@ impl embedded_io::Read for Usart1 {
             }
         }
         Ok(count)
+    }
+}
+
+impl embedded_io::ReadReady for Usart1 {
+    /// A byte waits (or an overrun, which `read` reports).
+    fn read_ready(&mut self) -> Result<bool, Overrun> {
+        Ok(read_register(USART1 + USART_SR) & (SR_RXNE | SR_ORE) != 0)
     }
 }
 

@@ -6,7 +6,7 @@
 //!   connection to this runner, which sends the rig (rig.toml) and the poses
 //!   (poses.csv) and decodes the reports. Prints alarm lines and the defmt
 //!   log (through defmt-print); `--csv` prints only the csv of `flatland detect`.
-//! - `--selftest`: core's checks on the target, then the panic and HardFault
+//! - `--selftest`: core's checks on the target, then the panic, HardFault and watchdog
 //!   paths, which must end QEMU with a nonzero status and a message.
 //! - `--bench`: the main job under `-icount shift=0`; prints `key: value`.
 //!   With `--full-frame`: the worst case, a square AOI making the KG grid
@@ -158,6 +158,7 @@ fn run_recording(args: &Args, elf: &Path) -> Result<String> {
         elf,
         dir: &args.recording,
         script: qemu::host_script(&recording)?,
+        then: None,
         bench: args.mode == Mode::Bench,
         bench_mm_per_px: mm_per_px,
         bench_no_margins: args.full_frame,
@@ -184,6 +185,9 @@ fn run_recording(args: &Args, elf: &Path) -> Result<String> {
         for fault in summary.frame_faults {
             eprintln!("fw: firmware skipped frame {}: {}", fault.frame, fault.code.as_str());
         }
+        for fault in summary.sensor_faults {
+            eprintln!("fw: {} after frame {} (alarm asserted)", fault.code.as_str(), fault.frame);
+        }
     }
     if outcome.serial.stats.is_none() {
         return Err("the firmware ended without its statistics message".into());
@@ -198,10 +202,13 @@ fn run_selftest(args: &Args, elf: &Path) -> Result<()> {
     if !status.success() || !summary.contains(" 0 failed") {
         return Err(format!("on-target tests failed ({status}): {summary}"));
     }
-    for (request, expected) in [("panic", "panic:"), ("hardfault", "HardFault")] {
+    // Each fault path asserts the alarm (its log line says so) and ends QEMU with status 1.
+    for (request, expected) in [("panic", "panic:"), ("hardfault", "HardFault"), ("hang", "watchdog: not fed")] {
         let (status, log) = qemu::run_selftest(elf, request, false, args.timeout)?;
-        if status.success() || !log.contains(expected) {
-            return Err(format!("a deliberate {request} did not end QEMU with a failure and a message:\n{log}"));
+        // A panic's message may span lines: the alarm note ends the message.
+        let message = log.split_once(expected).map(|(_, rest)| rest.split_once(" ERROR ").map_or(rest, |(m, _)| m));
+        if status.success() || !message.is_some_and(|m| m.contains("alarm asserted")) {
+            return Err(format!("a deliberate {request} did not end QEMU with a failure and an alarm message:\n{log}"));
         }
         println!("fault path {request}: exit {status}, message {:?}", log.lines().find(|l| l.contains(expected)).unwrap_or(""));
     }
