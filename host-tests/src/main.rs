@@ -104,6 +104,23 @@ enum Command {
         #[arg(long)]
         full_frame: bool,
     },
+    /// Estimate the mount (tilt, height, roll, yaw) from a drive over flat
+    /// ground: `key: value` lines on stdout.
+    Calibrate {
+        /// Recording directory (rig.toml is the starting point).
+        recording: PathBuf,
+        /// Write the corrected rig as RECORDING/rig.calibrated.toml.
+        #[arg(long)]
+        write: bool,
+        /// The known camera height, mm, when the recording has no odometry
+        /// (default: rig.toml's); with odometry the height is estimated.
+        #[arg(long)]
+        height_mm: Option<f64>,
+        /// Wheel odometry: `poses` uses poses.csv's where present, `none`
+        /// ignores it (the height is then given).
+        #[arg(long, value_enum, default_value_t = Source::Poses)]
+        odometry: Source,
+    },
     /// Serial tools for the firmware's USART1 byte stream.
     #[command(subcommand)]
     Serial(SerialCommand),
@@ -390,6 +407,7 @@ fn main() -> ExitCode {
             }
         }
         Command::Serial(SerialCommand::Decode { file }) => run_serial_decode(file.as_deref()),
+        Command::Calibrate { recording, write, height_mm, odometry } => run_calibrate(&recording, write, height_mm, odometry),
         Command::Heights { recording, format: HeightsFormat::Csv, png, sensors } => {
             let recording = match sensors.open(&recording) {
                 Ok(r) => r,
@@ -407,4 +425,31 @@ fn main() -> ExitCode {
             }
         }
     }
+}
+
+fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Source) -> ExitCode {
+    use flatland_host::calibrate::{calibrate, calibrated_rig_toml, report, CalibrationConfig};
+    let recording = match Recording::open(path) {
+        Ok(r) => r,
+        Err(e) => return fatal(e),
+    };
+    let config = CalibrationConfig { height_mm, ignore_odometry: odometry == Source::None };
+    let estimate = match calibrate(&recording, &config) {
+        Ok(estimate) => estimate,
+        Err(e) => return fatal(format!("calibrate {}: {e}", path.display())),
+    };
+    print!("{}", report(&estimate));
+    if write {
+        let original = path.join("rig.toml");
+        let text = match std::fs::read_to_string(&original) {
+            Ok(text) => text,
+            Err(e) => return fatal(format!("{}: {e}", original.display())),
+        };
+        let target = path.join("rig.calibrated.toml");
+        if let Err(e) = std::fs::write(&target, calibrated_rig_toml(&text, &estimate.mount)) {
+            return fatal(format!("{}: {e}", target.display()));
+        }
+        eprintln!("flatland calibrate: wrote {}", target.display());
+    }
+    ExitCode::SUCCESS
 }
