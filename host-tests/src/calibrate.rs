@@ -370,6 +370,8 @@ fn cost(all: &[Vec<f64>], sigma: f64, huber: bool) -> f64 {
 }
 
 /// Solves `a x = b` (symmetric positive definite) by Cholesky; None when singular.
+// The textbook indexed loops; `!(a > b)` also refuses NaN.
+#[allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 fn solve(a: &[Vec<f64>], b: &[f64]) -> Option<Vec<f64>> {
     let n = b.len();
     let mut l = vec![vec![0.0; n]; n];
@@ -468,9 +470,11 @@ fn normal_equations(
             wsum += w;
         }
     }
+    // Only the lower triangle was summed: mirror it.
     for i in 0..n {
-        for j in 0..i {
-            jtj[j][i] = jtj[i][j];
+        let (upper, lower) = jtj.split_at_mut(i);
+        for (j, row) in upper.iter_mut().enumerate() {
+            row[i] = lower[0][j];
         }
     }
     Ok((jtj, jtr, wrr, wsum))
