@@ -780,35 +780,38 @@ pub fn calibrated_rig_toml(original: &str, mount: &Mount) -> String {
         ("roll_deg", format!("{:.3}", mount.roll_deg)),
         ("yaw_deg", format!("{:.3}", mount.yaw_deg)),
     ];
+    with_section_values(original, "mount", &values)
+}
+
+/// TOML text with `section`'s keys set to `values`: keys present are
+/// replaced in place, absent ones added at the section's end.
+pub fn with_section_values(original: &str, section: &str, values: &[(&str, String)]) -> String {
+    let header = format!("[{section}]");
     let mut out = String::new();
-    let mut in_mount = false;
-    let mut written = [false; 4];
-    let flush = |out: &mut String, written: &mut [bool; 4]| {
+    let mut inside = false;
+    let mut written = vec![false; values.len()];
+    let flush = |out: &mut String, written: &mut Vec<bool>| {
+        // Before the blank lines that end the section.
+        let blanks = out.len() - out.trim_end_matches('\n').len();
+        out.truncate(out.len() - blanks.saturating_sub(1));
         for (k, (key, value)) in values.iter().enumerate() {
             if !written[k] {
                 out.push_str(&format!("{key} = {value}\n"));
                 written[k] = true;
             }
         }
+        out.push_str(&"\n".repeat(blanks.saturating_sub(1)));
     };
     for line in original.lines() {
         let trimmed = line.trim_start();
         if trimmed.starts_with('[') {
-            if in_mount {
-                // Keys the section lacked go at its end, before blank lines.
-                let blank = out.ends_with("\n\n");
-                if blank {
-                    out.pop();
-                }
+            if inside {
                 flush(&mut out, &mut written);
-                if blank {
-                    out.push('\n');
-                }
             }
-            in_mount = trimmed.starts_with("[mount]");
+            inside = trimmed.starts_with(&header);
         }
         let key = trimmed.split('=').next().unwrap_or("").trim();
-        if let Some(k) = values.iter().position(|(name, _)| in_mount && *name == key && trimmed.contains('=')) {
+        if let Some(k) = values.iter().position(|(name, _)| inside && *name == key && trimmed.contains('=')) {
             out.push_str(&format!("{} = {}\n", values[k].0, values[k].1));
             written[k] = true;
             continue;
@@ -816,8 +819,82 @@ pub fn calibrated_rig_toml(original: &str, mount: &Mount) -> String {
         out.push_str(line);
         out.push('\n');
     }
-    if in_mount {
+    if inside {
         flush(&mut out, &mut written);
     }
     out
+}
+
+/// A ROS `sensor_msgs/CameraInfo` YAML file (camera_calibration's output):
+/// the image size, the camera matrix and plumb_bob distortion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraInfo {
+    pub width: u16,
+    pub height: u16,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// `[k1, k2, p1, p2, k3]`; None when all are zero or absent.
+    pub distortion: Option<[f64; 5]>,
+}
+
+/// Reads the keys flatland needs from camera_info YAML: `image_width`,
+/// `image_height`, `camera_matrix: data: [...]` (9 numbers),
+/// `distortion_model` (plumb_bob, or absent) and
+/// `distortion_coefficients: data: [...]` (5 numbers, or none).
+pub fn parse_camera_info(text: &str) -> Result<CameraInfo, String> {
+    let scalar = |key: &str| -> Option<&str> {
+        text.lines().find_map(|l| l.trim().strip_prefix(key)?.trim_start().strip_prefix(':').map(str::trim))
+    };
+    // The `data: [...]` list after `block:`, possibly over several lines.
+    let list = |block: &str| -> Result<Vec<f64>, String> {
+        let start = text.find(&format!("{block}:")).ok_or_else(|| format!("no {block}"))?;
+        let rest = &text[start..];
+        let open = rest.find('[').ok_or_else(|| format!("{block}: no data list"))?;
+        let close = rest[open..].find(']').ok_or_else(|| format!("{block}: unterminated data list"))? + open;
+        rest[open + 1..close]
+            .split(',')
+            .map(str::trim)
+            .filter(|t| !t.is_empty())
+            .map(|t| t.parse::<f64>().map_err(|_| format!("{block}: {t:?} is not a number")))
+            .collect()
+    };
+    let size = |key: &str| -> Result<u16, String> {
+        scalar(key).and_then(|v| v.parse().ok()).ok_or_else(|| format!("no {key}"))
+    };
+    let (width, height) = (size("image_width")?, size("image_height")?);
+    let k = list("camera_matrix")?;
+    if k.len() != 9 {
+        return Err(format!("camera_matrix has {} numbers, expected 9", k.len()));
+    }
+    if let Some(model) = scalar("distortion_model") {
+        let model = model.trim_matches(|c| c == '"' || c == '\'');
+        if model != "plumb_bob" {
+            return Err(format!("distortion_model {model}: only plumb_bob is supported"));
+        }
+    }
+    let d = if text.contains("distortion_coefficients:") { list("distortion_coefficients")? } else { Vec::new() };
+    let distortion = match d.len() {
+        0 => None,
+        5 => Some([d[0], d[1], d[2], d[3], d[4]]).filter(|c| c.iter().any(|v| *v != 0.0)),
+        n => return Err(format!("distortion_coefficients has {n} numbers, expected 5 (plumb_bob)")),
+    };
+    Ok(CameraInfo { width, height, fx: k[0], fy: k[4], cx: k[2], cy: k[5], distortion })
+}
+
+/// The `[camera]` values of a camera_info, for [`with_section_values`].
+pub fn camera_values(info: &CameraInfo) -> Vec<(&'static str, String)> {
+    let mut values = vec![
+        ("width", info.width.to_string()),
+        ("height", info.height.to_string()),
+        ("fx", format!("{}", info.fx)),
+        ("fy", format!("{}", info.fy)),
+        ("cx", format!("{}", info.cx)),
+        ("cy", format!("{}", info.cy)),
+    ];
+    if let Some(d) = info.distortion {
+        values.push(("distortion", format!("[{}, {}, {}, {}, {}]", d[0], d[1], d[2], d[3], d[4])));
+    }
+    values
 }

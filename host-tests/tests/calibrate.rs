@@ -5,7 +5,7 @@ mod common;
 
 use common::{data, TempRecording};
 use flatland_core::geometry::{Mount, Pixel, Rig};
-use flatland_host::calibrate::{calibrate, calibrated_rig_toml, CalibrationConfig, CalibrationError, MountEstimate};
+use flatland_host::calibrate::{calibrate, calibrated_rig_toml, parse_camera_info, CalibrationConfig, CalibrationError, MountEstimate};
 use flatland_host::recording::{parse_rig, Recording};
 use std::path::Path;
 use std::process::Command;
@@ -207,4 +207,54 @@ fn cli_prints_the_keys_and_writes_a_rig_that_parses() {
     assert_eq!(rig.camera(), original.camera());
     assert_eq!(rig.aoi(), original.aoi());
     assert!((rig.mount().tilt_deg - 32.0).abs() <= BOUNDS[0], "{text}");
+}
+
+/// What ROS camera_calibration writes (camera_info YAML), for flat_marks' camera.
+const CAMERA_INFO: &str = "image_width: 256
+image_height: 256
+camera_name: narrow_stereo
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [240.0, 0.0, 127.5,
+         0.0, 240.0, 127.5,
+         0.0, 0.0, 1.0]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [-0.01, 0.002, 0.0, 0.0, 0.0]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+";
+
+#[test]
+fn camera_info_is_read_and_written() {
+    let info = parse_camera_info(CAMERA_INFO).unwrap();
+    assert_eq!((info.width, info.height, info.fx, info.fy, info.cx, info.cy), (256, 256, 240.0, 240.0, 127.5, 127.5));
+    assert_eq!(info.distortion, Some([-0.01, 0.002, 0.0, 0.0, 0.0]));
+    assert!(parse_camera_info(&CAMERA_INFO.replace("plumb_bob", "equidistant")).is_err());
+    assert!(parse_camera_info(&CAMERA_INFO.replace("127.5,\n         0.0, 0.0, 1.0", "127.5")).is_err());
+
+    let copy = TempRecording::copy_of("flat_marks", "camera-info");
+    let file = copy.dir.join("camera_info.yaml");
+    std::fs::write(&file, CAMERA_INFO).unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_flatland"))
+        .args(["calibrate", "--write", "--camera-info"])
+        .arg(&file)
+        .arg(&copy.dir)
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let written = copy.dir.join("rig.calibrated.toml");
+    let (rig, _) = parse_rig(&written, &std::fs::read_to_string(&written).unwrap()).unwrap();
+    assert_eq!(rig.camera().distortion.map(|d| d.coefficients()), info.distortion);
+    assert_eq!(rig.camera().fx, 240.0);
+    // A camera_info of another size is refused.
+    std::fs::write(&file, CAMERA_INFO.replace("image_width: 256", "image_width: 640")).unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_flatland")).args(["calibrate", "--camera-info"]).arg(&file).arg(&copy.dir).output().unwrap();
+    assert!(!output.status.success());
+    assert!(String::from_utf8_lossy(&output.stderr).contains("640x256"), "{}", String::from_utf8_lossy(&output.stderr));
 }
