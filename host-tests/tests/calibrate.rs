@@ -258,3 +258,31 @@ fn camera_info_is_read_and_written() {
     assert!(!output.status.success());
     assert!(String::from_utf8_lossy(&output.stderr).contains("640x256"), "{}", String::from_utf8_lossy(&output.stderr));
 }
+
+/// The crooked mount end to end: the rig message carries roll and yaw, the
+/// firmware in QEMU builds the crooked table and gives exactly the host's
+/// csv, and the warped flat floor raises no alarm. A larger roll slants the
+/// KG rows across more camera rows than the firmware's ring holds: refused
+/// at start-up with `camera_too_large`, cleanly.
+#[test]
+fn a_crooked_recording_detects_alike_on_host_and_firmware() {
+    let (copy, _) = crooked_copy("flat_marks", 0.5, -1.0);
+    let expected = common::detect_csv(&copy.dir);
+    assert!(expected.lines().count() > 1, "no rows");
+    for row in expected.lines().skip(1) {
+        assert_eq!(row.split(',').nth(2), Some("0"), "alarm on the flat floor: {row}");
+    }
+    let outcome = common::run(&copy.dir, common::script(&copy.dir));
+    let (csv, summary) = common::decoded(&outcome);
+    assert!(summary.frame_faults.is_empty(), "{:?}", summary.frame_faults);
+    assert_eq!(csv, expected);
+
+    let (copy, _) = crooked_copy("flat_marks", 1.5, -2.0);
+    for row in common::detect_csv(&copy.dir).lines().skip(1) {
+        assert_eq!(row.split(',').nth(2), Some("0"), "alarm on the flat floor: {row}");
+    }
+    let outcome = common::run(&copy.dir, common::script(&copy.dir));
+    assert!(outcome.log.contains("RingTooSmall"), "{}", outcome.log);
+    let faults = common::faults(&outcome);
+    assert!(faults.iter().any(|f| f.code == flatland_core::protocol::FaultCode::CameraTooLarge), "{faults:?}");
+}
