@@ -51,6 +51,29 @@ pub struct Mount {
     pub height_mm: f64,
     /// alpha: optical axis below the horizontal, degrees, in (0, 90).
     pub tilt_deg: f64,
+    /// Roll about the optical axis, degrees, positive when the camera's
+    /// right side dips; within +-[`MAX_MOUNT_ROLL_DEG`]. 0 on a level mount.
+    pub roll_deg: f64,
+    /// The optical axis turned from the robot's z axis, degrees, positive to
+    /// the left; within +-[`MAX_MOUNT_YAW_DEG`]. 0 on a straight mount.
+    pub yaw_deg: f64,
+}
+
+/// Largest mount roll accepted: a crooked mount, not a camera on its side.
+pub const MAX_MOUNT_ROLL_DEG: f64 = 30.0;
+/// Largest mount yaw accepted: a crooked mount, not a camera looking sideways.
+pub const MAX_MOUNT_YAW_DEG: f64 = 30.0;
+
+impl Mount {
+    /// A mount with the optical axis in the robot's y-z plane and no roll.
+    pub const fn level(height_mm: f64, tilt_deg: f64) -> Mount {
+        Mount { height_mm, tilt_deg, roll_deg: 0.0, yaw_deg: 0.0 }
+    }
+
+    /// True when the mount has roll or yaw (the general rotation applies).
+    pub fn is_crooked(&self) -> bool {
+        self.roll_deg != 0.0 || self.yaw_deg != 0.0
+    }
 }
 
 /// Area of interest on the ground, robot frame, mm: |x| <= half_width, near <= z <= far.
@@ -91,6 +114,10 @@ pub enum RigError {
     MountHeight,
     /// Tilt is outside (0, 90) degrees.
     Tilt,
+    /// Mount roll is beyond +-[`MAX_MOUNT_ROLL_DEG`].
+    Roll,
+    /// Mount yaw is beyond +-[`MAX_MOUNT_YAW_DEG`].
+    Yaw,
     /// The distortion is not monotonic (cannot be inverted) over the image.
     Distortion,
     /// The AOI is empty (half width or depth not positive).
@@ -114,6 +141,8 @@ impl core::fmt::Display for RigError {
             RigError::PrincipalPoint => "principal point (cx, cy) lies outside the image",
             RigError::MountHeight => "mount height must be positive",
             RigError::Tilt => "tilt must be inside (0, 90) degrees",
+            RigError::Roll => "mount roll must be within +-30 degrees",
+            RigError::Yaw => "mount yaw must be within +-30 degrees",
             RigError::Distortion => "lens distortion cannot be inverted over the image",
             RigError::AoiEmpty => "AOI must have positive half width and far > near",
             RigError::AoiBehindCamera => "AOI near edge must be ahead of the robot (near > 0)",
@@ -158,6 +187,10 @@ pub struct Rig {
     aoi: Aoi,
     sin_tilt: f64,
     cos_tilt: f64,
+    /// Robot frame (relative to the optical centre) -> camera frame (X right,
+    /// Y up, Z along the axis) when the mount has roll or yaw; None on a
+    /// level mount, which keeps the seed's own arithmetic (bit for bit).
+    rotation: Option<[[f64; 3]; 3]>,
     /// Undistorted normalised radius² up to which the distortion is monotonic
     /// and which covers the whole image (infinite without distortion).
     max_radius_sq: f64,
@@ -242,6 +275,8 @@ impl Rig {
             camera.cy,
             mount.height_mm,
             mount.tilt_deg,
+            mount.roll_deg,
+            mount.yaw_deg,
             aoi.half_width_mm,
             aoi.near_mm,
             aoi.far_mm,
@@ -269,6 +304,12 @@ impl Rig {
         if !(mount.tilt_deg > 0.0 && mount.tilt_deg < 90.0) {
             return Err(RigError::Tilt);
         }
+        if !(mount.roll_deg.abs() <= MAX_MOUNT_ROLL_DEG) {
+            return Err(RigError::Roll);
+        }
+        if !(mount.yaw_deg.abs() <= MAX_MOUNT_YAW_DEG) {
+            return Err(RigError::Yaw);
+        }
         if !(aoi.half_width_mm > 0.0 && aoi.far_mm > aoi.near_mm) {
             return Err(RigError::AoiEmpty);
         }
@@ -282,6 +323,7 @@ impl Rig {
             aoi,
             sin_tilt: sin(tilt),
             cos_tilt: cos(tilt),
+            rotation: mount.is_crooked().then(|| mount_rotation(&mount)),
             max_radius_sq: f64::INFINITY,
         };
         if let Some(distortion) = camera.distortion {
@@ -326,8 +368,18 @@ impl Rig {
                 (a.half_width_mm, z),
             ];
             for (px, pz) in edge_points {
-                let (_, y_cam, z_cam) = self.camera_ray(Point3 { x: px, y: 0.0, z: pz });
-                if z_cam <= 0.0 || y_cam / z_cam >= self.sin_tilt / self.cos_tilt - horizon_margin {
+                let (x_cam, y_cam, z_cam) = self.camera_ray(Point3 { x: px, y: 0.0, z: pz });
+                let beyond = match &self.rotation {
+                    None => z_cam <= 0.0 || y_cam / z_cam >= self.sin_tilt / self.cos_tilt - horizon_margin,
+                    // The horizon is the line a x + b y + c = 0 of normalised
+                    // (x, y up) coordinates whose rays are level (robot y = 0):
+                    // (a, b, c) is the rotation's y column. Below it is negative.
+                    Some(r) => {
+                        let (a, b, c) = (r[0][1], r[1][1], r[2][1]);
+                        z_cam <= 0.0 || (a * x_cam / z_cam + b * y_cam / z_cam + c) / hypot(a, b) >= -horizon_margin
+                    }
+                };
+                if beyond {
                     return Err(RigError::AoiBeyondHorizon);
                 }
                 let edge = match self.ground_to_pixel(px, pz) {
@@ -362,6 +414,11 @@ impl Rig {
     /// Equation (1): robot frame -> camera frame (X right, Y up in the image, Z along the axis).
     fn camera_ray(&self, p: Point3) -> (f64, f64, f64) {
         let y_rel = p.y - self.mount.height_mm;
+        if let Some(r) = &self.rotation {
+            let q = [p.x, y_rel, p.z];
+            let row = |i: usize| r[i][0] * q[0] + r[i][1] * q[1] + r[i][2] * q[2];
+            return (row(0), row(1), row(2));
+        }
         let x_cam = p.x;
         let y_cam = p.z * self.sin_tilt + y_rel * self.cos_tilt;
         let z_cam = p.z * self.cos_tilt - y_rel * self.sin_tilt;
@@ -397,6 +454,19 @@ impl Rig {
     /// projection refuses them, and so does the remap table.
     pub fn max_undistorted_radius_sq(&self) -> f64 {
         self.max_radius_sq
+    }
+
+    /// Robot frame -> camera frame rotation (X right, Y up, Z along the
+    /// axis) of this mount, also for a level one (the seed's equation (1)).
+    pub fn camera_rotation(&self) -> [[f64; 3]; 3] {
+        self.rotation.unwrap_or_else(|| mount_rotation(&self.mount))
+    }
+
+    /// A ground point in camera axes (x right, y down, z along the axis), mm
+    /// from the optical centre: the remap's rows are affine in it.
+    pub fn ground_to_camera(&self, x_mm: f64, z_mm: f64) -> (f64, f64, f64) {
+        let (x_cam, y_cam, z_cam) = self.camera_ray(Point3 { x: x_mm, y: 0.0, z: z_mm });
+        (x_cam, -y_cam, z_cam)
     }
 
     /// A ground point -> normalised undistorted coordinates (x right, y down),
@@ -443,6 +513,17 @@ impl Rig {
     /// Equations (5)+(6): pixel -> (K, G). None above the horizon.
     pub fn pixel_to_kg(&self, p: Pixel) -> Option<Kg> {
         let (xn, yn) = self.pixel_to_normalised(p)?;
+        if let Some(r) = &self.rotation {
+            // The ray in the robot frame (rotation transposed); K and G are
+            // its x and z over its drop -y.
+            let ray = [xn, -yn, 1.0];
+            let column = |j: usize| r[0][j] * ray[0] + r[1][j] * ray[1] + r[2][j] * ray[2];
+            let drop = -column(1);
+            if !(drop > 1e-12) {
+                return None;
+            }
+            return Some(Kg { k: column(0) / drop, g: column(2) / drop });
+        }
         // In the seed's terms u/f_u = xn and v/f_v = -yn (v up).
         let v_over_fv = -yn;
         let denominator = self.sin_tilt - v_over_fv * self.cos_tilt;
@@ -486,6 +567,30 @@ impl Rig {
         Some((lateral, longitudinal))
     }
 
+}
+
+/// Robot frame -> camera frame (X right, Y up, Z along the axis) of a
+/// crooked mount: yaw about the robot's vertical axis (the axis turns left
+/// for positive yaw), then the tilt down about the yawed x axis, then the
+/// roll about the optical axis (the camera's right side dips for positive
+/// roll). With roll = yaw = 0 it is the seed's equation (1).
+fn mount_rotation(mount: &Mount) -> [[f64; 3]; 3] {
+    let (sin_y, cos_y) = (sin(mount.yaw_deg.to_radians()), cos(mount.yaw_deg.to_radians()));
+    let (sin_t, cos_t) = (sin(mount.tilt_deg.to_radians()), cos(mount.tilt_deg.to_radians()));
+    let (sin_r, cos_r) = (sin(mount.roll_deg.to_radians()), cos(mount.roll_deg.to_radians()));
+    let yaw = [[cos_y, 0.0, sin_y], [0.0, 1.0, 0.0], [-sin_y, 0.0, cos_y]];
+    let tilt = [[1.0, 0.0, 0.0], [0.0, cos_t, sin_t], [0.0, -sin_t, cos_t]];
+    let roll = [[cos_r, -sin_r, 0.0], [sin_r, cos_r, 0.0], [0.0, 0.0, 1.0]];
+    let product = |a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]| -> [[f64; 3]; 3] {
+        let mut m = [[0.0; 3]; 3];
+        for (i, row) in m.iter_mut().enumerate() {
+            for (j, value) in row.iter_mut().enumerate() {
+                *value = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
+            }
+        }
+        m
+    };
+    product(&roll, &product(&tilt, &yaw))
 }
 
 /// Finds the normalised radius² up to which radial distortion stays monotonic,
@@ -545,7 +650,7 @@ pub(crate) mod tests {
     pub(crate) fn sample_rig() -> Rig {
         Rig::new_checked(
             Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
-            Mount { height_mm: 400.0, tilt_deg: 32.0 },
+            Mount::level(400.0, 32.0),
             Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
         )
         .unwrap()
@@ -579,6 +684,58 @@ pub(crate) mod tests {
         assert!((back.x - 100.0).abs() < 1e-9 && (back.z - 900.0).abs() < 1e-9);
         let again = rig.kg_to_pixel(kg).unwrap();
         assert!((again.u - p.u).abs() < 1e-9 && (again.v - p.v).abs() < 1e-9);
+    }
+
+    fn crooked_rig(roll_deg: f64, yaw_deg: f64) -> Rig {
+        let level = sample_rig();
+        Rig::new_checked(*level.camera(), Mount { roll_deg, yaw_deg, ..*level.mount() }, *level.aoi()).unwrap()
+    }
+
+    #[test]
+    fn crooked_mount_round_trips() {
+        for (roll, yaw) in [(1.5, 0.0), (0.0, 2.0), (-3.0, 4.0), (6.0, -5.0)] {
+            let rig = crooked_rig(roll, yaw);
+            for (x, z) in [(0.0, 450.0), (-250.0, 1400.0), (120.0, 800.0)] {
+                let p = rig.ground_to_pixel(x, z).unwrap();
+                let (xb, zb) = rig.pixel_to_ground(p).unwrap();
+                assert!((xb - x).abs() < 1e-6 && (zb - z).abs() < 1e-6, "{roll},{yaw}: {x},{z} -> {xb},{zb}");
+            }
+            let p = rig.point_at_height_to_pixel(100.0, 900.0, 150.0).unwrap();
+            let kg = rig.pixel_to_kg(p).unwrap();
+            assert!((kg.k - 100.0 / 250.0).abs() < 1e-9 && (kg.g - 900.0 / 250.0).abs() < 1e-9);
+            let again = rig.kg_to_pixel(kg).unwrap();
+            assert!((again.u - p.u).abs() < 1e-9 && (again.v - p.v).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn crooked_mount_conventions() {
+        // Yaw turns the optical axis left: it meets the ground at negative x,
+        // at the tilt's distance.
+        let rig = crooked_rig(0.0, 5.0);
+        let reach = 400.0 / tan(32f64.to_radians());
+        let (s, c) = (5f64.to_radians().sin(), 5f64.to_radians().cos());
+        let p = rig.ground_to_pixel(-reach * s, reach * c).unwrap();
+        assert!((p.u - 127.5).abs() < 1e-9 && (p.v - 127.5).abs() < 1e-9, "{p:?}");
+        // Roll with the right side dipping: ground points on the right appear
+        // higher in the image (smaller v) than those on the left.
+        let rig = crooked_rig(3.0, 0.0);
+        let (left, right) = (rig.ground_to_pixel(-200.0, 700.0).unwrap(), rig.ground_to_pixel(200.0, 700.0).unwrap());
+        assert!(right.v < left.v, "{left:?} {right:?}");
+        // Roll alone keeps the principal ray.
+        let p = rig.ground_to_pixel(0.0, reach).unwrap();
+        assert!((p.u - 127.5).abs() < 1e-9 && (p.v - 127.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn impossible_mounts_are_refused() {
+        let level = sample_rig();
+        let with = |roll_deg, yaw_deg| Rig::new_checked(*level.camera(), Mount { roll_deg, yaw_deg, ..*level.mount() }, *level.aoi());
+        assert_eq!(with(31.0, 0.0).unwrap_err(), RigError::Roll);
+        assert_eq!(with(0.0, -31.0).unwrap_err(), RigError::Yaw);
+        assert_eq!(with(f64::NAN, 0.0).unwrap_err(), RigError::NotFinite);
+        // Turned 25 degrees, the AOI's right edge leaves the 256 px view.
+        assert_eq!(with(0.0, 25.0).unwrap_err(), RigError::AoiOutsideImage(AoiEdge::Right));
     }
 
     #[test]

@@ -46,6 +46,11 @@ pub struct RigRecord {
     pub distortion: Option<[f64; 5]>,
     pub height_mm: f64,
     pub tilt_deg: f64,
+    /// Mount roll and yaw (0 on a level mount). On the wire: two optional
+    /// trailing fields, written only when either is nonzero, so a level rig's
+    /// message is the version-2 message it always was.
+    pub roll_deg: f64,
+    pub yaw_deg: f64,
     pub aoi_half_width_mm: f64,
     pub aoi_near_mm: f64,
     pub aoi_far_mm: f64,
@@ -64,6 +69,8 @@ impl From<&Rig> for RigRecord {
             distortion: camera.distortion.map(|d| d.coefficients()),
             height_mm: mount.height_mm,
             tilt_deg: mount.tilt_deg,
+            roll_deg: mount.roll_deg,
+            yaw_deg: mount.yaw_deg,
             aoi_half_width_mm: aoi.half_width_mm,
             aoi_near_mm: aoi.near_mm,
             aoi_far_mm: aoi.far_mm,
@@ -84,7 +91,7 @@ impl TryFrom<&RigRecord> for Rig {
             cy: record.cy,
             distortion: record.distortion.map(Distortion::from_coefficients),
         };
-        let mount = Mount { height_mm: record.height_mm, tilt_deg: record.tilt_deg };
+        let mount = Mount { roll_deg: record.roll_deg, yaw_deg: record.yaw_deg, ..Mount::level(record.height_mm, record.tilt_deg) };
         let aoi = Aoi { half_width_mm: record.aoi_half_width_mm, near_mm: record.aoi_near_mm, far_mm: record.aoi_far_mm };
         Rig::new_checked(camera, mount, aoi)
     }
@@ -386,6 +393,11 @@ fn write_rig<W: Write>(out: &mut W, rig: &RigRecord) -> Result<(), EncodeError> 
     for value in [rig.height_mm, rig.tilt_deg, rig.aoi_half_width_mm, rig.aoi_near_mm, rig.aoi_far_mm] {
         write_f64(out, value)?;
     }
+    // By bits: a -0.0 must come back as -0.0.
+    if rig.roll_deg.to_bits() != 0 || rig.yaw_deg.to_bits() != 0 {
+        write_f64(out, rig.roll_deg)?;
+        write_f64(out, rig.yaw_deg)?;
+    }
     Ok(())
 }
 
@@ -558,6 +570,10 @@ fn decode_rig(fields: &mut Fields) -> Result<RigRecord, DecodeError> {
         }
         Some(coefficients)
     };
+    let (height_mm, tilt_deg) = (fields.float()?, fields.float()?);
+    let (aoi_half_width_mm, aoi_near_mm, aoi_far_mm) = (fields.float()?, fields.float()?, fields.float()?);
+    // A crooked mount adds roll and yaw; an older sender's message ends here.
+    let (roll_deg, yaw_deg) = if fields.remaining() == 2 { (fields.float()?, fields.float()?) } else { (0.0, 0.0) };
     Ok(RigRecord {
         width,
         height,
@@ -566,11 +582,13 @@ fn decode_rig(fields: &mut Fields) -> Result<RigRecord, DecodeError> {
         cx,
         cy,
         distortion,
-        height_mm: fields.float()?,
-        tilt_deg: fields.float()?,
-        aoi_half_width_mm: fields.float()?,
-        aoi_near_mm: fields.float()?,
-        aoi_far_mm: fields.float()?,
+        height_mm,
+        tilt_deg,
+        roll_deg,
+        yaw_deg,
+        aoi_half_width_mm,
+        aoi_near_mm,
+        aoi_far_mm,
     })
 }
 
@@ -814,6 +832,8 @@ pub mod checks {
             distortion,
             height_mm: 300.0,
             tilt_deg: 40.0,
+            roll_deg: 0.0,
+            yaw_deg: 0.0,
             aoi_half_width_mm: 250.0,
             aoi_near_mm: 450.0,
             aoi_far_mm: 1400.0,
@@ -902,10 +922,14 @@ pub mod checks {
             ..sample_rig(distortion)
         };
         for distortion in [None, Some([-0.28, 0.07, 1e-4, -2.5e-4, 0.01])] {
-            let record = valid(distortion);
-            let rig = Rig::try_from(&record).map_err(|_| "valid rig refused")?;
-            ensure(RigRecord::from(&rig) == record, "rig record changed through the rig")?;
+            for (roll_deg, yaw_deg) in [(0.0, 0.0), (1.5, -2.25)] {
+                let record = RigRecord { roll_deg, yaw_deg, ..valid(distortion) };
+                let rig = Rig::try_from(&record).map_err(|_| "valid rig refused")?;
+                ensure(RigRecord::from(&rig) == record, "rig record changed through the rig")?;
+            }
         }
+        let rolled = RigRecord { roll_deg: 45.0, ..valid(None) };
+        ensure(Rig::try_from(&rolled) == Err(RigError::Roll), "an impossible roll was accepted")?;
         let refused = RigRecord { tilt_deg: 90.0, ..valid(None) };
         ensure(Rig::try_from(&refused) == Err(RigError::Tilt), "an impossible rig was accepted")
     }
@@ -936,6 +960,8 @@ pub mod checks {
             distortion: Some([long; 5]),
             height_mm: long,
             tilt_deg: long,
+            roll_deg: long,
+            yaw_deg: long,
             aoi_half_width_mm: long,
             aoi_near_mm: long,
             aoi_far_mm: long,

@@ -21,7 +21,19 @@
 //! 35x35 Catmull-Rom mesh; it reached 0.05-0.2 px where KG pixels are large
 //! against camera pixels.
 //!
-//! 256 rows x 20 B + the lens (~100 B) = 5.2 KB for any 256x256 grid.
+//! # Crooked mounts (roll, yaw)
+//! With mount roll or yaw a KG row is no longer a line of constant camera
+//! row. Its camera-frame points are still affine in the column, so with
+//! `w(i)` the depth relative to column 0's, `u w` and `v w` (pinhole, in
+//! Q16.16 pixels) or `x w` and `y w` (lens, in Q`q`) are affine too: each row
+//! stores both starts and steps and the step of `w` (Q2.30). With roll alone
+//! `w` is 1 and `u`, `v` are affine along a slanted line: no division. Yaw
+//! makes the depth vary along the row and costs one i64 division per
+//! coordinate and pixel. The row then samples a band of camera rows (the
+//! ring grows with the roll; [`RemapTable::ring_rows`]). A level mount keeps
+//! the paths above bit for bit.
+//!
+//! 256 rows x 28 B + the lens (~100 B) = 7.3 KB for any 256x256 grid.
 //!
 //! # Streaming
 //! [`StreamingRemap::push_row`] takes camera rows in order and emits each KG
@@ -43,6 +55,30 @@ const MIN_LENS_BITS: u32 = 8;
 const MAX_LENS_BITS: u32 = 30;
 /// Focal lengths (px) the Q16.16 lens output supports.
 const MAX_FOCAL_PX: f64 = 16384.0;
+/// Fractional bits of a crooked row's relative depth `w`.
+const DEPTH_BITS: u32 = 30;
+/// Smallest relative depth `w` (Q2.30) a crooked row evaluates: columns whose
+/// depth falls below half of column 0's are left invalid, which bounds the
+/// division's error growth (a real KG row varies by a few percent).
+const MIN_DEPTH: i64 = 1 << (DEPTH_BITS - 1);
+
+/// Source of column `i` of a crooked row: numerators summed wrapping (exact
+/// on valid columns, which the build checked), divided by the relative depth.
+#[inline(always)]
+fn crooked_point(row: &RowMap, i: usize) -> Option<(i32, i32)> {
+    let nu = row.u_start.wrapping_add((i as i32).wrapping_mul(row.u_step));
+    let nv = row.v.wrapping_add((i as i32).wrapping_mul(row.v_step));
+    if row.w_step == 0 {
+        return Some((nu, nv));
+    }
+    let w = (1i64 << DEPTH_BITS) + i as i64 * i64::from(row.w_step);
+    if w < MIN_DEPTH {
+        return None;
+    }
+    let u = (i64::from(nu) << DEPTH_BITS) / w;
+    let v = (i64::from(nv) << DEPTH_BITS) / w;
+    Some((i32::try_from(u).ok()?, i32::try_from(v).ok()?))
+}
 
 /// Why a table could not be built.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -106,9 +142,14 @@ struct RowMap {
     /// source v, Q16.16 pixels. With distortion: undistorted normalised x of
     /// column 0 (wrapping: only valid columns are evaluated, and there the
     /// wrapped sum is exact) and step, and normalised y, all Q`lens.q`.
+    /// A crooked mount stores `u w` / `x w` and `v w` / `y w` (module docs).
     u_start: i32,
     u_step: i32,
     v: i32,
+    /// Crooked mounts: the per-column step of `v` (or `y`) times `w`, and of
+    /// `w` itself (Q2.30); 0 on a level mount.
+    v_step: i32,
+    w_step: i32,
     /// Camera rows sampled by this KG row (inclusive).
     first_source_row: u16,
     last_source_row: u16,
@@ -178,7 +219,7 @@ struct Bound {
 /// Range and rounding analysis of [`lens_source`] with `q` fractional bits,
 /// for |x|, |y| <= R and r² <= R² = `r2_max`: the largest intermediate
 /// magnitude and the bound on the output error (px, per coordinate).
-fn lens_analysis(d: &Distortion, r2_max: f64, fx: f64, fy: f64, q: u32, width: usize) -> (f64, f64) {
+fn lens_analysis(d: &Distortion, r2_max: f64, fx: f64, fy: f64, q: u32, width: usize, crooked: bool) -> (f64, f64) {
     let ulp = 1.0 / f64::from(1u32 << q);
     let largest = core::cell::Cell::new(0.0f64);
     let note = |b: Bound| {
@@ -193,8 +234,17 @@ fn lens_analysis(d: &Distortion, r2_max: f64, fx: f64, fy: f64, q: u32, width: u
     let coef = |c: f64| Bound { magnitude: c.abs(), error: ulp / 2.0 };
     let radius = libm::sqrt(r2_max);
     // x: start and step rounded to half an ulp each; the step is added up to `width` times.
-    let x = note(Bound { magnitude: radius, error: ulp / 2.0 * (1.0 + width as f64) });
-    let y = note(Bound { magnitude: radius, error: ulp / 2.0 });
+    let affine = ulp / 2.0 * (1.0 + width as f64);
+    let (x_error, y_error) = if crooked {
+        // Both are affine numerators over w >= 1/2: doubled, plus the
+        // division's ulp and w's own rounding (relative, times |x| <= R).
+        let divided = 2.0 * affine + ulp + 2.0 * radius * (1.0 + width as f64) / f64::from(1u32 << (DEPTH_BITS + 1));
+        (divided, divided)
+    } else {
+        (affine, ulp / 2.0)
+    };
+    let x = note(Bound { magnitude: radius, error: x_error });
+    let y = note(Bound { magnitude: radius, error: y_error });
     let x2 = note(Bound { magnitude: r2_max, ..mul(x, x) });
     let y2 = note(Bound { magnitude: r2_max, ..mul(y, y) });
     // r² is checked against r2_max, so that is its magnitude.
@@ -221,6 +271,8 @@ pub struct RemapTable {
     camera_width: u16,
     camera_height: u16,
     has_distortion: bool,
+    /// The mount has roll or yaw: rows use [`crooked_point`].
+    crooked: bool,
     ring_rows: u16,
     /// Rigorous bound on the source-coordinate error, px.
     error_bound_px: f32,
@@ -247,6 +299,7 @@ impl RemapTable {
         camera_width: 0,
         camera_height: 0,
         has_distortion: false,
+        crooked: false,
         ring_rows: 0,
         error_bound_px: 0.0,
         lens: Lens::NONE,
@@ -254,6 +307,8 @@ impl RemapTable {
             u_start: 0,
             u_step: 0,
             v: 0,
+            v_step: 0,
+            w_step: 0,
             first_source_row: 0,
             last_source_row: 0,
             valid_start: 0,
@@ -276,8 +331,16 @@ impl RemapTable {
         self.camera_width = camera.width;
         self.camera_height = camera.height;
         self.has_distortion = camera.distortion.is_some();
+        self.crooked = rig.mount().is_crooked();
         // Pinhole: start and step rounded to half a Q16 ulp, the step added up to `width` times.
-        self.error_bound_px = ((1.0 + width as f64) / f64::from(2 * ONE)) as f32;
+        let affine_px = (1.0 + width as f64) / f64::from(2 * ONE);
+        self.error_bound_px = if self.crooked {
+            // Over w >= 1/2, plus the division's ulp and w's rounding times the largest coordinate.
+            let largest_px = f64::from(camera.width.max(camera.height));
+            (2.0 * affine_px + 1.0 / f64::from(ONE) + 2.0 * largest_px * (1.0 + width as f64) / f64::from(1u32 << (DEPTH_BITS + 1))) as f32
+        } else {
+            affine_px as f32
+        };
 
         if let Some(d) = &camera.distortion {
             if !(camera.fx <= MAX_FOCAL_PX && camera.fy <= MAX_FOCAL_PX) {
@@ -290,7 +353,7 @@ impl RemapTable {
             let mut chosen = None;
             let mut q = MAX_LENS_BITS;
             while q >= MIN_LENS_BITS {
-                let (largest, error) = lens_analysis(d, r2_max, camera.fx, camera.fy, q, width);
+                let (largest, error) = lens_analysis(d, r2_max, camera.fx, camera.fy, q, width, self.crooked);
                 if largest * f64::from(1u32 << q) < f64::from(1u32 << 30) {
                     chosen = Some((q, error));
                     break;
@@ -331,7 +394,36 @@ impl RemapTable {
             let (x1, _) = grid.pixel_to_ground(1.0, j as f64);
             // Source of column i, exactly as the remap computes it, or None.
             let mut line = (0i64, 0i64, 0i64); // lens path: x start, x step, y (Q`q`)
-            let usable = if self.has_distortion {
+            // Crooked path: u (or x) w start and step, v (or y) w start and step (Q16 or Q`q`).
+            let mut crooked = [0i64; 4];
+            let usable = if self.crooked {
+                let ((xa, ya, za), (xb, yb, zb)) = (rig.ground_to_camera(x0, z), rig.ground_to_camera(x1, z));
+                if !(za > 1e-9) {
+                    false
+                } else {
+                    let (dx, dy, dz) = (xb - xa, yb - ya, zb - za);
+                    let fixed = |v: f64| if self.has_distortion { to_q(v, self.lens.q) } else { i64::from(to_fixed(v)) };
+                    crooked = if self.has_distortion {
+                        [fixed(xa / za), fixed(dx / za), fixed(ya / za), fixed(dy / za)]
+                    } else {
+                        let (fx, fy, cx, cy) = (camera.fx, camera.fy, camera.cx, camera.cy);
+                        [
+                            fixed(cx + fx * xa / za),
+                            fixed((cx * dz + fx * dx) / za),
+                            fixed(cy + fy * ya / za),
+                            fixed((cy * dz + fy * dy) / za),
+                        ]
+                    };
+                    let w_step = to_q(dz / za, DEPTH_BITS);
+                    let fits = |v: i64| i32::try_from(v).is_ok();
+                    let row = &mut self.rows[j];
+                    // Starts wrap (see RowMap); steps must fit.
+                    (row.u_start, row.u_step, row.v, row.v_step) =
+                        (crooked[0] as i32, crooked[1] as i32, crooked[2] as i32, crooked[3] as i32);
+                    row.w_step = w_step as i32;
+                    fits(crooked[1]) && fits(crooked[3]) && fits(w_step)
+                }
+            } else if self.has_distortion {
                 let lens = &self.lens;
                 match (rig.ground_to_normalised(x0, z), rig.ground_to_normalised(x1, z)) {
                     (Some((xa, y)), Some((xb, _))) => {
@@ -363,6 +455,18 @@ impl RemapTable {
             let y2 = mulq(y32, y32, lens.q);
             let row = self.rows[j];
             let at = |i: usize| -> Option<(i64, i64)> {
+                if self.crooked {
+                    // The wrapping sums are exact only where the exact ones fit.
+                    let exact = |start: i64, step: i64| i32::try_from(start + step * i as i64).is_ok();
+                    if !(exact(crooked[0], crooked[1]) && exact(crooked[2], crooked[3])) {
+                        return None;
+                    }
+                    let (x, y) = crooked_point(&row, i)?;
+                    if !self.has_distortion {
+                        return Some((i64::from(x), i64::from(y)));
+                    }
+                    return lens_source(&lens, x, y, mulq(y, y, lens.q));
+                }
                 if self.has_distortion {
                     // Exact in i64 here; the remap's wrapping i32 sum equals it wherever it fits.
                     let x = start.saturating_add(step.saturating_mul(i as i64));
@@ -404,7 +508,7 @@ impl RemapTable {
                 last = last.max(bottom);
             }
             let row = &mut self.rows[j];
-            if self.has_distortion {
+            if self.has_distortion && !self.crooked {
                 // Truncation to i32 wraps; see RowMap.
                 row.u_start = start as i32;
                 row.u_step = step as i32;
@@ -440,6 +544,14 @@ impl RemapTable {
     /// Source position (Q16.16) of valid KG pixel `i` of a row.
     #[inline(always)]
     fn source(&self, row: &RowMap, i: usize) -> (i32, i32) {
+        if self.crooked {
+            let (x, y) = crooked_point(row, i).unwrap_or((-1, -1));
+            if !self.has_distortion {
+                return (x, y);
+            }
+            let (u, v) = lens_source(&self.lens, x, y, mulq(y, y, self.lens.q)).unwrap_or((-1, -1));
+            return (u as i32, v as i32);
+        }
         if !self.has_distortion {
             return Self::pinhole_source(row, i);
         }
@@ -588,6 +700,23 @@ impl<'t, 'r> StreamingRemap<'t, 'r> {
         let ring = &*self.ring;
         let row_at = |camera_row: usize| &ring[(camera_row % ring_rows) * width..][..width];
         let last_row = table.camera_height() - 1;
+        if table.crooked {
+            // A slanted line (roll) or a projective one (yaw): per pixel.
+            let lens = &table.lens;
+            for (i, pixel) in valid.clone().zip(out[valid].iter_mut()) {
+                // Valid pixels passed the same evaluation at build time.
+                let (x, y) = crooked_point(map, i).unwrap_or((0, 0));
+                let (u, v) = if table.has_distortion {
+                    let (u, v) = lens_source(lens, x, y, mulq(y, y, lens.q)).unwrap_or((0, 0));
+                    (u as i32, v as i32)
+                } else {
+                    (x, y)
+                };
+                let top = (v >> FRAC_BITS) as usize;
+                *pixel = bilinear(row_at(top), row_at((top + 1).min(last_row)), u, v);
+            }
+            return;
+        }
         if !table.has_distortion {
             // Fast path: the whole KG row samples one pair of camera rows at
             // one v, so it is a vertical pass then a horizontal one (see `kernels::pinhole`).
@@ -639,9 +768,21 @@ mod tests {
 
     /// Rigs unlike the samples: other focal lengths, fx != fy, an off-centre
     /// principal point, barrel and pincushion distortion with tangential terms.
-    pub(crate) fn test_rigs() -> [Rig; 6] {
+    pub(crate) fn test_rigs() -> std::vec::Vec<Rig> {
+        let mut rigs = level_rigs().to_vec();
+        // Crooked mounts: roll alone (affine slanted rows), yaw alone
+        // (projective rows), both, with and without a lens.
+        for (n, roll_deg, yaw_deg) in [(0, 1.5, 0.0), (0, 0.0, 2.0), (1, -2.0, 1.0), (3, 1.5, -2.0), (5, -3.0, 3.0)] {
+            let rig = level_rigs()[n];
+            let mount = Mount { roll_deg, yaw_deg, ..*rig.mount() };
+            rigs.push(Rig::new_checked(*rig.camera(), mount, *rig.aoi()).unwrap());
+        }
+        rigs
+    }
+
+    fn level_rigs() -> [Rig; 6] {
         let aoi = Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 };
-        let mount = Mount { height_mm: 400.0, tilt_deg: 32.0 };
+        let mount = Mount::level(400.0, 32.0);
         let camera = Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None };
         let barrel = Distortion { k1: -0.30, k2: 0.09, p1: 0.0012, p2: -0.0008, k3: -0.01 };
         let pincushion = Distortion { k1: 0.12, k2: 0.02, p1: -0.001, p2: 0.0005, k3: 0.0 };
@@ -649,14 +790,14 @@ mod tests {
             Rig::new_checked(camera, mount, aoi).unwrap(),
             Rig::new_checked(
                 Intrinsics { width: 320, height: 240, fx: 277.0, fy: 277.0, cx: 159.5, cy: 119.5, distortion: None },
-                Mount { height_mm: 300.0, tilt_deg: 40.0 },
+                Mount::level(300.0, 40.0),
                 Aoi { half_width_mm: 200.0, near_mm: 300.0, far_mm: 800.0 },
             )
             .unwrap(),
             Rig::new_checked(Intrinsics { fx: 215.0, fy: 200.0, cx: 140.2, cy: 110.7, ..camera }, mount, aoi).unwrap(),
             Rig::new_checked(
                 Intrinsics { width: 320, height: 240, fx: 210.0, fy: 212.0, cx: 163.0, cy: 117.0, distortion: Some(barrel) },
-                Mount { height_mm: 350.0, tilt_deg: 35.0 },
+                Mount::level(350.0, 35.0),
                 Aoi { half_width_mm: 250.0, near_mm: 400.0, far_mm: 1200.0 },
             )
             .unwrap(),
@@ -673,7 +814,7 @@ mod tests {
                     cy: 57.0,
                     distortion: Some(Distortion { k1: -0.25, k2: 0.06, p1: 0.0015, p2: -0.001, k3: 0.0023 }),
                 },
-                Mount { height_mm: 300.0, tilt_deg: 35.0 },
+                Mount::level(300.0, 35.0),
                 Aoi { half_width_mm: 150.0, near_mm: 300.0, far_mm: 900.0 },
             )
             .unwrap(),
@@ -734,7 +875,7 @@ mod tests {
                 cy: 511.5,
                 distortion: Some(Distortion { k1: -0.1, k2: 0.0, p1: 0.0, p2: 0.0, k3: 0.0 }),
             },
-            Mount { height_mm: 400.0, tilt_deg: 10.0 },
+            Mount::level(400.0, 10.0),
             Aoi { half_width_mm: 30.0, near_mm: 2100.0, far_mm: 2450.0 },
         )
         .unwrap();
@@ -810,28 +951,45 @@ mod tests {
 
     #[test]
     fn remap_matches_float_bilinear_reference() {
-        let rig = &test_rigs()[3];
-        let grid = KgGrid::for_rig(rig, &GridConfig::default()).unwrap();
-        let table = RemapTable::new(rig, &grid).unwrap();
-        let (cw, ch) = (table.camera_width(), table.camera_height());
-        // A smooth ramp: bilinear interpolation of it is exact, so the integer
-        // remap must agree with the float projection to within rounding.
-        let ramp = |u: f64, v: f64| 0.4 * u + 0.5 * v;
-        let frame: std::vec::Vec<u8> =
-            (0..cw * ch).map(|n| libm::round(ramp((n % cw) as f64, (n / cw) as f64)) as u8).collect();
-        let mut ring = std::vec![0u8; table.ring_bytes()];
-        let mut out = std::vec![0u8; grid.len()];
-        remap_frame(&table, &frame, &mut ring, &mut out).unwrap();
-        for j in 0..grid.height() {
-            for i in table.valid_columns(j) {
-                let (x, z) = grid.pixel_to_ground(i as f64, j as f64);
-                let p = rig.ground_to_pixel(x, z).unwrap();
-                let expected = ramp(p.u, p.v);
-                let got = f64::from(out[j * grid.width() + i]);
-                // Input rounding (0.5) plus output rounding (0.5), plus the tiny source error.
-                assert!((got - expected).abs() <= 1.01, "({i},{j}): {got} vs {expected}");
+        for rig in [test_rigs()[3], test_rigs()[9], test_rigs()[7]] {
+            let rig = &rig;
+            let grid = KgGrid::for_rig(rig, &GridConfig::default()).unwrap();
+            let table = RemapTable::new(rig, &grid).unwrap();
+            let (cw, ch) = (table.camera_width(), table.camera_height());
+            // A smooth ramp: bilinear interpolation of it is exact, so the integer
+            // remap must agree with the float projection to within rounding.
+            let ramp = |u: f64, v: f64| 0.4 * u + 0.5 * v;
+            let frame: std::vec::Vec<u8> =
+                (0..cw * ch).map(|n| libm::round(ramp((n % cw) as f64, (n / cw) as f64)) as u8).collect();
+            let mut ring = std::vec![0u8; table.ring_bytes()];
+            let mut out = std::vec![0u8; grid.len()];
+            remap_frame(&table, &frame, &mut ring, &mut out).unwrap();
+            for j in 0..grid.height() {
+                for i in table.valid_columns(j) {
+                    let (x, z) = grid.pixel_to_ground(i as f64, j as f64);
+                    let p = rig.ground_to_pixel(x, z).unwrap();
+                    let expected = ramp(p.u, p.v);
+                    let got = f64::from(out[j * grid.width() + i]);
+                    // Input rounding (0.5) plus output rounding (0.5), plus the tiny source error.
+                    assert!((got - expected).abs() <= 1.01, "({i},{j}): {got} vs {expected}");
+                }
             }
         }
+    }
+
+    #[test]
+    fn roll_widens_the_ring_and_a_small_ring_is_refused() {
+        let level = &test_rigs()[0];
+        let rolled = &test_rigs()[6];
+        let grid = KgGrid::for_rig(level, &GridConfig::default()).unwrap();
+        let (level_table, rolled_table) = (RemapTable::new(level, &grid).unwrap(), RemapTable::new(rolled, &grid).unwrap());
+        std::println!("ring rows: level {}, rolled 1.5 deg {}", level_table.ring_rows(), rolled_table.ring_rows());
+        assert!(rolled_table.ring_rows() > level_table.ring_rows() + 2);
+        let mut ring = std::vec![0u8; level_table.ring_bytes()];
+        assert_eq!(
+            StreamingRemap::new(&rolled_table, &mut ring).err(),
+            Some(RemapError::RingTooSmall { needed: rolled_table.ring_bytes() })
+        );
     }
 
     #[test]

@@ -20,7 +20,7 @@ fn largest_rig() -> Rig {
     let c = (f64::from(side) - 1.0) / 2.0;
     Rig::new_checked(
         Intrinsics { width: side, height: side, fx: f, fy: f, cx: c, cy: c, distortion: None },
-        Mount { height_mm: 400.0, tilt_deg: 32.0 },
+        Mount::level(400.0, 32.0),
         Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
     )
     .expect("largest rig")

@@ -71,7 +71,7 @@ fn build_rig(p: &RigParams) -> Option<Rig> {
     let distortion = p.distortion.map(Distortion::from_coefficients);
     Rig::new_checked(
         Intrinsics { width: p.width, height: p.height, fx, fy, cx, cy, distortion },
-        Mount { height_mm: p.height_mm, tilt_deg: p.tilt_deg },
+        Mount::level(p.height_mm, p.tilt_deg),
         Aoi { half_width_mm: half_width, near_mm: near, far_mm: far },
     )
     .ok()
@@ -241,7 +241,7 @@ fn texture(phases: &[(f64, f64, f64); 4], i: i64, j: i64) -> u8 {
 fn flat_marks_rig() -> Rig {
     Rig::new_checked(
         Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
-        Mount { height_mm: 400.0, tilt_deg: 32.0 },
+        Mount::level(400.0, 32.0),
         Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
     )
     .expect("flat_marks rig")
@@ -349,9 +349,11 @@ fn finite() -> impl Strategy<Value = f64> {
 }
 
 fn rig_record() -> impl Strategy<Value = RigRecord> {
-    (any::<u16>(), any::<u16>(), [finite(), finite(), finite(), finite()], proptest::option::of([finite(), finite(), finite(), finite(), finite()]), [finite(), finite(), finite(), finite(), finite()])
-        .prop_map(|(width, height, [fx, fy, cx, cy], distortion, [height_mm, tilt_deg, aoi_half_width_mm, aoi_near_mm, aoi_far_mm])| RigRecord {
-            width, height, fx, fy, cx, cy, distortion, height_mm, tilt_deg, aoi_half_width_mm, aoi_near_mm, aoi_far_mm,
+    // Level mounts (no roll/yaw fields on the wire) and crooked ones.
+    let mount = prop_oneof![Just([0.0, 0.0]), [finite(), finite()]];
+    (any::<u16>(), any::<u16>(), [finite(), finite(), finite(), finite()], proptest::option::of([finite(), finite(), finite(), finite(), finite()]), [finite(), finite(), finite(), finite(), finite()], mount)
+        .prop_map(|(width, height, [fx, fy, cx, cy], distortion, [height_mm, tilt_deg, aoi_half_width_mm, aoi_near_mm, aoi_far_mm], [roll_deg, yaw_deg])| RigRecord {
+            width, height, fx, fy, cx, cy, distortion, height_mm, tilt_deg, roll_deg, yaw_deg, aoi_half_width_mm, aoi_near_mm, aoi_far_mm,
         })
 }
 
@@ -399,7 +401,7 @@ fn same_bits(a: &Message, b: &Message) -> bool {
     let bits = |m: &Message| -> Vec<u64> {
         match m {
             Message::Rig(r) | Message::Hello(r) => {
-                let mut v: Vec<u64> = [r.fx, r.fy, r.cx, r.cy, r.height_mm, r.tilt_deg, r.aoi_half_width_mm, r.aoi_near_mm, r.aoi_far_mm].iter().map(|x| x.to_bits()).collect();
+                let mut v: Vec<u64> = [r.fx, r.fy, r.cx, r.cy, r.height_mm, r.tilt_deg, r.roll_deg, r.yaw_deg, r.aoi_half_width_mm, r.aoi_near_mm, r.aoi_far_mm].iter().map(|x| x.to_bits()).collect();
                 v.extend(r.distortion.iter().flatten().map(|x| x.to_bits()));
                 v
             }

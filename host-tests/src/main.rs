@@ -105,6 +105,27 @@ enum Command {
         #[arg(long)]
         full_frame: bool,
     },
+    /// Estimate the mount (tilt, height, roll, yaw) from a drive over flat
+    /// ground: `key: value` lines on stdout.
+    Calibrate {
+        /// Recording directory (rig.toml is the starting point).
+        recording: PathBuf,
+        /// Write the corrected rig as RECORDING/rig.calibrated.toml.
+        #[arg(long)]
+        write: bool,
+        /// The known camera height, mm, when the recording has no odometry
+        /// (default: rig.toml's); with odometry the height is estimated.
+        #[arg(long)]
+        height_mm: Option<f64>,
+        /// Wheel odometry: `poses` uses poses.csv's where present, `none`
+        /// ignores it (the height is then given).
+        #[arg(long, value_enum, default_value_t = Source::Poses)]
+        odometry: Source,
+        /// Intrinsics from a ROS camera_info YAML (camera_calibration's
+        /// output) instead of rig.toml's `[camera]`; `--write` writes them too.
+        #[arg(long)]
+        camera_info: Option<PathBuf>,
+    },
     /// Serial tools for the firmware's USART1 byte stream.
     #[command(subcommand)]
     Serial(SerialCommand),
@@ -402,6 +423,9 @@ fn main() -> ExitCode {
             }
         }
         Command::Serial(SerialCommand::Decode { file }) => run_serial_decode(file.as_deref()),
+        Command::Calibrate { recording, write, height_mm, odometry, camera_info } => {
+            run_calibrate(&recording, write, height_mm, odometry, camera_info.as_deref())
+        }
         Command::Heights { recording, format: HeightsFormat::Csv, png, sensors } => {
             let recording = match sensors.open(&recording) {
                 Ok(r) => r,
@@ -419,4 +443,64 @@ fn main() -> ExitCode {
             }
         }
     }
+}
+
+fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Source, camera_info: Option<&Path>) -> ExitCode {
+    use flatland_host::calibrate::{
+        calibrate, calibrated_rig_toml, camera_values, parse_camera_info, report, with_section_values, CalibrationConfig,
+    };
+    let mut recording = match Recording::open(path) {
+        Ok(r) => r,
+        Err(e) => return fatal(e),
+    };
+    let info = match camera_info.map(|file| std::fs::read_to_string(file).map_err(|e| e.to_string()).and_then(|t| parse_camera_info(&t))) {
+        None => None,
+        Some(Ok(info)) => Some(info),
+        Some(Err(e)) => return fatal(format!("{}: {e}", camera_info.unwrap_or(path).display())),
+    };
+    if let Some(info) = &info {
+        let recorded = recording.binning.recorded;
+        if (usize::from(info.width), usize::from(info.height)) != recorded {
+            return fatal(format!("camera_info is {}x{}, the frames {}x{}: calibrate at the recorded size", info.width, info.height, recorded.0, recorded.1));
+        }
+        // Binned as the frames are (see recording::Binning).
+        let n = recording.binning.factor as f64;
+        let (width, height) = recording.binning.size();
+        let camera = flatland_core::geometry::Intrinsics {
+            width: width as u16,
+            height: height as u16,
+            fx: info.fx / n,
+            fy: info.fy / n,
+            cx: (info.cx + 0.5) / n - 0.5,
+            cy: (info.cy + 0.5) / n - 0.5,
+            distortion: info.distortion.map(flatland_core::geometry::Distortion::from_coefficients),
+        };
+        recording.rig = match flatland_core::geometry::Rig::new_checked(camera, *recording.rig.mount(), *recording.rig.aoi()) {
+            Ok(rig) => rig,
+            Err(e) => return fatal(format!("rig with the camera_info intrinsics: {e}")),
+        };
+    }
+    let config = CalibrationConfig { height_mm, ignore_odometry: odometry == Source::None };
+    let estimate = match calibrate(&recording, &config) {
+        Ok(estimate) => estimate,
+        Err(e) => return fatal(format!("calibrate {}: {e}", path.display())),
+    };
+    print!("{}", report(&estimate));
+    if write {
+        let original = path.join("rig.toml");
+        let text = match std::fs::read_to_string(&original) {
+            Ok(text) => text,
+            Err(e) => return fatal(format!("{}: {e}", original.display())),
+        };
+        let target = path.join("rig.calibrated.toml");
+        let mut text = calibrated_rig_toml(&text, &estimate.mount);
+        if let Some(info) = &info {
+            text = with_section_values(&text, "camera", &camera_values(info));
+        }
+        if let Err(e) = std::fs::write(&target, text) {
+            return fatal(format!("{}: {e}", target.display()));
+        }
+        eprintln!("flatland calibrate: wrote {}", target.display());
+    }
+    ExitCode::SUCCESS
 }

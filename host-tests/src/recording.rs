@@ -129,6 +129,11 @@ struct CameraSection {
 struct MountSection {
     height_mm: f64,
     tilt_deg: f64,
+    /// Optional: absent means a level, straight mount.
+    #[serde(default)]
+    roll_deg: f64,
+    #[serde(default)]
+    yaw_deg: f64,
 }
 
 #[derive(Deserialize)]
@@ -151,6 +156,8 @@ impl From<RigFile> for RigRecord {
             distortion: camera.distortion,
             height_mm: mount.height_mm,
             tilt_deg: mount.tilt_deg,
+            roll_deg: mount.roll_deg,
+            yaw_deg: mount.yaw_deg,
             aoi_half_width_mm: aoi.half_width_mm,
             aoi_near_mm: aoi.near_mm,
             aoi_far_mm: aoi.far_mm,
@@ -169,6 +176,8 @@ fn key_of(error: RigError, record: &RigRecord) -> &'static str {
         RigError::PrincipalPoint => either(record.cx < -0.5 || record.cx > f64::from(record.width) - 0.5, "cx", "cy"),
         RigError::MountHeight => "height_mm",
         RigError::Tilt => "tilt_deg",
+        RigError::Roll => "roll_deg",
+        RigError::Yaw => "yaw_deg",
         RigError::Distortion => "distortion",
         RigError::AoiEmpty => either(record.aoi_half_width_mm <= 0.0, "half_width_mm", "near_mm"),
         RigError::AoiBehindCamera | RigError::AoiOutsideImage(AoiEdge::Near) => "near_mm",

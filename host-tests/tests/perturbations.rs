@@ -154,7 +154,7 @@ fn pitch_alone_agrees_with_a_rig_tilted_further() {
     let mount = rig.mount();
     let pitched = Rig::new_checked(
         *rig.camera(),
-        Mount { height_mm: mount.height_mm * pitch.to_radians().cos(), tilt_deg: mount.tilt_deg + pitch },
+        Mount::level(mount.height_mm * pitch.to_radians().cos(), mount.tilt_deg + pitch),
         *rig.aoi(),
     )
     .unwrap();

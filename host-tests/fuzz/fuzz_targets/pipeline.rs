@@ -100,7 +100,7 @@ fuzz_target!(|input: Input| {
     let camera = Intrinsics { width, height, fx: v[0], fy: v[1], cx: v[2], cy: v[3], distortion };
     let Ok(rig) = Rig::new_checked(
         camera,
-        Mount { height_mm: v[4], tilt_deg: v[5] },
+        Mount::level(v[4], v[5]),
         Aoi { half_width_mm: v[6], near_mm: v[7], far_mm: v[8] },
     ) else {
         return;

@@ -1,0 +1,900 @@
+//! `flatland calibrate`: the mount (tilt, height, roll, yaw) from a drive
+//! over flat ground.
+//!
+//! Between two frames, the ground seen in the later one maps into the
+//! earlier one through the mount: back-project a pixel to the ground with
+//! the mount, move the ground point by the robot's motion, project it with
+//! the mount. The estimate minimises the photometric difference of the two
+//! frames under that map, over many pairs at once, by Levenberg-Marquardt
+//! on iteratively reweighted least squares:
+//! - Tukey weights (Huber on the coarsest level) reject what is not flat
+//!   ground (obstacles, a moving object), and pairs whose residual stays far
+//!   above the others' (wheel slip: the odometry is wrong) are dropped;
+//! - a gain and offset per pair absorb exposure changes and flicker;
+//! - coarse to fine over a 2x pyramid (2x2 means, like camera binning).
+//!
+//! With odometry the metric motion fixes the height. Without it the height
+//! is given (the rig's, or `--height-mm`) and each pair's motion (Tx, Tz,
+//! dyaw) is estimated with the mount, started from a search over Tx, Tz on
+//! the coarsest level. Straight driving determines all four: the tilt and
+//! roll set the ground plane's normal in the camera, the yaw the direction
+//! of travel in the image, the height the flow's metric scale.
+
+use crate::recording::{Frame, Recording, RecordingError};
+use flatland_core::geometry::{Intrinsics, Mount, Pixel, Rig, RigError};
+use flatland_core::motion::Motion;
+use std::fmt;
+
+/// Least motion between two frames of a pair (mm of chord): less carries no
+/// usable ground flow.
+pub const MIN_PAIR_MOTION_MM: f64 = 20.0;
+/// Motion a pair aims for when frames move less than this apart: the
+/// earliest later frame at least this far is its partner.
+const TARGET_PAIR_MOTION_MM: f64 = 50.0;
+/// Most pairs used, spread evenly over the recording (bounds the run time).
+const MAX_PAIRS: usize = 24;
+/// Pyramid levels (0: full resolution).
+const LEVELS: usize = 3;
+/// LM iterations per level.
+const ITERATIONS: usize = 12;
+/// Ground samples reach at most this many times the AOI's far edge.
+const REACH_FAR_EDGES: f64 = 2.5;
+/// Tukey's constant (95 % efficiency for Gaussian residuals).
+const TUKEY: f64 = 4.685;
+/// Huber's constant, on the coarsest level.
+const HUBER: f64 = 1.345;
+/// A pair whose median residual exceeds this many times the median over
+/// pairs is dropped (its motion is not what the odometry says).
+const PAIR_OUTLIER_FACTOR: f64 = 2.5;
+/// Pairs whose image-measured scale of the odometry lies within this
+/// fraction of the median fix the height; the others slipped.
+const SCALE_AGREEMENT: f64 = 0.1;
+
+/// How a calibration runs.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct CalibrationConfig {
+    /// The known height (mm) when the recording has no odometry; None: the rig's.
+    pub height_mm: Option<f64>,
+    /// Ignore poses.csv's odometry even where present.
+    pub ignore_odometry: bool,
+}
+
+/// The estimated mount and how well it is determined.
+#[derive(Clone, Copy, Debug)]
+pub struct MountEstimate {
+    pub mount: Mount,
+    /// One-sigma uncertainties (formal, from the Gauss-Newton normal
+    /// matrix): tilt, height, roll, yaw; the height's is 0 when it was given.
+    pub sigma: [f64; 4],
+    /// RMS photometric residual (gray levels) at the rig as given and as estimated.
+    pub residual_before: f64,
+    pub residual_after: f64,
+    /// Frame pairs used (after dropping outlier pairs) and ground samples at full resolution.
+    pub pairs: usize,
+    pub samples: usize,
+    /// True when the height came from odometry, false when it was given.
+    pub height_estimated: bool,
+}
+
+/// Why a recording could not be calibrated.
+#[derive(Debug)]
+pub enum CalibrationError {
+    Recording(RecordingError),
+    /// Fewer than two frames.
+    TooFewFrames,
+    /// No pair of frames moved [`MIN_PAIR_MOTION_MM`] apart.
+    NoMotion { largest_mm: f64 },
+    /// The ground flow does not determine the mount (the normal matrix is singular).
+    Underdetermined,
+    /// The estimate left the valid rigs (the AOI no longer in view, a tilt beyond 90 degrees...).
+    Diverged(RigError),
+}
+
+impl fmt::Display for CalibrationError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CalibrationError::Recording(e) => write!(f, "{e}"),
+            CalibrationError::TooFewFrames => f.write_str("calibration needs at least two frames"),
+            CalibrationError::NoMotion { largest_mm } => write!(
+                f,
+                "the robot does not move (largest motion between frames {largest_mm:.1} mm): calibration needs a drive over flat ground of at least {MIN_PAIR_MOTION_MM} mm between frames"
+            ),
+            CalibrationError::Underdetermined => f.write_str("the ground's motion in the images does not determine the mount (too little texture or motion)"),
+            CalibrationError::Diverged(e) => write!(f, "the estimate left the valid mounts ({e}): start from a rig.toml nearer the truth"),
+        }
+    }
+}
+
+impl std::error::Error for CalibrationError {}
+
+impl From<RecordingError> for CalibrationError {
+    fn from(e: RecordingError) -> Self {
+        CalibrationError::Recording(e)
+    }
+}
+
+/// A gray image in f32, for sampling between pixels.
+#[derive(Clone, Debug)]
+struct Image {
+    width: usize,
+    height: usize,
+    pixels: Vec<f32>,
+}
+
+impl Image {
+    fn from_frame(frame: &Frame) -> Image {
+        Image { width: frame.width, height: frame.height, pixels: frame.pixels.iter().map(|&p| f32::from(p)).collect() }
+    }
+
+    /// 2x2 means (a last odd column or row is dropped), like camera binning.
+    fn half(&self) -> Image {
+        let (width, height) = (self.width / 2, self.height / 2);
+        let at = |u: usize, v: usize| self.pixels[v * self.width + u];
+        let pixels = (0..width * height)
+            .map(|n| {
+                let (u, v) = (2 * (n % width), 2 * (n / width));
+                (at(u, v) + at(u + 1, v) + at(u, v + 1) + at(u + 1, v + 1)) / 4.0
+            })
+            .collect();
+        Image { width, height, pixels }
+    }
+
+    /// Bilinear value and central-difference gradient at (u, v); None within
+    /// two pixels of the border.
+    fn sample(&self, u: f64, v: f64) -> Option<(f64, f64, f64)> {
+        if !(u >= 1.0 && v >= 1.0 && u <= self.width as f64 - 3.0 && v <= self.height as f64 - 3.0) {
+            return None;
+        }
+        let (u0, v0) = (u.floor() as usize, v.floor() as usize);
+        let (fu, fv) = (u - u0 as f64, v - v0 as f64);
+        let at = |c: usize, r: usize| f64::from(self.pixels[r * self.width + c]);
+        let bilinear = |c: usize, r: usize| {
+            let top = at(c, r) * (1.0 - fu) + at(c + 1, r) * fu;
+            let bottom = at(c, r + 1) * (1.0 - fu) + at(c + 1, r + 1) * fu;
+            top * (1.0 - fv) + bottom * fv
+        };
+        let value = bilinear(u0, v0);
+        let gu = (bilinear(u0 + 1, v0) - bilinear(u0 - 1, v0)) / 2.0;
+        let gv = (bilinear(u0, v0 + 1) - bilinear(u0, v0 - 1)) / 2.0;
+        Some((value, gu, gv))
+    }
+}
+
+/// The camera at pyramid level `level` (pixel centres keep their place).
+fn level_camera(camera: &Intrinsics, level: usize) -> Intrinsics {
+    let n = f64::from(1u32 << level);
+    Intrinsics {
+        width: camera.width >> level,
+        height: camera.height >> level,
+        fx: camera.fx / n,
+        fy: camera.fy / n,
+        cx: (camera.cx + 0.5) / n - 0.5,
+        cy: (camera.cy + 0.5) / n - 0.5,
+        distortion: camera.distortion,
+    }
+}
+
+/// One pair of frames: the later frame's samples map into the earlier one.
+struct Pair {
+    earlier: usize,
+    later: usize,
+    /// Odometry from the earlier frame to the later, when the recording has it.
+    odometry: Option<Motion>,
+    /// Sample pixels of the later frame and their values, this level.
+    samples: Vec<(Pixel, f64)>,
+    gain: f64,
+    offset: f64,
+    used: bool,
+}
+
+/// The unknowns: the mount angles (the height stays at its nominal value
+/// while solving: the ground flow fixes only motion over height) and each
+/// pair's step.
+#[derive(Clone)]
+struct State {
+    /// tilt, height, roll, yaw.
+    mount: [f64; 4],
+    /// Per pair: the scale of its odometry's translation (without odometry,
+    /// its chord length in units of [`CHORD_UNIT_MM`]), and its turn, degrees.
+    steps: Vec<[f64; 2]>,
+}
+
+/// Chord length unit of a pair's step without odometry.
+const CHORD_UNIT_MM: f64 = 100.0;
+
+/// A pair's motion from its step: the odometry's direction scaled, or an
+/// arc of a robot that drives along its heading (chord at half the turn).
+fn pair_motion(odometry: Option<&Motion>, [a, dyaw_deg]: [f64; 2]) -> Motion {
+    match odometry {
+        Some(m) => Motion { tx_mm: a * m.tx_mm, tz_mm: a * m.tz_mm, dyaw_deg },
+        None => {
+            let (sin, cos) = (dyaw_deg / 2.0).to_radians().sin_cos();
+            let chord = a * CHORD_UNIT_MM;
+            Motion { tx_mm: -chord * sin, tz_mm: chord * cos, dyaw_deg }
+        }
+    }
+}
+
+/// Which unknowns are free, in the solve's order.
+#[derive(Clone, Copy, PartialEq)]
+enum Unknown {
+    /// tilt 0, roll 2, yaw 3.
+    Mount(usize),
+    /// Pair index, component (scale or chord, turn).
+    Step(usize, usize),
+}
+
+impl State {
+    fn with(&self, unknown: Unknown, delta: f64) -> State {
+        let mut s = self.clone();
+        match unknown {
+            Unknown::Mount(k) => s.mount[k] += delta,
+            Unknown::Step(p, c) => s.steps[p][c] += delta,
+        }
+        s
+    }
+
+    fn motion(&self, pairs: &[Pair], n: usize) -> Motion {
+        pair_motion(pairs[n].odometry.as_ref(), self.steps[n])
+    }
+
+    fn mount(&self) -> Mount {
+        Mount { height_mm: self.mount[1], tilt_deg: self.mount[0], roll_deg: self.mount[2], yaw_deg: self.mount[3] }
+    }
+}
+
+/// Finite-difference steps: degrees, mm, degrees, degrees; a pair's scale
+/// (or chord unit) and turn (degrees).
+const MOUNT_STEP: [f64; 4] = [1e-3, 0.05, 1e-3, 1e-3];
+const PAIR_STEP: [f64; 2] = [1e-4, 1e-3];
+
+fn step_of(unknown: Unknown) -> f64 {
+    match unknown {
+        Unknown::Mount(k) => MOUNT_STEP[k],
+        Unknown::Step(_, c) => PAIR_STEP[c],
+    }
+}
+
+/// Where a later-frame pixel lands in the earlier frame.
+fn warp(rig: &Rig, motion: &Motion, p: Pixel) -> Option<Pixel> {
+    let (x, z) = rig.pixel_to_ground(p)?;
+    let (xe, ze) = motion.to_earlier_frame(x, z);
+    rig.ground_to_pixel(xe, ze)
+}
+
+/// The calibration problem at one pyramid level.
+struct Level<'a> {
+    camera: Intrinsics,
+    base: &'a Rig,
+    images: &'a [Image],
+}
+
+impl Level<'_> {
+    fn rig(&self, state: &State) -> Result<Rig, RigError> {
+        Rig::new_checked(self.camera, state.mount(), *self.base.aoi())
+    }
+}
+
+/// Residual of one sample, with its gradient image values: (r, value, gu, gv, warped).
+fn residual(level: &Level, rig: &Rig, pair: &Pair, motion: &Motion, p: Pixel, target: f64) -> Option<(f64, f64, f64)> {
+    let q = warp(rig, motion, p)?;
+    let (value, gu, gv) = level.images[pair.earlier].sample(q.u, q.v)?;
+    Some((pair.gain * value + pair.offset - target, gu, gv))
+}
+
+fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mid = values.len() / 2;
+    *values.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// Robust weight of a residual over scale `sigma`.
+fn weight(r: f64, sigma: f64, huber: bool) -> f64 {
+    let x = (r / sigma).abs();
+    if huber {
+        if x <= HUBER { 1.0 } else { HUBER / x }
+    } else if x < TUKEY {
+        let t = 1.0 - (x / TUKEY).powi(2);
+        t * t
+    } else {
+        0.0
+    }
+}
+
+/// Robust cost of a residual (the weight's rho).
+fn rho(r: f64, sigma: f64, huber: bool) -> f64 {
+    let x = (r / sigma).abs();
+    if huber {
+        if x <= HUBER { x * x / 2.0 } else { HUBER * (x - HUBER / 2.0) }
+    } else if x < TUKEY {
+        let t = 1.0 - (x / TUKEY).powi(2);
+        TUKEY * TUKEY / 6.0 * (1.0 - t * t * t)
+    } else {
+        TUKEY * TUKEY / 6.0
+    }
+}
+
+/// Fits each used pair's gain and offset to the warped earlier frame, given
+/// the weights of the last residuals (all 1 at first).
+fn fit_photometry(level: &Level, rig: &Rig, pairs: &mut [Pair], state: &State, sigma: Option<f64>, huber: bool) {
+    for (n, pair) in pairs.iter_mut().enumerate() {
+        if !pair.used {
+            continue;
+        }
+        let (mut sw, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &(p, target) in &pair.samples {
+            let Some(q) = warp(rig, &pair_motion(pair.odometry.as_ref(), state.steps[n]), p) else { continue };
+            let Some((value, _, _)) = level.images[pair.earlier].sample(q.u, q.v) else { continue };
+            let w = sigma.map_or(1.0, |s| weight(pair.gain * value + pair.offset - target, s, huber));
+            sw += w;
+            sx += w * value;
+            sy += w * target;
+            sxx += w * value * value;
+            sxy += w * value * target;
+        }
+        let det = sw * sxx - sx * sx;
+        if sw > 10.0 && det > 1e-9 * sw * sxx {
+            pair.gain = (sw * sxy - sx * sy) / det;
+            pair.offset = (sy - pair.gain * sx) / sw;
+        }
+    }
+}
+
+/// All residuals of the used pairs at `state` (None: the state is not a valid rig).
+fn residuals(level: &Level, pairs: &[Pair], state: &State) -> Option<Vec<Vec<f64>>> {
+    let rig = level.rig(state).ok()?;
+    Some(
+        pairs
+            .iter()
+            .enumerate()
+            .map(|(n, pair)| {
+                if !pair.used {
+                    return Vec::new();
+                }
+                let motion = pair_motion(pair.odometry.as_ref(), state.steps[n]);
+                pair.samples.iter().filter_map(|&(p, target)| residual(level, &rig, pair, &motion, p, target).map(|r| r.0)).collect()
+            })
+            .collect(),
+    )
+}
+
+fn robust_scale(all: &[Vec<f64>]) -> f64 {
+    let mut magnitudes: Vec<f64> = all.iter().flatten().map(|r| r.abs()).collect();
+    (1.4826 * median(&mut magnitudes)).max(0.5)
+}
+
+fn cost(all: &[Vec<f64>], sigma: f64, huber: bool) -> f64 {
+    all.iter().flatten().map(|&r| rho(r, sigma, huber)).sum()
+}
+
+/// Solves `a x = b` (symmetric positive definite) by Cholesky; None when singular.
+// The textbook indexed loops; `!(a > b)` also refuses NaN.
+#[allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
+fn solve(a: &[Vec<f64>], b: &[f64]) -> Option<Vec<f64>> {
+    let n = b.len();
+    let mut l = vec![vec![0.0; n]; n];
+    for i in 0..n {
+        for j in 0..=i {
+            let sum: f64 = a[i][j] - (0..j).map(|k| l[i][k] * l[j][k]).sum::<f64>();
+            if i == j {
+                if !(sum > 1e-12 * a[i][i].abs().max(1e-300)) {
+                    return None;
+                }
+                l[i][i] = sum.sqrt();
+            } else {
+                l[i][j] = sum / l[j][j];
+            }
+        }
+    }
+    let mut y = vec![0.0; n];
+    for i in 0..n {
+        y[i] = (b[i] - (0..i).map(|k| l[i][k] * y[k]).sum::<f64>()) / l[i][i];
+    }
+    let mut x = vec![0.0; n];
+    for i in (0..n).rev() {
+        x[i] = (y[i] - (i + 1..n).map(|k| l[k][i] * x[k]).sum::<f64>()) / l[i][i];
+    }
+    Some(x)
+}
+
+/// The normal equations at `state`: (J^T W J, J^T W r, sum w r^2, sum w).
+#[allow(clippy::type_complexity)]
+fn normal_equations(
+    level: &Level,
+    pairs: &[Pair],
+    state: &State,
+    unknowns: &[Unknown],
+    sigma: f64,
+    huber: bool,
+) -> Result<(Vec<Vec<f64>>, Vec<f64>, f64, f64), RigError> {
+    let n = unknowns.len();
+    let rig = level.rig(state)?;
+    // The mount's perturbed rigs, shared by all pairs.
+    let mount_rigs: Vec<Option<Rig>> = unknowns
+        .iter()
+        .map(|&u| match u {
+            Unknown::Mount(_) => level.rig(&state.with(u, step_of(u))).ok(),
+            Unknown::Step(..) => None,
+        })
+        .collect();
+    let mut jtj = vec![vec![0.0; n]; n];
+    let mut jtr = vec![0.0; n];
+    let (mut wrr, mut wsum) = (0.0, 0.0);
+    let mut row = vec![0.0; n];
+    let mut nonzero: Vec<usize> = Vec::with_capacity(n);
+    for (pi, pair) in pairs.iter().enumerate() {
+        if !pair.used {
+            continue;
+        }
+        let motion = state.motion(pairs, pi);
+        for &(p, target) in &pair.samples {
+            let Some(q) = warp(&rig, &motion, p) else { continue };
+            let Some((value, gu, gv)) = level.images[pair.earlier].sample(q.u, q.v) else { continue };
+            let r = pair.gain * value + pair.offset - target;
+            let w = weight(r, sigma, huber);
+            if w == 0.0 {
+                continue;
+            }
+            let mut touched = false;
+            for (k, &unknown) in unknowns.iter().enumerate() {
+                row[k] = 0.0;
+                let moved = match unknown {
+                    Unknown::Mount(_) => mount_rigs[k].as_ref().and_then(|r| warp(r, &motion, p)),
+                    Unknown::Step(owner, component) if owner == pi => {
+                        let mut step = state.steps[pi];
+                        step[component] += step_of(unknown);
+                        warp(&rig, &pair_motion(pair.odometry.as_ref(), step), p)
+                    }
+                    Unknown::Step(..) => continue,
+                };
+                let Some(moved) = moved else { continue };
+                let h = step_of(unknown);
+                row[k] = pair.gain * (gu * (moved.u - q.u) + gv * (moved.v - q.v)) / h;
+                touched = true;
+            }
+            if !touched {
+                continue;
+            }
+            // A sample touches the mount and its own pair's motion only.
+            nonzero.clear();
+            nonzero.extend((0..n).filter(|&k| row[k] != 0.0));
+            for &i in &nonzero {
+                jtr[i] += w * row[i] * r;
+                for &j in nonzero.iter().filter(|&&j| j <= i) {
+                    jtj[i][j] += w * row[i] * row[j];
+                }
+            }
+            wrr += w * r * r;
+            wsum += w;
+        }
+    }
+    // Only the lower triangle was summed: mirror it.
+    for i in 0..n {
+        let (upper, lower) = jtj.split_at_mut(i);
+        for (j, row) in upper.iter_mut().enumerate() {
+            row[i] = lower[0][j];
+        }
+    }
+    Ok((jtj, jtr, wrr, wsum))
+}
+
+/// Calibrates the mount of `recording` (its rig is the starting point).
+pub fn calibrate(recording: &Recording, config: &CalibrationConfig) -> Result<MountEstimate, CalibrationError> {
+    let rig = recording.rig;
+    let frames: Vec<u32> = recording.frames.clone();
+    if frames.len() < 2 {
+        return Err(CalibrationError::TooFewFrames);
+    }
+    let pose = |f: u32| if config.ignore_odometry { None } else { recording.pose(f).and_then(|row| row.pose) };
+    let odometry = frames.iter().all(|&f| pose(f).is_some());
+    let given_height = config.height_mm.unwrap_or(rig.mount().height_mm);
+
+    // Pairs: with odometry, each frame with the first later one TARGET mm away.
+    let mut candidates: Vec<(usize, usize, Motion)> = Vec::new();
+    let mut largest: f64 = 0.0;
+    if odometry {
+        for i in 0..frames.len() {
+            let from = pose(frames[i]).unwrap_or_default();
+            let mut chosen = None;
+            for j in i + 1..frames.len() {
+                let motion = Motion::between(&from, &pose(frames[j]).unwrap_or_default());
+                largest = largest.max(motion.distance_mm());
+                if motion.distance_mm() >= TARGET_PAIR_MOTION_MM || j == frames.len() - 1 || j - i >= 8 {
+                    chosen = Some((j, motion));
+                    break;
+                }
+            }
+            if let Some((j, motion)) = chosen.filter(|(_, m)| m.distance_mm() >= MIN_PAIR_MOTION_MM) {
+                candidates.push((i, j, motion));
+            }
+        }
+        if candidates.is_empty() {
+            return Err(CalibrationError::NoMotion { largest_mm: largest });
+        }
+    } else {
+        candidates = (0..frames.len() - 1).map(|i| (i, i + 1, Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 })).collect();
+    }
+    if candidates.len() > MAX_PAIRS {
+        let n = candidates.len();
+        candidates = (0..MAX_PAIRS).map(|k| candidates[k * (n - 1) / (MAX_PAIRS - 1)]).collect();
+    }
+
+    // Pyramids of the frames the pairs use.
+    let mut pyramids: Vec<Vec<Image>> = vec![Vec::new(); frames.len()];
+    for &(i, j, _) in &candidates {
+        for f in [i, j] {
+            if pyramids[f].is_empty() {
+                let mut levels = vec![Image::from_frame(&recording.load_frame(frames[f])?)];
+                for _ in 1..LEVELS {
+                    let next = levels[levels.len() - 1].half();
+                    levels.push(next);
+                }
+                pyramids[f] = levels;
+            }
+        }
+    }
+    let mut pairs: Vec<Pair> = candidates
+        .iter()
+        .map(|&(earlier, later, motion)| Pair {
+            earlier,
+            later,
+            odometry: odometry.then_some(motion),
+            samples: Vec::new(),
+            gain: 1.0,
+            offset: 0.0,
+            used: true,
+        })
+        .collect();
+    let initial = rig.mount();
+    let mut state = State {
+        mount: [initial.tilt_deg, if odometry { initial.height_mm } else { given_height }, initial.roll_deg, initial.yaw_deg],
+        steps: pairs.iter().map(|p| [1.0, p.odometry.map_or(0.0, |m| m.dyaw_deg)]).collect(),
+    };
+    let start = state.clone();
+    // The height stays nominal: each pair's scale takes up the flow's size.
+    let mut unknowns: Vec<Unknown> = [0, 2, 3].map(Unknown::Mount).to_vec();
+    // With odometry its turns are trusted (a free turn trades off against
+    // the roll on diagonal drives); without, each pair's turn is free too.
+    let components = if odometry { 1 } else { 2 };
+    unknowns.extend((0..pairs.len()).flat_map(|p| (0..components).map(move |c| Unknown::Step(p, c))));
+    let images_at = |level: usize| -> Vec<Image> {
+        pyramids.iter().map(|levels| levels.get(level).cloned().unwrap_or(Image { width: 0, height: 0, pixels: Vec::new() })).collect()
+    };
+
+    let mut residual_before = 0.0;
+    let mut last = None;
+    for level_index in (0..LEVELS).rev() {
+        let images = images_at(level_index);
+        let level = Level { camera: level_camera(rig.camera(), level_index), base: &rig, images: &images };
+        let level_rig = level.rig(&state).map_err(CalibrationError::Diverged)?;
+        // Samples: later-frame pixels on the ground within reach, every
+        // second pixel at full resolution.
+        let stride = if level_index == 0 { 2 } else { 1 };
+        let reach = REACH_FAR_EDGES * rig.aoi().far_mm;
+        let camera = level.camera;
+        for pair in pairs.iter_mut() {
+            let image = &images[pair.later];
+            pair.samples.clear();
+            for v in (2..usize::from(camera.height) - 2).step_by(stride) {
+                for u in (2..usize::from(camera.width) - 2).step_by(stride) {
+                    let p = Pixel { u: u as f64, v: v as f64 };
+                    if level_rig.pixel_to_ground(p).is_some_and(|(x, z)| x.hypot(z) <= reach) {
+                        pair.samples.push((p, f64::from(image.pixels[v * image.width + u])));
+                    }
+                }
+            }
+        }
+        let huber = level_index == LEVELS - 1;
+        if !odometry && level_index == LEVELS - 1 {
+            search_motions(&level, &mut pairs, &mut state);
+        }
+        if level_index == 0 {
+            // At the rig as given, with the same samples.
+            let mut given = state.clone();
+            given.mount = start.mount;
+            if odometry {
+                given.steps = start.steps.clone();
+            }
+            if let Ok(given_rig) = level.rig(&given) {
+                fit_photometry(&level, &given_rig, &mut pairs, &given, None, false);
+                residual_before = residuals(&level, &pairs, &given).map_or(f64::NAN, |all| rms(&all));
+            }
+        }
+        fit_photometry(&level, &level_rig, &mut pairs, &state, None, huber);
+        let mut all = residuals(&level, &pairs, &state).ok_or(CalibrationError::Diverged(RigError::Tilt))?;
+        let mut lambda = 1e-3;
+        for _ in 0..ITERATIONS {
+            let sigma = robust_scale(&all);
+            let current_rig = level.rig(&state).map_err(CalibrationError::Diverged)?;
+            fit_photometry(&level, &current_rig, &mut pairs, &state, Some(sigma), huber);
+            all = residuals(&level, &pairs, &state).ok_or(CalibrationError::Diverged(RigError::Tilt))?;
+            let before = cost(&all, sigma, huber);
+            let (jtj, jtr, wrr, wsum) =
+                normal_equations(&level, &pairs, &state, &unknowns, sigma, huber).map_err(CalibrationError::Diverged)?;
+            last = Some((jtj.clone(), wrr, wsum));
+            let mut improved = false;
+            for _ in 0..6 {
+                let damped: Vec<Vec<f64>> = (0..jtj.len())
+                    .map(|i| (0..jtj.len()).map(|j| if i == j { jtj[i][j] * (1.0 + lambda) } else { jtj[i][j] }).collect())
+                    .collect();
+                let Some(step) = solve(&damped, &jtr.iter().map(|v| -v).collect::<Vec<_>>()) else {
+                    return Err(CalibrationError::Underdetermined);
+                };
+                let mut trial = state.clone();
+                for (k, &unknown) in unknowns.iter().enumerate() {
+                    trial = trial.with(unknown, step[k]);
+                }
+                if let Some(trial_all) = residuals(&level, &pairs, &trial) {
+                    if cost(&trial_all, sigma, huber) < before {
+                        let small = unknowns.iter().enumerate().all(|(k, &u)| step[k].abs() < 0.05 * step_of(u));
+                        state = trial;
+                        all = trial_all;
+                        lambda = (lambda / 10.0).max(1e-7);
+                        improved = !small;
+                        break;
+                    }
+                }
+                lambda *= 10.0;
+            }
+            if !improved {
+                break;
+            }
+        }
+        // Pairs whose motion is not what the images show (slip) stand out.
+        if level_index == LEVELS - 1 {
+            let mut pair_medians: Vec<(usize, f64)> = all
+                .iter()
+                .enumerate()
+                .filter(|(n, _)| pairs[*n].used)
+                .map(|(n, r)| (n, median(&mut r.iter().map(|x| x.abs()).collect::<Vec<_>>())))
+                .collect();
+            let typical = median(&mut pair_medians.iter().map(|(_, m)| *m).collect::<Vec<_>>());
+            for (n, m) in pair_medians.drain(..) {
+                if m > PAIR_OUTLIER_FACTOR * typical && pairs.iter().filter(|p| p.used).count() > 1 {
+                    pairs[n].used = false;
+                }
+            }
+        }
+    }
+
+    let (jtj, wrr, wsum) = last.ok_or(CalibrationError::Underdetermined)?;
+    let n = unknowns.len();
+    let variance = wrr / (wsum - n as f64).max(1.0);
+    let mut sigma = [0.0; 4];
+    for (k, &unknown) in unknowns.iter().enumerate() {
+        let Unknown::Mount(m) = unknown else { continue };
+        let mut unit = vec![0.0; n];
+        unit[k] = 1.0;
+        let column = solve(&jtj, &unit).ok_or(CalibrationError::Underdetermined)?;
+        sigma[m] = (variance * column[k]).sqrt();
+    }
+    let largest = (0..pairs.len()).filter(|&n| pairs[n].used).map(|n| state.motion(&pairs, n).distance_mm()).fold(0.0, f64::max);
+    if largest < MIN_PAIR_MOTION_MM {
+        return Err(CalibrationError::NoMotion { largest_mm: largest });
+    }
+    if odometry {
+        // The images measure each pair's motion over the nominal height; the
+        // odometry's distance over the pairs that agree (not slipping) fixes it.
+        let scales: Vec<f64> = (0..pairs.len()).filter(|&n| pairs[n].used).map(|n| state.steps[n][0]).collect();
+        let typical = median(&mut scales.clone());
+        let agree: Vec<usize> = (0..pairs.len())
+            .filter(|&n| pairs[n].used && (state.steps[n][0] - typical).abs() <= SCALE_AGREEMENT * typical.abs())
+            .collect();
+        let odometry_mm: f64 = agree.iter().map(|&n| pairs[n].odometry.map_or(0.0, |m| m.distance_mm())).sum();
+        let seen_mm: f64 = agree.iter().map(|&n| state.steps[n][0] * pairs[n].odometry.map_or(0.0, |m| m.distance_mm())).sum();
+        if !(typical > 0.0 && seen_mm > 0.0) {
+            return Err(CalibrationError::Underdetermined);
+        }
+        let nominal = state.mount[1];
+        state.mount[1] = nominal * odometry_mm / seen_mm;
+        // The scatter of the pairs' scales, as the mean's uncertainty.
+        let mean = agree.iter().map(|&n| state.steps[n][0]).sum::<f64>() / agree.len() as f64;
+        let spread = agree.iter().map(|&n| (state.steps[n][0] - mean).powi(2)).sum::<f64>() / (agree.len().max(2) - 1) as f64;
+        sigma[1] = state.mount[1] * spread.sqrt() / mean / (agree.len() as f64).sqrt();
+        // The steps in the calibrated height's units.
+        for step in state.steps.iter_mut() {
+            step[0] *= odometry_mm / seen_mm;
+        }
+    }
+    // The residual after, at full resolution with the same samples.
+    let images = images_at(0);
+    let level = Level { camera: *rig.camera(), base: &rig, images: &images };
+    let final_rig = level.rig(&state).map_err(CalibrationError::Diverged)?;
+    fit_photometry(&level, &final_rig, &mut pairs, &state, None, false);
+    let residual_after = residuals(&level, &pairs, &state).map_or(f64::NAN, |all| rms(&all));
+    let used: Vec<&Pair> = pairs.iter().filter(|p| p.used).collect();
+    Ok(MountEstimate {
+        mount: state.mount(),
+        sigma,
+        residual_before,
+        residual_after,
+        pairs: used.len(),
+        samples: used.iter().map(|p| p.samples.len()).sum(),
+        height_estimated: odometry,
+    })
+}
+
+fn rms(all: &[Vec<f64>]) -> f64 {
+    let (sum, count) = all.iter().flatten().fold((0.0, 0usize), |(s, c), r| (s + r * r, c + 1));
+    (sum / count.max(1) as f64).sqrt()
+}
+
+/// Without odometry: each pair's step from a search over chord lengths and
+/// turns on the coarsest level, every fourth sample, at the starting mount.
+fn search_motions(level: &Level, pairs: &mut [Pair], state: &mut State) {
+    let Ok(rig) = level.rig(state) else { return };
+    for (n, pair) in pairs.iter_mut().enumerate() {
+        let mut best = (f64::INFINITY, state.steps[n]);
+        for chord_cm in -30..=30 {
+            for turn in -4..=4 {
+                let step = [f64::from(chord_cm) * 10.0 / CHORD_UNIT_MM, f64::from(turn)];
+                let motion = pair_motion(None, step);
+                let (mut sum, mut count) = (0.0, 0usize);
+                for &(p, target) in pair.samples.iter().step_by(4) {
+                    if let Some((r, _, _)) = residual(level, &rig, pair, &motion, p, target) {
+                        sum += r.abs();
+                        count += 1;
+                    }
+                }
+                if count * 2 >= pair.samples.len() / 4 {
+                    let mean = sum / count as f64;
+                    if mean < best.0 {
+                        best = (mean, step);
+                    }
+                }
+            }
+        }
+        state.steps[n] = best.1;
+    }
+}
+/// `key: value` lines for stdout.
+pub fn report(estimate: &MountEstimate) -> String {
+    let m = &estimate.mount;
+    let s = &estimate.sigma;
+    format!(
+        "tilt_deg: {:.3}\ntilt_deg_sigma: {:.3}\nheight_mm: {:.1}\nheight_mm_sigma: {:.1}\nroll_deg: {:.3}\nroll_deg_sigma: {:.3}\nyaw_deg: {:.3}\nyaw_deg_sigma: {:.3}\nheight_from: {}\nresidual_before: {:.2}\nresidual_after: {:.2}\npairs: {}\nsamples: {}\n",
+        m.tilt_deg,
+        s[0],
+        m.height_mm,
+        s[1],
+        m.roll_deg,
+        s[2],
+        m.yaw_deg,
+        s[3],
+        if estimate.height_estimated { "odometry" } else { "given" },
+        estimate.residual_before,
+        estimate.residual_after,
+        estimate.pairs,
+        estimate.samples,
+    )
+}
+
+/// rig.toml's text with the `[mount]` section's values replaced (comments
+/// and the other sections kept; roll and yaw added when absent).
+pub fn calibrated_rig_toml(original: &str, mount: &Mount) -> String {
+    let values = [
+        ("height_mm", format!("{:.1}", mount.height_mm)),
+        ("tilt_deg", format!("{:.3}", mount.tilt_deg)),
+        ("roll_deg", format!("{:.3}", mount.roll_deg)),
+        ("yaw_deg", format!("{:.3}", mount.yaw_deg)),
+    ];
+    with_section_values(original, "mount", &values)
+}
+
+/// TOML text with `section`'s keys set to `values`: keys present are
+/// replaced in place, absent ones added at the section's end.
+pub fn with_section_values(original: &str, section: &str, values: &[(&str, String)]) -> String {
+    let header = format!("[{section}]");
+    let mut out = String::new();
+    let mut inside = false;
+    let mut written = vec![false; values.len()];
+    let flush = |out: &mut String, written: &mut Vec<bool>| {
+        // Before the blank lines that end the section.
+        let blanks = out.len() - out.trim_end_matches('\n').len();
+        out.truncate(out.len() - blanks.saturating_sub(1));
+        for (k, (key, value)) in values.iter().enumerate() {
+            if !written[k] {
+                out.push_str(&format!("{key} = {value}\n"));
+                written[k] = true;
+            }
+        }
+        out.push_str(&"\n".repeat(blanks.saturating_sub(1)));
+    };
+    for line in original.lines() {
+        let trimmed = line.trim_start();
+        if trimmed.starts_with('[') {
+            if inside {
+                flush(&mut out, &mut written);
+            }
+            inside = trimmed.starts_with(&header);
+        }
+        let key = trimmed.split('=').next().unwrap_or("").trim();
+        if let Some(k) = values.iter().position(|(name, _)| inside && *name == key && trimmed.contains('=')) {
+            out.push_str(&format!("{} = {}\n", values[k].0, values[k].1));
+            written[k] = true;
+            continue;
+        }
+        out.push_str(line);
+        out.push('\n');
+    }
+    if inside {
+        flush(&mut out, &mut written);
+    }
+    out
+}
+
+/// A ROS `sensor_msgs/CameraInfo` YAML file (camera_calibration's output):
+/// the image size, the camera matrix and plumb_bob distortion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraInfo {
+    pub width: u16,
+    pub height: u16,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// `[k1, k2, p1, p2, k3]`; None when all are zero or absent.
+    pub distortion: Option<[f64; 5]>,
+}
+
+/// Reads the keys flatland needs from camera_info YAML: `image_width`,
+/// `image_height`, `camera_matrix: data: [...]` (9 numbers),
+/// `distortion_model` (plumb_bob, or absent) and
+/// `distortion_coefficients: data: [...]` (5 numbers, or none).
+pub fn parse_camera_info(text: &str) -> Result<CameraInfo, String> {
+    let scalar = |key: &str| -> Option<&str> {
+        text.lines().find_map(|l| l.trim().strip_prefix(key)?.trim_start().strip_prefix(':').map(str::trim))
+    };
+    // The `data: [...]` list after `block:`, possibly over several lines.
+    let list = |block: &str| -> Result<Vec<f64>, String> {
+        let start = text.find(&format!("{block}:")).ok_or_else(|| format!("no {block}"))?;
+        let rest = &text[start..];
+        let open = rest.find('[').ok_or_else(|| format!("{block}: no data list"))?;
+        let close = rest[open..].find(']').ok_or_else(|| format!("{block}: unterminated data list"))? + open;
+        rest[open + 1..close]
+            .split(',')
+            .map(str::trim)
+            .filter(|t| !t.is_empty())
+            .map(|t| t.parse::<f64>().map_err(|_| format!("{block}: {t:?} is not a number")))
+            .collect()
+    };
+    let size = |key: &str| -> Result<u16, String> {
+        scalar(key).and_then(|v| v.parse().ok()).ok_or_else(|| format!("no {key}"))
+    };
+    let (width, height) = (size("image_width")?, size("image_height")?);
+    let k = list("camera_matrix")?;
+    if k.len() != 9 {
+        return Err(format!("camera_matrix has {} numbers, expected 9", k.len()));
+    }
+    if let Some(model) = scalar("distortion_model") {
+        let model = model.trim_matches(|c| c == '"' || c == '\'');
+        if model != "plumb_bob" {
+            return Err(format!("distortion_model {model}: only plumb_bob is supported"));
+        }
+    }
+    let d = if text.contains("distortion_coefficients:") { list("distortion_coefficients")? } else { Vec::new() };
+    let distortion = match d.len() {
+        0 => None,
+        5 => Some([d[0], d[1], d[2], d[3], d[4]]).filter(|c| c.iter().any(|v| *v != 0.0)),
+        n => return Err(format!("distortion_coefficients has {n} numbers, expected 5 (plumb_bob)")),
+    };
+    Ok(CameraInfo { width, height, fx: k[0], fy: k[4], cx: k[2], cy: k[5], distortion })
+}
+
+/// The `[camera]` values of a camera_info, for [`with_section_values`].
+pub fn camera_values(info: &CameraInfo) -> Vec<(&'static str, String)> {
+    let mut values = vec![
+        ("width", info.width.to_string()),
+        ("height", info.height.to_string()),
+        ("fx", format!("{}", info.fx)),
+        ("fy", format!("{}", info.fy)),
+        ("cx", format!("{}", info.cx)),
+        ("cy", format!("{}", info.cy)),
+    ];
+    if let Some(d) = info.distortion {
+        values.push(("distortion", format!("[{}, {}, {}, {}, {}]", d[0], d[1], d[2], d[3], d[4])));
+    }
+    values
+}

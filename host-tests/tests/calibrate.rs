@@ -1,0 +1,288 @@
+//! `flatland calibrate`: perturbed mounts come back, crooked mounts are
+//! found, a recording without motion is refused.
+
+mod common;
+
+use common::{data, TempRecording};
+use flatland_core::geometry::{Mount, Pixel, Rig};
+use flatland_host::calibrate::{calibrate, calibrated_rig_toml, parse_camera_info, CalibrationConfig, CalibrationError, MountEstimate};
+use flatland_host::recording::{parse_rig, Recording};
+use std::path::Path;
+use std::process::Command;
+
+/// The issue's bounds: tilt, height, roll, yaw.
+const BOUNDS: [f64; 4] = [0.1, 5.0, 0.2, 0.3];
+
+/// Bundled recordings with odometry over flat ground (some with a few
+/// obstacles, which the robust weights must reject). Left out: the bumpy
+/// ones (the body rocks between frames: no fixed mount) and
+/// exposure_rolling (rolling shutter: the rows see different poses).
+const FLAT: [&str; 9] =
+    ["flat_marks", "noisy_marks", "diagonal", "turn", "qvga_curb", "approach_box", "noisy_approach", "stool_bags", "slip"];
+
+/// The starting mounts: the issue's perturbations.
+const PERTURBATIONS: [[f64; 4]; 2] = [[2.0, 30.0, 1.5, 2.0], [-2.0, -30.0, -1.5, -2.0]];
+
+fn with_mount(rig: &Rig, mount: Mount) -> Rig {
+    Rig::new_checked(*rig.camera(), mount, *rig.aoi()).expect("perturbed rig is valid")
+}
+
+fn offset(mount: &Mount, d: [f64; 4]) -> Mount {
+    Mount {
+        tilt_deg: mount.tilt_deg + d[0],
+        height_mm: mount.height_mm + d[1],
+        roll_deg: mount.roll_deg + d[2],
+        yaw_deg: mount.yaw_deg + d[3],
+    }
+}
+
+fn errors(estimate: &MountEstimate, truth: &Mount) -> [f64; 4] {
+    let m = &estimate.mount;
+    [m.tilt_deg - truth.tilt_deg, m.height_mm - truth.height_mm, m.roll_deg - truth.roll_deg, m.yaw_deg - truth.yaw_deg]
+}
+
+fn within(errors: &[f64; 4], check_height: bool) -> bool {
+    errors.iter().zip(BOUNDS).enumerate().all(|(k, (e, b))| (k == 1 && !check_height) || e.abs() <= b)
+}
+
+/// Calibrates `recording` from each perturbation of `truth`; the failures as text.
+fn check(name: &str, recording: &Recording, truth: &Mount, config: &CalibrationConfig) -> Vec<String> {
+    let mut failures = Vec::new();
+    for d in PERTURBATIONS {
+        let mut perturbed = recording.clone();
+        perturbed.rig = with_mount(&recording.rig, offset(truth, d));
+        match calibrate(&perturbed, config) {
+            Ok(estimate) => {
+                let e = errors(&estimate, truth);
+                println!(
+                    "{name} from {d:?}: errors tilt {:+.3} deg, height {:+.2} mm, roll {:+.3} deg, yaw {:+.3} deg; sigma {:.3?}; residual {:.2} -> {:.2}; {} pairs",
+                    e[0], e[1], e[2], e[3], estimate.sigma, estimate.residual_before, estimate.residual_after, estimate.pairs
+                );
+                if !within(&e, !config.ignore_odometry) {
+                    failures.push(format!("{name} from {d:?}: errors {e:.3?}"));
+                }
+            }
+            Err(e) => failures.push(format!("{name} from {d:?}: {e}")),
+        }
+    }
+    failures
+}
+
+#[test]
+fn perturbed_mounts_come_back_on_the_flat_recordings() {
+    let mut failures = Vec::new();
+    for name in FLAT {
+        let recording = Recording::open(data(name)).unwrap();
+        let truth = *recording.rig.mount();
+        failures.extend(check(name, &recording, &truth, &CalibrationConfig::default()));
+    }
+    assert!(failures.is_empty(), "outside the bounds {BOUNDS:?}:\n{}", failures.join("\n"));
+}
+
+#[test]
+fn without_odometry_a_known_height_gives_the_angles() {
+    let mut failures = Vec::new();
+    for name in ["flat_marks", "noisy_marks"] {
+        let recording = Recording::open(data(name)).unwrap();
+        let truth = *recording.rig.mount();
+        let config = CalibrationConfig { height_mm: Some(truth.height_mm), ignore_odometry: true };
+        failures.extend(check(name, &recording, &truth, &config));
+    }
+    assert!(failures.is_empty(), "outside the bounds {BOUNDS:?}:\n{}", failures.join("\n"));
+}
+
+/// A copy of a bundled recording as a camera with mount roll and yaw sees
+/// it: a pure rotation about the optical centre, so every frame is the
+/// original warped by K R K^-1 (exact at any depth). The border the level
+/// camera did not see repeats its edge.
+fn crooked_copy(name: &str, roll_deg: f64, yaw_deg: f64) -> (TempRecording, Mount) {
+    let copy = TempRecording::copy_of(name, "crooked");
+    let recording = Recording::open(&copy.dir).unwrap();
+    let level = recording.rig;
+    let truth = Mount { roll_deg, yaw_deg, ..*level.mount() };
+    let crooked = with_mount(&level, truth);
+    let (a, b) = (level.camera_rotation(), crooked.camera_rotation());
+    // Crooked camera axes -> level camera axes: A B^T (both Y up).
+    let m: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[j][k]).sum()));
+    let camera = level.camera();
+    for &index in &recording.frames {
+        let frame = recording.load_frame(index).unwrap();
+        let mut pixels = vec![0u8; frame.pixels.len()];
+        for v in 0..frame.height {
+            for u in 0..frame.width {
+                let (x, y) = crooked.pixel_to_normalised(Pixel { u: u as f64, v: v as f64 }).unwrap();
+                let ray = [x, -y, 1.0];
+                let level_ray: [f64; 3] = std::array::from_fn(|i| (0..3).map(|k| m[i][k] * ray[k]).sum());
+                let source = level.normalised_to_pixel(level_ray[0] / level_ray[2], -level_ray[1] / level_ray[2]).unwrap();
+                let (su, sv) = (source.u.clamp(0.0, camera.width as f64 - 1.0), source.v.clamp(0.0, camera.height as f64 - 1.0));
+                let (u0, v0) = ((su.floor() as usize).min(frame.width - 2), (sv.floor() as usize).min(frame.height - 2));
+                let (fu, fv) = (su - u0 as f64, sv - v0 as f64);
+                let at = |c: usize, r: usize| f64::from(frame.pixels[r * frame.width + c]);
+                let top = at(u0, v0) * (1.0 - fu) + at(u0 + 1, v0) * fu;
+                let bottom = at(u0, v0 + 1) * (1.0 - fu) + at(u0 + 1, v0 + 1) * fu;
+                pixels[v * frame.width + u] = (top * (1.0 - fv) + bottom * fv).round() as u8;
+            }
+        }
+        let mut pgm = format!("P5\n{} {}\n255\n", frame.width, frame.height).into_bytes();
+        pgm.extend_from_slice(&pixels);
+        std::fs::write(copy.frame(index), pgm).unwrap();
+    }
+    let rig_path = copy.dir.join("rig.toml");
+    let text = std::fs::read_to_string(&rig_path).unwrap();
+    std::fs::write(&rig_path, calibrated_rig_toml(&text, &truth)).unwrap();
+    (copy, truth)
+}
+
+#[test]
+fn a_crooked_mount_is_found() {
+    let mut failures = Vec::new();
+    for (name, roll, yaw) in [("flat_marks", 1.5, -2.0), ("noisy_marks", -2.0, 2.5)] {
+        let (copy, truth) = crooked_copy(name, roll, yaw);
+        let recording = Recording::open(&copy.dir).unwrap();
+        assert_eq!(*recording.rig.mount(), truth, "rig.toml carries the crooked mount");
+        failures.extend(check(&format!("{name} rolled {roll} yawed {yaw}"), &recording, &truth, &CalibrationConfig::default()));
+        // From a level rig, as a user who does not know the mount is crooked starts.
+        let mut level = recording.clone();
+        level.rig = with_mount(&recording.rig, Mount { roll_deg: 0.0, yaw_deg: 0.0, ..offset(&truth, [1.0, -20.0, 0.0, 0.0]) });
+        let estimate = calibrate(&level, &CalibrationConfig::default()).unwrap();
+        let e = errors(&estimate, &truth);
+        println!("{name} rolled {roll} yawed {yaw}, from a level rig: errors {e:.3?}");
+        if !within(&e, true) {
+            failures.push(format!("{name} from a level rig: errors {e:.3?}"));
+        }
+    }
+    assert!(failures.is_empty(), "outside the bounds {BOUNDS:?}:\n{}", failures.join("\n"));
+}
+
+/// A recording whose robot stands: frame 0 over and over, poses unchanged.
+fn standing_copy(dir: &Path) {
+    let poses: String = (0..6).map(|n| format!("{n},{:.3},0.0,0.0,0.0\n", f64::from(n) * 0.1)).collect();
+    std::fs::write(dir.join("poses.csv"), format!("frame,t_s,x_mm,z_mm,yaw_deg\n{poses}")).unwrap();
+    let first = std::fs::read(dir.join("frames/000000.pgm")).unwrap();
+    for entry in std::fs::read_dir(dir.join("frames")).unwrap() {
+        std::fs::remove_file(entry.unwrap().path()).unwrap();
+    }
+    for n in 0..6 {
+        std::fs::write(dir.join(format!("frames/{n:06}.pgm")), &first).unwrap();
+    }
+}
+
+#[test]
+fn a_recording_without_motion_is_refused() {
+    let copy = TempRecording::copy_of("flat_marks", "standing");
+    standing_copy(&copy.dir);
+    let recording = Recording::open(&copy.dir).unwrap();
+    let error = calibrate(&recording, &CalibrationConfig::default()).unwrap_err();
+    assert!(matches!(error, CalibrationError::NoMotion { .. }), "{error}");
+    // Without odometry the images show no motion either.
+    let config = CalibrationConfig { ignore_odometry: true, ..CalibrationConfig::default() };
+    let error = calibrate(&recording, &config).unwrap_err();
+    assert!(matches!(error, CalibrationError::NoMotion { .. } | CalibrationError::Underdetermined), "{error}");
+    // The CLI says so and exits nonzero, writing nothing.
+    let output = Command::new(env!("CARGO_BIN_EXE_flatland")).args(["calibrate", "--write"]).arg(&copy.dir).output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(stderr.contains("does not move"), "{stderr}");
+    assert!(!copy.dir.join("rig.calibrated.toml").exists());
+}
+
+#[test]
+fn cli_prints_the_keys_and_writes_a_rig_that_parses() {
+    let copy = TempRecording::copy_of("flat_marks", "calibrate-cli");
+    let output = Command::new(env!("CARGO_BIN_EXE_flatland")).args(["calibrate", "--write"]).arg(&copy.dir).output().unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    for key in ["tilt_deg", "height_mm", "roll_deg", "yaw_deg"] {
+        for name in [key.to_string(), format!("{key}_sigma")] {
+            let line = stdout.lines().find(|l| l.split(':').next() == Some(name.as_str()));
+            let value = line.and_then(|l| l.split(':').nth(1)).map(|v| v.trim().parse::<f64>());
+            assert!(matches!(value, Some(Ok(v)) if v.is_finite()), "{name} missing in:\n{stdout}");
+        }
+    }
+    assert!(stdout.contains("residual_before:") && stdout.contains("residual_after:"), "{stdout}");
+    let written = copy.dir.join("rig.calibrated.toml");
+    let text = std::fs::read_to_string(&written).unwrap();
+    let (rig, _) = parse_rig(&written, &text).unwrap();
+    let original = Recording::open(&copy.dir).unwrap().rig;
+    assert_eq!(rig.camera(), original.camera());
+    assert_eq!(rig.aoi(), original.aoi());
+    assert!((rig.mount().tilt_deg - 32.0).abs() <= BOUNDS[0], "{text}");
+}
+
+/// What ROS camera_calibration writes (camera_info YAML), for flat_marks' camera.
+const CAMERA_INFO: &str = "image_width: 256
+image_height: 256
+camera_name: narrow_stereo
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [240.0, 0.0, 127.5,
+         0.0, 240.0, 127.5,
+         0.0, 0.0, 1.0]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [-0.01, 0.002, 0.0, 0.0, 0.0]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+";
+
+#[test]
+fn camera_info_is_read_and_written() {
+    let info = parse_camera_info(CAMERA_INFO).unwrap();
+    assert_eq!((info.width, info.height, info.fx, info.fy, info.cx, info.cy), (256, 256, 240.0, 240.0, 127.5, 127.5));
+    assert_eq!(info.distortion, Some([-0.01, 0.002, 0.0, 0.0, 0.0]));
+    assert!(parse_camera_info(&CAMERA_INFO.replace("plumb_bob", "equidistant")).is_err());
+    assert!(parse_camera_info(&CAMERA_INFO.replace("127.5,\n         0.0, 0.0, 1.0", "127.5")).is_err());
+
+    let copy = TempRecording::copy_of("flat_marks", "camera-info");
+    let file = copy.dir.join("camera_info.yaml");
+    std::fs::write(&file, CAMERA_INFO).unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_flatland"))
+        .args(["calibrate", "--write", "--camera-info"])
+        .arg(&file)
+        .arg(&copy.dir)
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let written = copy.dir.join("rig.calibrated.toml");
+    let (rig, _) = parse_rig(&written, &std::fs::read_to_string(&written).unwrap()).unwrap();
+    assert_eq!(rig.camera().distortion.map(|d| d.coefficients()), info.distortion);
+    assert_eq!(rig.camera().fx, 240.0);
+    // A camera_info of another size is refused.
+    std::fs::write(&file, CAMERA_INFO.replace("image_width: 256", "image_width: 640")).unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_flatland")).args(["calibrate", "--camera-info"]).arg(&file).arg(&copy.dir).output().unwrap();
+    assert!(!output.status.success());
+    assert!(String::from_utf8_lossy(&output.stderr).contains("640x256"), "{}", String::from_utf8_lossy(&output.stderr));
+}
+
+/// The crooked mount end to end: the rig message carries roll and yaw, the
+/// firmware in QEMU builds the crooked table and gives exactly the host's
+/// csv, and the warped flat floor raises no alarm. A larger roll slants the
+/// KG rows across more camera rows than the firmware's ring holds: refused
+/// at start-up with `camera_too_large`, cleanly.
+#[test]
+fn a_crooked_recording_detects_alike_on_host_and_firmware() {
+    let (copy, _) = crooked_copy("flat_marks", 0.5, -1.0);
+    let expected = common::detect_csv(&copy.dir);
+    assert!(expected.lines().count() > 1, "no rows");
+    for row in expected.lines().skip(1) {
+        assert_eq!(row.split(',').nth(2), Some("0"), "alarm on the flat floor: {row}");
+    }
+    let outcome = common::run(&copy.dir, common::script(&copy.dir));
+    let (csv, summary) = common::decoded(&outcome);
+    assert!(summary.frame_faults.is_empty(), "{:?}", summary.frame_faults);
+    assert_eq!(csv, expected);
+
+    let (copy, _) = crooked_copy("flat_marks", 1.5, -2.0);
+    for row in common::detect_csv(&copy.dir).lines().skip(1) {
+        assert_eq!(row.split(',').nth(2), Some("0"), "alarm on the flat floor: {row}");
+    }
+    let outcome = common::run(&copy.dir, common::script(&copy.dir));
+    assert!(outcome.log.contains("RingTooSmall"), "{}", outcome.log);
+    let faults = common::faults(&outcome);
+    assert!(faults.iter().any(|f| f.code == flatland_core::protocol::FaultCode::CameraTooLarge), "{faults:?}");
+}
