@@ -6,7 +6,7 @@
 //! behind the same odometry gate.
 
 use crate::detect::{DetectConfig, Detector, FrameOutcome};
-use crate::images::RgbImage;
+use crate::images::{Anchor, RgbImage};
 use crate::recording::{Frame, Recording};
 use flatland_core::grid::KgGrid;
 use flatland_core::gti::{Gti, GtiConfig, HeightPoint, TrackView};
@@ -267,15 +267,35 @@ fn draw_segment(image: &mut RgbImage, x0: f32, y0: f32, x1: f32, y1: f32, colour
 }
 
 /// Top view: 4 mm per pixel, robot at the bottom centre, AOI outlined,
-/// each point a 5x5 square coloured by height, with a colour bar on the left.
+/// each point a 5x5 square coloured by height; on the right, the colour
+/// bar labelled in mm (0 at the bottom to H/2, the colours' top, above).
 fn draw_map(points: &[HeightPoint], recording: &Recording, dir: &Path) -> Result<(), Box<dyn std::error::Error>> {
-    const MM_PER_PX: f32 = 4.0;
+    let path = dir.join("map.png");
+    map_picture(points, recording).save(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(())
+}
+
+/// Width of the map's colour bar strip (bar, ticks and labels), px.
+pub const COLOUR_BAR_STRIP: usize = 96;
+/// The map's scale, mm of ground per px.
+pub const MAP_MM_PER_PX: f32 = 4.0;
+/// Height of the strip above the map for the colour bar's title, px.
+const TITLE_STRIP: usize = 22;
+/// The colour bar's left edge within its strip, and its width, px.
+pub const BAR_LEFT: usize = 12;
+pub const BAR_WIDTH: usize = 18;
+
+/// The map `flatland heights --png` writes as map.png: the map of
+/// [`draw_map`], then the colour bar strip.
+pub fn map_picture(points: &[HeightPoint], recording: &Recording) -> RgbImage {
     let aoi = recording.rig.aoi();
     let half = aoi.half_width_mm as f32 + 200.0;
     let far = aoi.far_mm as f32 + 300.0;
-    let (width, height) = ((2.0 * half / MM_PER_PX) as usize, (far / MM_PER_PX) as usize);
+    let (map_width, map_height) = ((2.0 * half / MAP_MM_PER_PX) as usize, (far / MAP_MM_PER_PX) as usize);
+    let (width, height) = (map_width + COLOUR_BAR_STRIP, map_height + TITLE_STRIP);
     let mut image = RgbImage::new(width, height);
-    let to_px = |x: f32, z: f32| ((x + half) / MM_PER_PX, (far - z) / MM_PER_PX);
+    let top = TITLE_STRIP as f32;
+    let to_px = |x: f32, z: f32| ((x + half) / MAP_MM_PER_PX, top + (far - z) / MAP_MM_PER_PX);
     let (l, t) = to_px(-aoi.half_width_mm as f32, aoi.far_mm as f32);
     let (r, b) = to_px(aoi.half_width_mm as f32, aoi.near_mm as f32);
     image.rect(l as usize, t as usize, r as usize, b as usize, [90, 90, 90]);
@@ -286,20 +306,39 @@ fn draw_map(points: &[HeightPoint], recording: &Recording, dir: &Path) -> Result
         for dy in -2..=2 {
             for dx in -2..=2 {
                 let (px, py) = (x + dx as f32, y + dy as f32);
-                if px >= 0.0 && py >= 0.0 {
+                if px >= 0.0 && py >= top && px < map_width as f32 {
                     image.set(px as usize, py as usize, colour);
                 }
             }
         }
     }
-    // Colour bar: 0 mm at the bottom to H/2 at the top.
-    for y in 0..height {
-        let h = full * (1.0 - y as f32 / height as f32);
-        for x in 0..6 {
-            image.set(x, y, height_colour(h, full));
+    draw_colour_bar(&mut image, map_width, full);
+    image
+}
+
+/// The colour bar right of the map (`left`): 0 mm at the bottom, `full_mm`
+/// (where the colours stop changing) at the top, ticks labelled in mm.
+fn draw_colour_bar(image: &mut RgbImage, left: usize, full_mm: f32) {
+    let (bar_top, bar_bottom) = (TITLE_STRIP + 8, image.height - 8);
+    let span = (bar_bottom - bar_top) as f32;
+    let bar_left = left + BAR_LEFT;
+    for y in bar_top..=bar_bottom {
+        let h = full_mm * (bar_bottom - y) as f32 / span;
+        for x in bar_left..bar_left + BAR_WIDTH {
+            image.set(x, y, height_colour(h, full_mm));
         }
     }
-    let path = dir.join("map.png");
-    image.save(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok(())
+    let grey = [200, 200, 200];
+    image.text(left as i32 + 4, 4, "height mm", 13, grey, Anchor::TopLeft);
+    // Ticks at a round step, about five of them.
+    let step = [5.0, 10.0, 20.0, 25.0, 50.0, 100.0, 200.0, 250.0, 500.0].into_iter().find(|&s| full_mm / s <= 6.0).unwrap_or(1000.0);
+    let mut h = 0.0f32;
+    while h <= full_mm + 0.01 {
+        let y = (bar_bottom as f32 - h / full_mm * span).round() as i32;
+        let x = (bar_left + BAR_WIDTH) as i32;
+        image.polyline(&[(x, y), (x + 5, y)], grey, 1);
+        let text = if (full_mm - h).abs() < 0.01 { format!(">={h:.0}") } else { format!("{h:.0}") };
+        image.text(x + 8, y, &text, 12, grey, Anchor::CentreLeft);
+        h += step;
+    }
 }

@@ -1,6 +1,58 @@
-//! PNG output for pictures a person looks at.
+//! Pictures a person looks at: an RGB raster, PNG output, and drawing on
+//! it (lines, polygons and text through `plotters`' bitmap backend, with a
+//! font bundled in the binary: no system font is needed).
 
+use plotters::backend::BitMapBackend;
+use plotters::coord::Shift;
+use plotters::drawing::{DrawingArea, IntoDrawingArea};
+use plotters::element::{PathElement, Polygon, Rectangle};
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+use plotters::style::{Color, FontStyle, IntoFont, RGBColor, ShapeStyle, TextStyle};
 use std::path::Path;
+use std::sync::Once;
+
+/// The font family every picture's text uses (see [`register_font`]).
+pub const FONT: &str = "sans-serif";
+
+/// Registers the bundled font (Hack, from `epaint_default_fonts`) with
+/// plotters as [`FONT`], once. Every drawing entry point calls it.
+pub fn register_font() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        if plotters::style::register_font(FONT, FontStyle::Normal, epaint_default_fonts::HACK_REGULAR).is_err() {
+            panic!("the bundled font does not parse");
+        }
+    });
+}
+
+/// An RGB colour as plotters takes it.
+pub fn rgb([r, g, b]: [u8; 3]) -> RGBColor {
+    RGBColor(r, g, b)
+}
+
+/// Where a text's anchor point is on the text.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Anchor {
+    TopLeft,
+    TopRight,
+    TopCentre,
+    CentreLeft,
+    CentreRight,
+    Centre,
+}
+
+impl Anchor {
+    fn pos(self) -> Pos {
+        match self {
+            Anchor::TopLeft => Pos::new(HPos::Left, VPos::Top),
+            Anchor::TopRight => Pos::new(HPos::Right, VPos::Top),
+            Anchor::TopCentre => Pos::new(HPos::Center, VPos::Top),
+            Anchor::CentreLeft => Pos::new(HPos::Left, VPos::Center),
+            Anchor::CentreRight => Pos::new(HPos::Right, VPos::Center),
+            Anchor::Centre => Pos::new(HPos::Center, VPos::Center),
+        }
+    }
+}
 
 /// An 8-bit RGB picture under construction.
 #[derive(Clone, Debug)]
@@ -42,10 +94,123 @@ impl RgbImage {
         }
     }
 
-    pub fn save(&self, path: &Path) -> std::io::Result<()> {
-        let flat: Vec<u8> = self.pixels.iter().flatten().copied().collect();
-        write_png(path, self.width, self.height, png::ColorType::Rgb, &flat)
+    /// Copies a grayscale raster into the picture at (left, top), each
+    /// pixel as a `scale` x `scale` square.
+    pub fn blit_gray_scaled(&mut self, gray: &[u8], width: usize, left: usize, top: usize, scale: usize) {
+        for (j, row) in gray.chunks_exact(width).enumerate() {
+            for (i, &value) in row.iter().enumerate() {
+                self.fill_rect(left + i * scale, top + j * scale, scale, scale, [value; 3]);
+            }
+        }
     }
+
+    /// Copies another picture into this one at (left, top), clipped.
+    pub fn blit(&mut self, other: &RgbImage, left: usize, top: usize) {
+        for (j, row) in other.pixels.chunks_exact(other.width).enumerate() {
+            let y = top + j;
+            if y >= self.height || left >= self.width {
+                break;
+            }
+            let n = other.width.min(self.width - left);
+            self.pixels[y * self.width + left..][..n].copy_from_slice(&row[..n]);
+        }
+    }
+
+    /// Fills `width` x `height` pixels from (left, top).
+    pub fn fill_rect(&mut self, left: usize, top: usize, width: usize, height: usize, color: [u8; 3]) {
+        for y in top..(top + height).min(self.height) {
+            for x in left..(left + width).min(self.width) {
+                self.pixels[y * self.width + x] = color;
+            }
+        }
+    }
+
+    /// The picture as a plotters drawing area, for lines, shapes and text
+    /// (coordinates in pixels, clipped at the edges).
+    pub fn canvas(&mut self) -> DrawingArea<BitMapBackend<'_>, Shift> {
+        register_font();
+        let size = (self.width as u32, self.height as u32);
+        BitMapBackend::with_buffer(self.pixels.as_flattened_mut(), size).into_drawing_area()
+    }
+
+    /// Writes `text` with its `anchor` at (x, y), `size` px high.
+    pub fn text(&mut self, x: i32, y: i32, text: &str, size: u32, color: [u8; 3], anchor: Anchor) {
+        let style = text_style(size, color, anchor);
+        self.canvas().draw_text(text, &style, (x, y)).expect("text into a memory buffer");
+    }
+
+    /// `text` on a filled box that pads it by `pad` px: readable over an image.
+    /// Returns the box (left, top, right, bottom).
+    #[allow(clippy::too_many_arguments)]
+    pub fn label(&mut self, x: i32, y: i32, text: &str, size: u32, color: [u8; 3], background: [u8; 3], anchor: Anchor, pad: i32) -> (i32, i32, i32, i32) {
+        let (w, h) = text_size(text, size);
+        let left = match anchor {
+            Anchor::TopLeft | Anchor::CentreLeft => x,
+            Anchor::TopRight | Anchor::CentreRight => x - w,
+            Anchor::TopCentre | Anchor::Centre => x - w / 2,
+        };
+        let top = match anchor {
+            Anchor::TopLeft | Anchor::TopRight | Anchor::TopCentre => y,
+            _ => y - h / 2,
+        };
+        let bounds = (left - pad, top - pad, left + w + pad, top + h + pad);
+        self.fill_box(bounds, background);
+        self.text(left, top, text, size, color, Anchor::TopLeft);
+        bounds
+    }
+
+    /// Fills (left, top, right, bottom), inclusive, clipped.
+    pub fn fill_box(&mut self, (left, top, right, bottom): (i32, i32, i32, i32), color: [u8; 3]) {
+        let (l, t) = (left.max(0) as usize, top.max(0) as usize);
+        let (r, b) = (right.max(-1) + 1, bottom.max(-1) + 1);
+        self.fill_rect(l, t, (r as usize).saturating_sub(l), (b as usize).saturating_sub(t), color);
+    }
+
+    /// A polyline `width` px wide.
+    pub fn polyline(&mut self, points: &[(i32, i32)], color: [u8; 3], width: u32) {
+        if points.len() < 2 {
+            return;
+        }
+        let style = ShapeStyle { color: rgb(color).to_rgba(), filled: false, stroke_width: width };
+        self.canvas().draw(&PathElement::new(points.to_vec(), style)).expect("lines into a memory buffer");
+    }
+
+    /// A filled polygon blended over the picture with `opacity` (0..=1).
+    pub fn polygon(&mut self, points: &[(i32, i32)], color: [u8; 3], opacity: f64) {
+        if points.len() < 3 {
+            return;
+        }
+        let style = rgb(color).mix(opacity).filled();
+        self.canvas().draw(&Polygon::new(points.to_vec(), style)).expect("shapes into a memory buffer");
+    }
+
+    /// An outlined rectangle `width` px wide, (left, top, right, bottom) inclusive.
+    pub fn frame_box(&mut self, (left, top, right, bottom): (i32, i32, i32, i32), color: [u8; 3], width: u32) {
+        let style = ShapeStyle { color: rgb(color).to_rgba(), filled: false, stroke_width: width };
+        self.canvas().draw(&Rectangle::new([(left, top), (right, bottom)], style)).expect("shapes into a memory buffer");
+    }
+
+    /// The flat RGB bytes, row by row.
+    pub fn bytes(&self) -> &[u8] {
+        self.pixels.as_flattened()
+    }
+
+    pub fn save(&self, path: &Path) -> std::io::Result<()> {
+        write_png(path, self.width, self.height, png::ColorType::Rgb, self.bytes())
+    }
+}
+
+/// The style of a text `size` px high.
+pub fn text_style(size: u32, color: [u8; 3], anchor: Anchor) -> TextStyle<'static> {
+    register_font();
+    (FONT, f64::from(size)).into_font().color(&rgb(color)).pos(anchor.pos())
+}
+
+/// Width and height in px of `text` at `size`.
+pub fn text_size(text: &str, size: u32) -> (i32, i32) {
+    let mut scratch = RgbImage::new(1, 1);
+    let (w, h) = scratch.canvas().estimate_text_size(text, &text_style(size, [0; 3], Anchor::TopLeft)).expect("bundled font");
+    (w as i32, h as i32)
 }
 
 /// Writes an 8-bit grayscale PNG.
@@ -58,103 +223,13 @@ fn write_png(path: &Path, width: usize, height: usize, color: png::ColorType, da
     let mut encoder = png::Encoder::new(file, width as u32, height as u32);
     encoder.set_color(color);
     encoder.set_depth(png::BitDepth::Eight);
+    // Each row filtered the way that suits it (pictures mix photographs,
+    // pixels drawn 2x2 and flat drawing), and deflate's default level
+    // rather than the encoder's fast one: a fifth of the size.
+    encoder.set_adaptive_filter(png::AdaptiveFilterType::Adaptive);
+    encoder.set_compression(png::Compression::Default);
     let mut writer = encoder.write_header().map_err(std::io::Error::other)?;
     writer.write_image_data(data).map_err(std::io::Error::other)?;
     writer.finish().map_err(std::io::Error::other)
 }
 
-use flatland_core::geometry::Rig;
-use flatland_core::gpa::Gpa;
-use flatland_core::grid::KgGrid;
-use flatland_core::motion::{Attitude, GroundMap, GroundMotion, Motion};
-use flatland_core::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE};
-
-const GREEN: [u8; 3] = [40, 220, 60];
-const RED: [u8; 3] = [255, 40, 40];
-const ORANGE: [u8; 3] = [255, 160, 0];
-/// Drop cells: the lower level past an edge.
-const CYAN: [u8; 3] = [0, 220, 255];
-const MAGENTA: [u8; 3] = [230, 60, 230];
-
-/// The detection picture: keyframe aligned by the refined motion, the current
-/// KG image, and |diff| (x3) at that alignment. AOI in green, unexplained
-/// residue blobs in orange, cells whose parallax puts them 20 mm or more
-/// above the ground in magenta (on the difference), and the obstacle that
-/// raised the alarm as a red line at its nearest point, across its width.
-/// `attitude`: align with the measured pitch and roll change too (false
-/// shows what the attitude compensation removes).
-pub fn detect_picture(rig: &Rig, grid: &KgGrid, reference: &[u8], current: &[u8], report: &FrameReport, gpa: &Gpa, attitude: bool) -> RgbImage {
-    let (w, h) = (grid.width(), grid.height());
-    let angle = |scaled: i32| f64::from(scaled) / f64::from(ANGLE_SCALE);
-    let motion = GroundMotion {
-        planar: Motion {
-            tx_mm: f64::from(report.tx) / f64::from(MOTION_SCALE),
-            tz_mm: f64::from(report.tz) / f64::from(MOTION_SCALE),
-            dyaw_deg: angle(report.dyaw),
-        },
-        attitude: if attitude { Attitude { pitch_deg: angle(report.dpitch), roll_deg: angle(report.droll) } } else { Attitude::default() },
-    };
-    let map = GroundMap::new(&motion, rig.height_mm());
-    let mut aligned = vec![0u8; w * h];
-    let mut diff = vec![0u8; w * h];
-    for j in 0..h {
-        for i in 0..w {
-            let (x, z) = grid.pixel_to_ground(i as f64, j as f64);
-            let Some((xk, zk)) = map.to_keyframe(x, z) else { continue };
-            let (fi, fj) = grid.ground_to_pixel(xk, zk);
-            if fi < 0.0 || fj < 0.0 || fi >= (w - 1) as f64 || fj >= (h - 1) as f64 {
-                continue;
-            }
-            let (i0, j0) = (fi as usize, fj as usize);
-            let (wx, wy) = (fi - i0 as f64, fj - j0 as f64);
-            let px = |i: usize, j: usize| f64::from(reference[j * w + i]);
-            let value = (px(i0, j0) * (1.0 - wx) + px(i0 + 1, j0) * wx) * (1.0 - wy)
-                + (px(i0, j0 + 1) * (1.0 - wx) + px(i0 + 1, j0 + 1) * wx) * wy;
-            aligned[j * w + i] = value.round() as u8;
-            if current[j * w + i] != 0 && reference[j0 * w + i0] != 0 {
-                diff[j * w + i] = ((f64::from(current[j * w + i]) - value).abs() * 3.0).min(255.0) as u8;
-            }
-        }
-    }
-    let gap = 4;
-    let mut picture = RgbImage::new(3 * w + 2 * gap, h);
-    picture.blit_gray(&aligned, w, 0, 0);
-    picture.blit_gray(current, w, w + gap, 0);
-    picture.blit_gray(&diff, w, 2 * (w + gap), 0);
-    let aoi = grid.aoi_pixels(rig);
-    let cell = gpa.cell_px();
-    for panel in 0..3 {
-        let left = panel * (w + gap);
-        picture.rect(left + aoi.left, aoi.top, left + aoi.right - 1, aoi.bottom - 1, GREEN);
-        for blob in gpa.blobs() {
-            let (l, r) = (usize::from(blob.cell_left) * cell, (usize::from(blob.cell_right) + 1) * cell - 1);
-            let (t, b) = (usize::from(blob.cell_top) * cell, (usize::from(blob.cell_bottom) + 1) * cell - 1);
-            picture.rect(left + l, t, left + r.min(w - 1), b.min(h - 1), ORANGE);
-        }
-        if panel == 2 {
-            let (rows, columns) = gpa.cells();
-            for row in 0..rows {
-                for column in 0..columns {
-                    // Obstacle cells (standing 20 mm up) and drop cells (20 mm down).
-                    let colour = match gpa.cell_height(row, column) {
-                        h if h >= 20 => MAGENTA,
-                        h if h <= -20 => CYAN,
-                        _ => continue,
-                    };
-                    let (l, t) = (left + column * cell, row * cell);
-                    picture.rect(l + 1, t + 1, l + cell - 2, t + cell - 2, colour);
-                }
-            }
-        }
-        if let (Some(near), Some(l), Some(r)) = (report.nearest_mm, report.left_mm, report.right_mm) {
-            let (li, row) = grid.ground_to_pixel(f64::from(l), f64::from(near));
-            let (ri, _) = grid.ground_to_pixel(f64::from(r), f64::from(near));
-            let row = row.round().clamp(0.0, (h - 1) as f64) as usize;
-            for i in li.round().max(0.0) as usize..=(ri.round() as usize).min(w - 1) {
-                picture.set(left + i, row, RED);
-                picture.set(left + i, row.saturating_sub(1), RED);
-            }
-        }
-    }
-    picture
-}

@@ -2,13 +2,16 @@
 //! glue the `flatland` CLI and the tests share. All detection work is done
 //! by `flatland_core`, the same code the firmware runs.
 
+pub mod animation;
 pub mod bench;
 pub mod calibrate;
 pub mod detect;
 pub mod evaluate;
+pub mod frame_picture;
 pub mod heights;
 pub mod images;
 pub mod serial_decode;
+pub mod summary;
 pub mod kg;
 pub mod perturb;
 pub mod qemu;

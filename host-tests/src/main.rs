@@ -6,7 +6,12 @@ use flatland_core::report::{FrameReport, CSV_HEADER, MOTION_SCALE, SHIFT_SCALE};
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::evaluate::{is_grace, score, score_hazard};
 use flatland_host::recording::Hazard;
-use flatland_host::images::{detect_picture, save_gray};
+use flatland_host::animation::Animation;
+use flatland_host::frame_picture::{frame_picture, key_colours, FrameInputs, FrameLayout, GIF_SCALE, PNG_SCALE};
+use flatland_host::images::save_gray;
+use flatland_host::recording::Frame;
+use flatland_host::summary::summary_picture;
+use std::cell::RefCell;
 use flatland_host::perturb::Perturbation;
 use flatland_host::recording::Truth;
 use std::io::Write;
@@ -40,16 +45,28 @@ enum Command {
         mm_per_px: Option<f64>,
     },
     /// Detect obstacles (GPA): one csv/json row per frame from frame 1 on.
+    #[command(group(clap::ArgGroup::new("frame_pictures").args(["png", "gif"]).multiple(true)))]
     Detect {
         recording: PathBuf,
         #[arg(long, value_enum, default_value_t = Format::Csv)]
         format: Format,
-        /// Write one picture per frame into this directory.
+        /// Write one picture per compared frame into this directory
+        /// (NNNNNN.png): a header with the decision, the camera view with
+        /// the AOI, the hazard's footprint and the ground marked every
+        /// 250 mm, the top views, and a legend.
         #[arg(long)]
         png: Option<PathBuf>,
-        /// Align the pictures by the planar motion only, ignoring the measured
-        /// pitch and roll change (shows what attitude compensation removes).
-        #[arg(long, requires = "png")]
+        /// Write the frame pictures as one animated GIF (half their size).
+        #[arg(long)]
+        gif: Option<PathBuf>,
+        /// Write one picture of the whole run: alarm and nearest distance
+        /// against truth.toml, the seed's statistics, motion and attitude.
+        #[arg(long)]
+        summary: Option<PathBuf>,
+        /// Align the frame pictures (--png, --gif) by the planar motion only,
+        /// ignoring the measured pitch and roll change (shows what attitude
+        /// compensation removes).
+        #[arg(long, requires = "frame_pictures")]
         png_level: bool,
         /// Compare with truth.toml and print a confusion table (stderr).
         #[arg(long)]
@@ -270,16 +287,33 @@ fn json_row(report: &FrameReport) -> String {
     )
 }
 
-/// Where `detect` writes its pictures, and whether they compensate the attitude.
+/// Which pictures `detect` writes, and whether they compensate the attitude.
 struct Pictures<'a> {
-    dir: &'a Path,
+    /// One PNG per compared frame.
+    dir: Option<&'a Path>,
+    /// One animated GIF of the run.
+    gif: Option<&'a Path>,
+    /// One PNG of the whole run.
+    summary: Option<&'a Path>,
     attitude: bool,
+}
+
+impl Pictures<'_> {
+    fn per_frame(&self) -> bool {
+        self.dir.is_some() || self.gif.is_some()
+    }
+}
+
+/// The recording's name for the pictures: its directory's.
+fn recording_name(path: &Path) -> String {
+    let path = path.canonicalize().unwrap_or_else(|_| path.to_path_buf());
+    path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned())
 }
 
 fn run_detect(
     path: &Path,
     format: Format,
-    png: Option<Pictures>,
+    pictures: Pictures,
     truth: bool,
     perturbation: Option<Box<Perturbation>>,
     verbose: bool,
@@ -294,21 +328,39 @@ fn run_detect(
         Ok(d) => d,
         Err(e) => return fatal(format!("{}: {e}", path.display())),
     };
-    if let Some(pictures) = &png {
-        if let Err(e) = std::fs::create_dir_all(pictures.dir) {
-            return fatal(format!("{}: {e}", pictures.dir.display()));
+    if let Some(dir) = pictures.dir {
+        if let Err(e) = std::fs::create_dir_all(dir) {
+            return fatal(format!("{}: {e}", dir.display()));
         }
     }
     let grid = detector.grid();
+    let name = recording_name(path);
+    let png_layout = FrameLayout::new(&recording.rig, &grid, PNG_SCALE);
+    let gif_layout = FrameLayout::new(&recording.rig, &grid, GIF_SCALE);
+    let mut animation = match pictures.gif.map(|file| Animation::create(file, gif_layout.width, gif_layout.height, &key_colours()).map_err(|e| format!("{}: {e}", file.display()))) {
+        None => None,
+        Some(Ok(animation)) => Some(animation),
+        Some(Err(e)) => return fatal(e),
+    };
     let mut reports = Vec::new();
     let mut previous_kg: Option<Vec<u8>> = None;
+    // The camera frame as the pipeline saw it (binned, perturbed), for the pictures.
+    let camera: RefCell<Option<Frame>> = RefCell::new(None);
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     if format == Format::Csv {
         let _ = writeln!(out, "{CSV_HEADER}");
     }
     let mut picture_error = None;
-    let result = detector.run_with(&recording, |index, frame| if let Some(p) = perturber.as_mut() { p.alter(index, frame) }, |outcome, pipeline| match outcome {
+    let alter = |index: u32, frame: &mut Frame| {
+        if let Some(p) = perturber.as_mut() {
+            p.alter(index, frame)
+        }
+        if pictures.per_frame() {
+            *camera.borrow_mut() = Some(frame.clone());
+        }
+    };
+    let result = detector.run_with(&recording, alter, |outcome, pipeline| match outcome {
         FrameOutcome::Report { report, kg } => {
             let gpa = pipeline.gpa();
             let line = match format {
@@ -323,10 +375,29 @@ fn run_detect(
             if verbose {
                 eprintln!("frame {}: {:?}", report.frame, gpa.alarm_source());
             }
-            if let (Some(pictures), Some(reference)) = (png.as_ref(), previous_kg.as_ref()) {
-                let path = pictures.dir.join(format!("{:06}.png", report.frame));
-                if let Err(e) = detect_picture(&recording.rig, &grid, reference, &kg, &report, gpa, pictures.attitude).save(&path) {
-                    picture_error.get_or_insert(format!("{}: {e}", path.display()));
+            if let (true, Some(reference), Some(frame)) = (pictures.per_frame(), previous_kg.as_ref(), camera.borrow().as_ref()) {
+                let inputs = FrameInputs {
+                    name: &name,
+                    rig: &recording.rig,
+                    grid: &grid,
+                    camera: frame,
+                    reference_kg: reference,
+                    current_kg: &kg,
+                    report: &report,
+                    gpa,
+                    truth: recording.truth.as_ref().map(|t| t.pair(report.frame)),
+                    attitude: pictures.attitude,
+                };
+                if let Some(dir) = pictures.dir {
+                    let path = dir.join(format!("{:06}.png", report.frame));
+                    if let Err(e) = frame_picture(&inputs, &png_layout).save(&path) {
+                        picture_error.get_or_insert(format!("{}: {e}", path.display()));
+                    }
+                }
+                if let (Some(animation), Some(file)) = (animation.as_mut(), pictures.gif) {
+                    if let Err(e) = animation.push(&frame_picture(&inputs, &gif_layout)) {
+                        picture_error.get_or_insert(format!("{}: {e}", file.display()));
+                    }
                 }
             }
             if gpa.keyframe_frame() == Some(report.frame) {
@@ -345,6 +416,18 @@ fn run_detect(
     }
     if let Some(e) = picture_error {
         return fatal(e);
+    }
+    if let (Some(animation), Some(file)) = (animation, pictures.gif) {
+        if let Err(e) = animation.finish() {
+            return fatal(format!("{}: {e}", file.display()));
+        }
+    }
+    if let Some(file) = pictures.summary {
+        let written = summary_picture(&name, &reports, recording.truth.as_ref(), recording.rig.aoi())
+            .and_then(|picture| picture.save(file).map_err(Into::into));
+        if let Err(e) = written {
+            return fatal(format!("{}: {e}", file.display()));
+        }
     }
     if truth {
         match &recording.truth {
@@ -405,8 +488,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Kg { recording, frames, out, mm_per_px } => run_kg(&recording, frames, &out, mm_per_px),
-        Command::Detect { recording, format, png, png_level, truth, perturb, verbose, sensors } => {
-            let pictures = png.as_deref().map(|dir| Pictures { dir, attitude: !png_level });
+        Command::Detect { recording, format, png, gif, summary, png_level, truth, perturb, verbose, sensors } => {
+            let pictures = Pictures { dir: png.as_deref(), gif: gif.as_deref(), summary: summary.as_deref(), attitude: !png_level };
             run_detect(&recording, format, pictures, truth, perturb, verbose, &sensors)
         }
         Command::Bench { recording, mm_per_px, search, full_frame } => {
