@@ -114,7 +114,11 @@ pub struct TempRecording {
 
 impl TempRecording {
     pub fn copy_of(name: &str, tag: &str) -> TempRecording {
-        let dir = std::env::temp_dir().join(format!("flatland-{tag}-{}-{name}", std::process::id()));
+        // Tests of one binary run in parallel in one process: each copy
+        // gets its own directory.
+        static COPIES: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let copy = COPIES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let dir = std::env::temp_dir().join(format!("flatland-{tag}-{}-{copy}-{name}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(dir.join("frames")).expect("temp dir");
         let source = data(name);
