@@ -187,15 +187,7 @@ impl Monitor {
 #[cfg(any(test, feature = "selftest"))]
 pub mod checks {
     use super::*;
-    use crate::selftest::Outcome as Check;
-
-    fn ensure(condition: bool, failure: &'static str) -> Check {
-        if condition {
-            Ok(())
-        } else {
-            Err(failure)
-        }
-    }
+    use crate::selftest::{ensure, Outcome as Check};
 
     pub fn alarm_is_asserted_until_a_frame_is_judged_clear() -> Check {
         let mut monitor = Monitor::new();

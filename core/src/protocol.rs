@@ -811,15 +811,7 @@ impl Decoder {
 #[cfg(any(test, feature = "selftest"))]
 pub mod checks {
     use super::*;
-    use crate::selftest::{xorshift32, Outcome as Check};
-
-    fn ensure(condition: bool, failure: &'static str) -> Check {
-        if condition {
-            Ok(())
-        } else {
-            Err(failure)
-        }
-    }
+    use crate::selftest::{ensure, xorshift32, Outcome as Check};
 
     fn sample_rig(distortion: Option<[f64; 5]>) -> RigRecord {
         RigRecord {

@@ -12,6 +12,15 @@ pub type Outcome = Result<(), &'static str>;
 /// One check.
 pub type Check = fn() -> Outcome;
 
+/// `Err(failure)` unless `condition` holds: a check's assertion.
+pub fn ensure(condition: bool, failure: &'static str) -> Outcome {
+    if condition {
+        Ok(())
+    } else {
+        Err(failure)
+    }
+}
+
 /// The next xorshift32 state (`state` must not be 0): core's checks'
 /// deterministic random numbers, the same on the host and the target.
 pub fn xorshift32(state: &mut u32) -> u32 {

@@ -410,7 +410,7 @@ impl Estimator {
             let centre_row = bj as f64 + half - 0.5;
             let mut bi = 0;
             while centre_row >= from_row as f64 && bi + BLOCK_PX <= w {
-                if let Ok((found, gain)) = match_block(scene, &map, bi, bj) {
+                if let Some((found, gain)) = match_block(scene, &map, bi, bj) {
                     let centre = (bi as f64 + half - 0.5, centre_row);
                     if self.matches.push(BlockMatch { current: centre, keyframe: found, gain }).is_err() {
                         return;
@@ -423,24 +423,13 @@ impl Estimator {
     }
 }
 
-/// Why a block gave no match.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Miss {
-    /// Partly out of the current view.
-    Unseen,
-    /// Too little texture to measure anything.
-    Flat,
-    /// Textured, but not found (weak or ambiguous, or its patch out of the
-    /// keyframe's view).
-    Unmatched,
-}
-
 /// The keyframe position of the centre of the block at (`bi`, `bj`) and
-/// the brightness gain there.
-fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Result<((f64, f64), f32), Miss> {
+/// the brightness gain there, or None when it is off the view, flat, or
+/// ambiguous.
+fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Option<((f64, f64), f32)> {
     let w = scene.grid.width();
     if !(bj..bj + BLOCK_PX).all(|j| scene.seen(bi, j) && scene.seen(bi + BLOCK_PX - 1, j)) {
-        return Err(Miss::Unseen);
+        return None;
     }
     // The current block, zero-mean; flat blocks measure nothing.
     let mut block = [[0f32; BLOCK_PX]; BLOCK_PX];
@@ -459,22 +448,22 @@ fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Result<(
     }
     // Below ~3 gray levels RMS it is sensor noise, not texture.
     if energy < 9.0 * (BLOCK_PX * BLOCK_PX) as f32 {
-        return Err(Miss::Flat);
+        return None;
     }
     // The keyframe patch around the model's footprint: the model as an
     // affine map about the block's centre.
     let half = (BLOCK_PX / 2) as f64;
     let (ci, cj) = (bi as f64 + half - 0.5, bj as f64 + half - 0.5);
-    let origin = scene.map(map, ci, cj).ok_or(Miss::Unmatched)?;
-    let along = scene.map(map, ci + 1.0, cj).ok_or(Miss::Unmatched)?;
-    let down = scene.map(map, ci, cj + 1.0).ok_or(Miss::Unmatched)?;
+    let origin = scene.map(map, ci, cj)?;
+    let along = scene.map(map, ci + 1.0, cj)?;
+    let down = scene.map(map, ci, cj + 1.0)?;
     let (du, dv) = ((along.0 - origin.0, along.1 - origin.1), (down.0 - origin.0, down.1 - origin.1));
     let mut patch = [[0f32; PATCH]; PATCH];
     let first = -(half - 0.5) - f64::from(BLOCK_REACH);
     for (v, row) in patch.iter_mut().enumerate() {
         for (u, value) in row.iter_mut().enumerate() {
             let (a, b) = (first + u as f64, first + v as f64);
-            *value = scene.keyframe_at(origin.0 + a * du.0 + b * dv.0, origin.1 + a * du.1 + b * dv.1).ok_or(Miss::Unmatched)?;
+            *value = scene.keyframe_at(origin.0 + a * du.0 + b * dv.0, origin.1 + a * du.1 + b * dv.1)?;
         }
     }
     // Zero-mean normalised correlation at every shift.
@@ -509,13 +498,13 @@ fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Result<(
     let best = scores[best_v][best_u];
     // On the reach's edge, weakly correlated, or as good a step away: no measurement.
     if best_u == 0 || best_v == 0 || best_u == window - 1 || best_v == window - 1 || best < 0.6 {
-        return Err(Miss::Unmatched);
+        return None;
     }
     for (sv, row) in scores.iter().enumerate().take(window) {
         for (su, &score) in row.iter().enumerate().take(window) {
             let apart = sv.abs_diff(best_v).max(su.abs_diff(best_u)) >= 2;
             if apart && score > best - 0.02 {
-                return Err(Miss::Unmatched);
+                return None;
             }
         }
     }
@@ -524,7 +513,7 @@ fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Result<(
     let sv = best_v as f64 - reach as f64 + f64::from(peak(scores[best_v - 1][best_u], best, scores[best_v + 1][best_u]));
     let keyframe_sum: f32 = (0..BLOCK_PX).map(|v| patch[v + best_v][best_u..best_u + BLOCK_PX].iter().sum::<f32>()).sum();
     let gain = (mean + 1.0) / (keyframe_sum / n + 1.0);
-    Ok(((origin.0 + su * du.0 + sv * dv.0, origin.1 + su * du.1 + sv * dv.1), gain))
+    Some(((origin.0 + su * du.0 + sv * dv.0, origin.1 + su * du.1 + sv * dv.1), gain))
 }
 
 /// A fitted motion and the robust scale of its block residuals (KG px).
