@@ -22,6 +22,7 @@
 //!   odometry gate; what the firmware and the host both drive.
 //! - [`pgm`]: checked view of binary PGM (P5) headers.
 //! - [`report`]: the per-frame result, shared by the CLI and the serial protocol.
+//! - [`scan`]: the polar obstacle scan (nearest hazard per angular sector).
 //! - [`protocol`]: the serial protocol between the firmware and its host.
 //! - [`limits`]: every capacity (buffer sizes, input sizes, search bounds) in one place.
 //! - [`subpixel`]: the parabola vertex that refines a sampled extremum.
@@ -44,6 +45,7 @@ pub mod pipeline;
 pub mod remap;
 pub mod protocol;
 pub mod report;
+pub mod scan;
 pub mod subpixel;
 /// core's checks as one list: the on-target runner's (`cargo fw-test`) and the host `#[test]`s.
 #[cfg(any(test, feature = "selftest"))]

@@ -9,6 +9,7 @@ use super::config::GpaConfig;
 use super::layout::Layout;
 use super::residue::Residue;
 use crate::limits::{MAX_BLOBS, MAX_BLOB_CELLS, MAX_CELLS, MAX_FLOOD_CELLS};
+use crate::scan::Scan;
 
 /// A connected group of hot cells.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -70,9 +71,28 @@ fn flood_cells(
     }
 }
 
+/// One hazard cell's footprint: a segment at `z` ahead from `left` to
+/// `right` (mm, robot frame), what the scan takes.
+#[derive(Clone, Copy)]
+struct CellSpan {
+    z: i16,
+    left: i16,
+    right: i16,
+}
+
+impl CellSpan {
+    fn new(z: f64, left: f64, right: f64) -> CellSpan {
+        let mm = |v: f64| libm::round(v).clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
+        CellSpan { z: mm(z), left: mm(left), right: mm(right) }
+    }
+}
+
 /// Groups cells whose parallax height (`heights`, mm) reaches the obstacle
 /// height; returns the nearest footprint inside the AOI and its height (mm).
 /// A `short_baseline` measures heights coarsely: only a large group counts.
+/// Every cell of every group that counts, in the AOI or not, goes to `scan`
+/// at its footprint, none nearer than its group's `nearest` (the odd cell
+/// whose height is off would place it there).
 ///
 /// A cell at apparent ground position p with height h stands on p*(H-h)/H,
 /// so every cell of a vertical face points at the face's own footprint.
@@ -82,6 +102,7 @@ pub(super) fn parallax_obstacle(
     residue: &Residue,
     config: &GpaConfig,
     short_baseline: bool,
+    scan: &mut Scan,
 ) -> Option<(Footprint, i32)> {
     let (grid, cells, camera_height_mm) = (&layout.grid, &layout.cells, layout.camera_height_mm);
     let (w, h) = (cells.wide, cells.high);
@@ -98,6 +119,7 @@ pub(super) fn parallax_obstacle(
         }
         let mut with_residue = false;
         let mut footprints: heapless::Vec<f64, MAX_BLOB_CELLS> = heapless::Vec::new();
+        let mut spans: heapless::Vec<CellSpan, MAX_BLOB_CELLS> = heapless::Vec::new();
         let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
         let mut group = 0usize;
         // Parallax is measured only where there is texture, so a face can
@@ -112,6 +134,7 @@ pub(super) fn parallax_obstacle(
             let (x_left, z_centre) = grid.pixel_to_ground((c * cells.px) as f64, centre_row);
             let (x_right, _) = grid.pixel_to_ground(((c + 1) * cells.px) as f64 - 1.0, 0.0);
             let _ = footprints.push(z_centre * scale);
+            let _ = spans.push(CellSpan::new(z_centre * scale, x_left * scale, x_right * scale));
             left = left.min(x_left * scale);
             right = right.max(x_right * scale);
             tallest = tallest.max(height);
@@ -130,6 +153,9 @@ pub(super) fn parallax_obstacle(
         // lower quartile is robust to the odd cell whose height is off.
         footprints.sort_unstable_by(|a, b| a.total_cmp(b));
         let nearest = footprints[(footprints.len() - 1) / 4];
+        for span in &spans {
+            scan.add_span(f64::from(span.z).max(nearest), f64::from(span.left), f64::from(span.right));
+        }
         // A footprint is good to a fraction of a cell (the heights are):
         // one measured a little beyond the far edge may stand on it.
         let cell_mm = cells.px as f64 * grid.mm_per_px;
