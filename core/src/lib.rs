@@ -39,6 +39,8 @@ pub mod grid;
 pub mod gti;
 pub mod kernels;
 pub mod limits;
+#[cfg(feature = "mavlink")]
+pub mod mavlink;
 pub mod motion;
 pub mod pgm;
 pub mod pipeline;
