@@ -33,8 +33,9 @@ use mavlink::dialects::common::{
     MavAutopilot, MavDistanceSensor, MavFrame, MavModeFlag, MavSeverity, MavState, MavType, ATTITUDE_DATA, HEARTBEAT_DATA,
     LOCAL_POSITION_NED_DATA, OBSTACLE_DISTANCE_DATA, ODOMETRY_DATA, STATUSTEXT_DATA,
 };
-pub use mavlink::dialects::common::MavComponent;
-use mavlink::{MavHeader, MavlinkVersion, MessageData};
+pub use mavlink::dialects::common::{self, MavComponent};
+use mavlink::{MavHeader, MavlinkVersion};
+pub use mavlink::MessageData;
 
 /// The vehicle's system id (autopilots default to 1): a component of it.
 pub const SYSTEM_ID: u8 = 1;
@@ -142,7 +143,7 @@ pub fn obstacle_distance(scan: &Scan, time_usec: u64) -> OBSTACLE_DISTANCE_DATA 
     let start = f64::from(scan.layout().angle_start_mdeg()) / 1000.0;
     for (k, sector) in scan.sectors().enumerate() {
         let centre = start + k as f64 * increment;
-        let bin = libm::floor(centre / f64::from(BIN_DEG) + 0.5).rem_euclid(BINS as f64) as usize;
+        let bin = (libm::floor(centre / f64::from(BIN_DEG) + 0.5) as i32).rem_euclid(BINS as i32) as usize;
         seen[bin] = seen[bin].with(sector);
     }
     for (distance, merge) in distances.iter_mut().zip(seen) {

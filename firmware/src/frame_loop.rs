@@ -49,20 +49,20 @@ pub const IMAGE_CAPACITY: usize = 40_000;
 #[cfg(feature = "full-frame")]
 pub const IMAGE_CAPACITY: usize = MAX_GRID_SIDE * MAX_GRID_SIDE;
 
-static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
-static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
-static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY);
+pub(crate) static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
+pub(crate) static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
+pub(crate) static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY);
 /// The GTI stage (`size_of::<GtiStage>()`, 19.6 KB), configured in place.
 #[cfg(not(feature = "full-frame"))]
-static GTI: ConstStaticCell<GtiStage> = ConstStaticCell::new(GtiStage::UNCONFIGURED);
-static IMAGE: ConstStaticCell<[u8; IMAGE_CAPACITY]> = ConstStaticCell::new([0; IMAGE_CAPACITY]);
+pub(crate) static GTI: ConstStaticCell<GtiStage> = ConstStaticCell::new(GtiStage::UNCONFIGURED);
+pub(crate) static IMAGE: ConstStaticCell<[u8; IMAGE_CAPACITY]> = ConstStaticCell::new([0; IMAGE_CAPACITY]);
 /// The second image, in the CCM (not zeroed at reset; see [`ccm_image`]).
 #[link_section = ".ccm"]
 static mut CCM_IMAGE: core::mem::MaybeUninit<[u8; IMAGE_CAPACITY]> = core::mem::MaybeUninit::uninit();
 static CCM_IMAGE_TAKEN: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 
 /// The CCM image, zeroed, once; None on a second call.
-fn ccm_image() -> Option<&'static mut [u8; IMAGE_CAPACITY]> {
+pub(crate) fn ccm_image() -> Option<&'static mut [u8; IMAGE_CAPACITY]> {
     use core::sync::atomic::Ordering;
     if CCM_IMAGE_TAKEN.swap(true, Ordering::AcqRel) {
         return None;
@@ -107,15 +107,15 @@ impl SetupError {
 
 /// What the loop counts beyond the decoder's own counters.
 #[derive(Default)]
-struct LoopCounters {
-    frames: u32,
-    serial_overruns: u32,
-    out_of_order: u32,
-    frame_gaps: u32,
-    aborted: u32,
+pub(crate) struct LoopCounters {
+    pub(crate) frames: u32,
+    pub(crate) serial_overruns: u32,
+    pub(crate) out_of_order: u32,
+    pub(crate) frame_gaps: u32,
+    pub(crate) aborted: u32,
 }
 
-fn bump(counter: &mut u32) {
+pub(crate) fn bump(counter: &mut u32) {
     *counter = counter.saturating_add(1);
 }
 
@@ -139,10 +139,10 @@ pub struct Options {
     pub clock: Option<fn() -> u32>,
 }
 
-struct Link<S> {
-    serial: S,
-    decoder: Decoder,
-    counters: LoopCounters,
+pub(crate) struct Link<S> {
+    pub(crate) serial: S,
+    pub(crate) decoder: Decoder,
+    pub(crate) counters: LoopCounters,
 }
 
 impl<S: Read + Write> Link<S> {
@@ -182,7 +182,7 @@ impl<S: Read + Write> Link<S> {
         self.send(&Message::Fault(Fault { code, frame }));
     }
 
-    fn stats(&self) -> LinkStats {
+    pub(crate) fn stats(&self) -> LinkStats {
         let mut stats = self.decoder.stats();
         stats.frames = self.counters.frames;
         stats.garbage_bytes = stats.garbage_bytes.saturating_add(self.counters.serial_overruns);
@@ -206,7 +206,7 @@ impl<S: Read + Write> Link<S> {
 }
 
 /// Validates the rig, checks it fits the target's memory, builds the table.
-fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Result<(Rig, KgGrid), SetupError> {
+pub(crate) fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Result<(Rig, KgGrid), SetupError> {
     let rig = Rig::try_from(record).map_err(SetupError::Rig)?;
     if usize::from(record.width) > MAX_CAMERA_WIDTH {
         return Err(SetupError::CameraTooWide { width: usize::from(record.width) });
@@ -277,10 +277,10 @@ fn configure<S: Read + Write, C: CycleCounter>(
 }
 
 /// Why a frame was given up.
-struct FrameFailure {
-    code: FaultCode,
+pub(crate) struct FrameFailure {
+    pub(crate) code: FaultCode,
     /// The frame was open and sized: it is abandoned mid-way.
-    mid_frame: bool,
+    pub(crate) mid_frame: bool,
 }
 
 /// The fault a pipeline error is sent as.
@@ -294,7 +294,7 @@ fn fault_code(error: FrameError) -> FaultCode {
 /// Streams frame `index` from the row source through the pipeline and
 /// finishes it; `read` accumulates the ticks spent reading rows (the
 /// pipeline times its own stages). On failure the caller gives the frame up.
-fn stream_frame<R: RowSource, C: CycleCounter>(
+pub(crate) fn stream_frame<R: RowSource, C: CycleCounter>(
     frames: &mut R,
     counter: &C,
     pipeline: &mut Pipeline,
@@ -351,7 +351,7 @@ fn log_bench(frame: u32, read: u32, cycle: u32, timing: &FrameTiming, profile: &
     defmt::println!("bench: instructions_per_cycle: {=u32}", cycle);
 }
 
-fn log_report(report: &FrameReport) {
+pub(crate) fn log_report(report: &FrameReport) {
     if report.alarm {
         // Human-readable alarm line; absent distances print as -1.
         defmt::warn!(
@@ -480,7 +480,7 @@ where
 /// GTI (19.6 KB) is configured in place in its static, as the detector.
 /// None on a refused rig (the fault is sent).
 #[cfg(not(feature = "full-frame"))]
-fn gti_stage<S: Read + Write>(link: &mut Link<S>, rig: &Rig, grid: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
+pub(crate) fn gti_stage<S: Read + Write>(link: &mut Link<S>, rig: &Rig, grid: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
     let gti: &'static mut GtiStage = GTI.take();
     match gti.configure(rig, grid) {
         Ok(()) => Some(Some(gti)),
@@ -494,6 +494,6 @@ fn gti_stage<S: Read + Write>(link: &mut Link<S>, rig: &Rig, grid: &KgGrid) -> O
 
 /// The `full-frame` build has no GTI stage: its keyframe needs the RAM.
 #[cfg(feature = "full-frame")]
-fn gti_stage<S>(_: &mut Link<S>, _: &Rig, _: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
+pub(crate) fn gti_stage<S>(_: &mut Link<S>, _: &Rig, _: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
     Some(None)
 }

@@ -9,6 +9,7 @@ pub mod heights;
 pub mod images;
 pub mod serial_decode;
 pub mod kg;
+pub mod mavlink_decode;
 pub mod perturb;
 pub mod qemu;
 pub mod recording;

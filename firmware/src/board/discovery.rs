@@ -502,6 +502,8 @@ pub struct DwtCounter {
 }
 
 impl CycleCounter for DwtCounter {
+    /// The core clock.
+    const TICKS_PER_SECOND: u32 = 168_000_000;
     fn now(&self) -> u32 {
         DWT::cycle_count()
     }

@@ -190,6 +190,8 @@ pub struct Tim2Counter {
 }
 
 impl CycleCounter for Tim2Counter {
+    /// QEMU's STM32 timers count virtual nanoseconds.
+    const TICKS_PER_SECOND: u32 = 1_000_000_000;
     fn now(&self) -> u32 {
         instructions_now()
     }

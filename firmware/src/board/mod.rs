@@ -46,6 +46,8 @@ pub trait RowSource {
 
 /// A free-running counter for timing and benchmarks.
 pub trait CycleCounter {
+    /// Ticks per second (the MAVLink loop's 1 Hz heartbeat).
+    const TICKS_PER_SECOND: u32;
     /// Ticks since start (wraps).
     fn now(&self) -> u32;
 }

@@ -38,7 +38,7 @@ pub fn firmware_elf() -> PathBuf {
 /// Runs the firmware in QEMU with `dir` as its working directory.
 pub fn run(dir: &Path, script: Vec<u8>) -> RunOutcome {
     let elf = firmware_elf();
-    let request = RunRequest { elf: &elf, dir, script, bench: false, bench_mm_per_px: None, bench_no_margins: false, echo_log: false, timeout: TIMEOUT };
+    let request = RunRequest { elf: &elf, dir, script, bench: false, bench_mm_per_px: None, bench_no_margins: false, echo_log: false, timeout: TIMEOUT, mavlink: false };
     let outcome = qemu::run_firmware(request, &mut |_| {}).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
     assert!(outcome.status.success(), "{}: firmware exit {}; log:\n{}", dir.display(), outcome.status, outcome.log);
     assert!(!outcome.log.contains("panic"), "{}: log mentions a panic:\n{}", dir.display(), outcome.log);
