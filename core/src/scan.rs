@@ -258,9 +258,10 @@ impl Scan {
     }
 
     /// Marks the sectors the detector saw whole. `view` answers for ground
-    /// points (x, z mm); each sector is sampled along three rays (its
-    /// centre and just inside its edges) every `step_mm` from the range's
-    /// start to its end. A sector is seen when some point is [`View::Seen`]
+    /// points (x, z mm); each sector is sampled along two rays just inside
+    /// its edges every `step_mm` from the range's start to its end (a
+    /// sector is at most a few cells wide, and what the camera misses lies
+    /// at the view's edges, which the rays cross). A sector is seen when some point is [`View::Seen`]
     /// and none [`View::Unseen`]. f32: the M4's FPU does it in hardware.
     pub fn mark_view(&mut self, step_mm: f32, mut view: impl FnMut(f32, f32) -> View) {
         let (near, far) = (f32::from(self.layout.range_min_mm), f32::from(self.layout.range_max_mm));
@@ -271,7 +272,10 @@ impl Scan {
             let (a0, a1) = self.layout.edges_deg(k);
             let inset = 0.05 * (a1 - a0);
             let (mut any_seen, mut all_seen) = (false, true);
-            for angle in [a0 + inset, 0.5 * (a0 + a1), a1 - inset] {
+            for angle in [a0 + inset, a1 - inset] {
+                if !all_seen {
+                    break;
+                }
                 let (sin, cos) = libm::sincosf((angle as f32).to_radians());
                 for n in 0..=samples {
                     let r = (near + n as f32 * step).min(far);

@@ -142,7 +142,7 @@ fn end_text(decoded: &Decoded) -> String {
             MavMessage::STATUSTEXT(t) if t.severity == MavSeverity::MAV_SEVERITY_INFO => t.text.to_str().ok().map(str::to_string),
             _ => None,
         })
-        .last()
+        .next_back()
         .unwrap_or_default()
 }
 

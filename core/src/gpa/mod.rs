@@ -568,8 +568,9 @@ impl<'b> Gpa<'b> {
         let (x_left, z_far) = (grid.x_left_mm as f32, grid.z_far_mm as f32);
         let (width, rows) = (grid.width(), layout.analysis_rows);
         let cell_pixels = (cells.px * cells.px) as u32;
-        let step_mm = 0.5 * (cells.px as f64 * grid.mm_per_px) as f32;
-        // Ground is seen where the frame compared at least half of its cell.
+        let step_mm = (cells.px as f64 * grid.mm_per_px) as f32;
+        // Ground is seen where the frame compared at least half of its cell;
+        // sampled a cell apart.
         self.scan.mark_view(step_mm, |x, z| {
             let (i, j) = ((x - x_left) * per_mm, (z_far - z) * per_mm);
             if j >= rows as f32 {
