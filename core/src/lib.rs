@@ -23,6 +23,7 @@
 //! - [`pgm`]: checked view of binary PGM (P5) headers.
 //! - [`health`]: sensor health and the fail-safe alarm rule.
 //! - [`report`]: the per-frame result, shared by the CLI and the serial protocol.
+//! - [`scan`]: the polar obstacle scan (nearest hazard per angular sector).
 //! - [`protocol`]: the serial protocol between the firmware and its host.
 //! - [`limits`]: every capacity (buffer sizes, input sizes, search bounds) in one place.
 //! - [`subpixel`]: the parabola vertex that refines a sampled extremum.
@@ -40,12 +41,15 @@ pub mod health;
 pub mod gti;
 pub mod kernels;
 pub mod limits;
+#[cfg(feature = "mavlink")]
+pub mod mavlink;
 pub mod motion;
 pub mod pgm;
 pub mod pipeline;
 pub mod remap;
 pub mod protocol;
 pub mod report;
+pub mod scan;
 pub mod subpixel;
 /// core's checks as one list: the on-target runner's (`cargo fw-test`) and the host `#[test]`s.
 #[cfg(any(test, feature = "selftest"))]

@@ -56,6 +56,10 @@ pub const MAX_BLOB_CELLS: usize = 128;
 /// truncates the blob's growth.
 pub const MAX_FLOOD_CELLS: usize = 256;
 
+/// Sectors of the polar obstacle scan (`scan::Scan`): 72 of 2.5 degrees
+/// reach 90 degrees either side of straight ahead.
+pub const MAX_SCAN_SECTORS: usize = 72;
+
 // ------------------------------------------------------------------- GTI
 
 /// Most GT lines across the AOI (the default uses all of them: each line's

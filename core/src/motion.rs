@@ -123,9 +123,9 @@ impl Motion {
         (x, z)
     }
 
-    /// Inverse of [`Motion::to_earlier_frame`] (the tests' check of it).
-    #[cfg(test)]
-    fn to_later_frame(self, x_mm: f64, z_mm: f64) -> (f64, f64) {
+    /// Inverse of [`Motion::to_earlier_frame`]: a ground point given in the
+    /// robot frame *before* this motion, expressed in the frame *after* it.
+    pub fn to_later_frame(&self, x_mm: f64, z_mm: f64) -> (f64, f64) {
         let [x, z] = self.turn().to_robot([x_mm - self.tx_mm, z_mm - self.tz_mm]);
         (x, z)
     }

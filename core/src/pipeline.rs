@@ -268,6 +268,9 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
                 gti.enrich(report);
             }
         }
+        if let Some(report) = report.as_ref() {
+            self.gpa.scan_report(report);
+        }
         let end = self.now();
         self.previous = current.pose.map(|sample| Previous { frame: current.frame, sample });
         self.timing.decision = gti_start.wrapping_sub(start);

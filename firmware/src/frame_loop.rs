@@ -57,20 +57,20 @@ pub const IMAGE_CAPACITY: usize = 40_000;
 #[cfg(feature = "full-frame")]
 pub const IMAGE_CAPACITY: usize = MAX_GRID_SIDE * MAX_GRID_SIDE;
 
-static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
-static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
-static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY);
+pub(crate) static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
+pub(crate) static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
+pub(crate) static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY);
 /// The GTI stage (`size_of::<GtiStage>()`, 19.6 KB), configured in place.
 #[cfg(not(feature = "full-frame"))]
-static GTI: ConstStaticCell<GtiStage> = ConstStaticCell::new(GtiStage::UNCONFIGURED);
-static IMAGE: ConstStaticCell<[u8; IMAGE_CAPACITY]> = ConstStaticCell::new([0; IMAGE_CAPACITY]);
+pub(crate) static GTI: ConstStaticCell<GtiStage> = ConstStaticCell::new(GtiStage::UNCONFIGURED);
+pub(crate) static IMAGE: ConstStaticCell<[u8; IMAGE_CAPACITY]> = ConstStaticCell::new([0; IMAGE_CAPACITY]);
 /// The second image, in the CCM (not zeroed at reset; see [`ccm_image`]).
 #[link_section = ".ccm"]
 static mut CCM_IMAGE: core::mem::MaybeUninit<[u8; IMAGE_CAPACITY]> = core::mem::MaybeUninit::uninit();
 static CCM_IMAGE_TAKEN: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 
 /// The CCM image, zeroed, once; None on a second call.
-fn ccm_image() -> Option<&'static mut [u8; IMAGE_CAPACITY]> {
+pub(crate) fn ccm_image() -> Option<&'static mut [u8; IMAGE_CAPACITY]> {
     use core::sync::atomic::Ordering;
     if CCM_IMAGE_TAKEN.swap(true, Ordering::AcqRel) {
         return None;
@@ -115,15 +115,15 @@ impl SetupError {
 
 /// What the loop counts beyond the decoder's own counters.
 #[derive(Default)]
-struct LoopCounters {
-    frames: u32,
-    serial_overruns: u32,
-    out_of_order: u32,
-    frame_gaps: u32,
-    aborted: u32,
+pub(crate) struct LoopCounters {
+    pub(crate) frames: u32,
+    pub(crate) serial_overruns: u32,
+    pub(crate) out_of_order: u32,
+    pub(crate) frame_gaps: u32,
+    pub(crate) aborted: u32,
 }
 
-fn bump(counter: &mut u32) {
+pub(crate) fn bump(counter: &mut u32) {
     *counter = counter.saturating_add(1);
 }
 
@@ -140,21 +140,21 @@ pub struct Board<S, A, C, R, K, W> {
 
 /// The alarm pin driven from the [`Monitor`]: the pin is written, and the
 /// change logged, only when the level changes.
-struct AlarmOutput<A> {
+pub(crate) struct AlarmOutput<A> {
     pin: A,
     asserted: bool,
 }
 
 impl<A: OutputPin> AlarmOutput<A> {
     /// Asserts the pin (the board should have already).
-    fn new(mut pin: A) -> Self {
+    pub(crate) fn new(mut pin: A) -> Self {
         let _ = pin.set_high();
         defmt::info!("alarm: on (start)");
         AlarmOutput { pin, asserted: true }
     }
 
     /// No more frames will be judged.
-    fn assert_at_end(&mut self) {
+    pub(crate) fn assert_at_end(&mut self) {
         if !self.asserted {
             self.asserted = true;
             let _ = self.pin.set_high();
@@ -163,7 +163,7 @@ impl<A: OutputPin> AlarmOutput<A> {
     }
 
     /// Follows the monitor; `frame` is the frame that changed it.
-    fn follow(&mut self, monitor: &Monitor, frame: u32) {
+    pub(crate) fn follow(&mut self, monitor: &Monitor, frame: u32) {
         let asserted = monitor.alarm();
         if asserted == self.asserted {
             return;
@@ -191,10 +191,10 @@ pub struct Options {
     pub clock: Option<fn() -> u32>,
 }
 
-struct Link<S> {
-    serial: S,
-    decoder: Decoder,
-    counters: LoopCounters,
+pub(crate) struct Link<S> {
+    pub(crate) serial: S,
+    pub(crate) decoder: Decoder,
+    pub(crate) counters: LoopCounters,
 }
 
 impl<S: Read + ReadReady + Write> Link<S> {
@@ -236,7 +236,7 @@ impl<S: Read + ReadReady + Write> Link<S> {
         self.send(&Message::Fault(Fault { code, frame }));
     }
 
-    fn stats(&self) -> LinkStats {
+    pub(crate) fn stats(&self) -> LinkStats {
         let mut stats = self.decoder.stats();
         stats.frames = self.counters.frames;
         stats.garbage_bytes = stats.garbage_bytes.saturating_add(self.counters.serial_overruns);
@@ -260,7 +260,7 @@ impl<S: Read + ReadReady + Write> Link<S> {
 }
 
 /// Validates the rig, checks it fits the target's memory, builds the table.
-fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Result<(Rig, KgGrid), SetupError> {
+pub(crate) fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Result<(Rig, KgGrid), SetupError> {
     let rig = Rig::try_from(record).map_err(SetupError::Rig)?;
     if usize::from(record.width) > MAX_CAMERA_WIDTH {
         return Err(SetupError::CameraTooWide { width: usize::from(record.width) });
@@ -285,25 +285,49 @@ fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Resu
 /// Cycles between two polls of an idle serial port: 100 us at 168 MHz.
 const IDLE_POLL_CYCLES: u32 = 16_800;
 
+/// A serial protocol as the waiting loop sees it: what has arrived, and
+/// what to tell the robot while nothing does.
+pub(crate) trait Inbox {
+    type Item;
+    /// The next complete input among the bytes waiting; None once no byte waits.
+    fn poll(&mut self) -> Option<Self::Item>;
+    /// Odometry stopped after `frame`: report it (the alarm is already asserted).
+    fn odometry_lost(&mut self, frame: u32);
+    /// Called on every idle poll with the monitor's state (status outputs).
+    fn idle(&mut self, _monitor: &Monitor, _now_us: u32) {}
+}
+
+impl<S: Read + ReadReady + Write> Inbox for Link<S> {
+    type Item = Message;
+
+    fn poll(&mut self) -> Option<Message> {
+        Link::poll(self)
+    }
+
+    fn odometry_lost(&mut self, frame: u32) {
+        self.fault(FaultCode::OdometryLost, frame);
+    }
+}
+
 /// What the loop does while it waits: feeds the watchdog, watches the
 /// odometry's timer and drives the alarm.
-struct Guard<'a, A, K, W> {
-    alarm: &'a mut AlarmOutput<A>,
-    monitor: &'a mut Monitor,
-    clock: &'a K,
-    watchdog: &'a mut W,
-    /// The last frame whose `$FLODO` came (0 before any).
-    last_frame: u32,
+pub(crate) struct Guard<'a, A, K, W> {
+    pub(crate) alarm: &'a mut AlarmOutput<A>,
+    pub(crate) monitor: &'a mut Monitor,
+    pub(crate) clock: &'a K,
+    pub(crate) watchdog: &'a mut W,
+    /// The last frame whose odometry came (0 before any).
+    pub(crate) last_frame: u32,
 }
 
 impl<A: OutputPin, K: Clock, W: Watchdog> Guard<'_, A, K, W> {
-    /// Waits for the next well-formed message. A newly stopped odometry
-    /// stream asserts the alarm and is reported as `$FLERR,odometry_lost`.
-    fn receive<S: Read + ReadReady + Write>(&mut self, link: &mut Link<S>) -> Message {
+    /// Waits for the next input. A newly stopped odometry stream asserts
+    /// the alarm and is reported (line protocol: `$FLERR,odometry_lost`).
+    pub(crate) fn receive<I: Inbox>(&mut self, inbox: &mut I) -> I::Item {
         loop {
             self.watchdog.feed();
-            if let Some(message) = link.poll() {
-                return message;
+            if let Some(item) = inbox.poll() {
+                return item;
             }
             // Nothing waits: pause before polling again. Under QEMU a tight
             // loop of register reads (each takes the emulator's global lock)
@@ -312,11 +336,13 @@ impl<A: OutputPin, K: Clock, W: Watchdog> Guard<'_, A, K, W> {
             // (a false `odometry_lost`); with the pause they pass. On the
             // board received bytes wait in RAM (interrupt-driven).
             cortex_m::asm::delay(IDLE_POLL_CYCLES);
-            if let Some(fault) = self.monitor.poll(self.clock.now_us()) {
+            let now = self.clock.now_us();
+            if let Some(fault) = self.monitor.poll(now) {
                 self.alarm.follow(self.monitor, self.last_frame);
-                defmt::warn!("{=str}: no $FLODO after frame {=u32} for 0.5 s", fault.as_str(), self.last_frame);
-                link.fault(FaultCode::OdometryLost, self.last_frame);
+                defmt::warn!("{=str}: no odometry after frame {=u32} for 0.5 s", fault.as_str(), self.last_frame);
+                inbox.odometry_lost(self.last_frame);
             }
+            inbox.idle(self.monitor, now);
         }
     }
 }
@@ -372,14 +398,14 @@ fn configure<S: Read + ReadReady + Write, C: CycleCounter, A: OutputPin, K: Cloc
 }
 
 /// Why a frame was given up.
-struct FrameFailure {
-    code: FaultCode,
+pub(crate) struct FrameFailure {
+    pub(crate) code: FaultCode,
     /// The frame was open and sized: it is abandoned mid-way.
-    mid_frame: bool,
+    pub(crate) mid_frame: bool,
 }
 
 impl FrameFailure {
-    fn sensor_fault(&self) -> SensorFault {
+    pub(crate) fn sensor_fault(&self) -> SensorFault {
         match self.code {
             FaultCode::CameraTimeout => SensorFault::CameraTimeout,
             _ => SensorFault::FrameLost,
@@ -388,11 +414,11 @@ impl FrameFailure {
 }
 
 /// The parts of the board [`stream_frame`] uses.
-struct Camera<'a, R, C, K, W> {
-    frames: &'a mut R,
-    counter: &'a C,
-    clock: &'a K,
-    watchdog: &'a mut W,
+pub(crate) struct Camera<'a, R, C, K, W> {
+    pub(crate) frames: &'a mut R,
+    pub(crate) counter: &'a C,
+    pub(crate) clock: &'a K,
+    pub(crate) watchdog: &'a mut W,
 }
 
 /// The fault a pipeline error is sent as.
@@ -417,7 +443,7 @@ fn row_fault(error: RowSourceError) -> FaultCode {
 /// pipeline times its own stages). A frame whose last row has not come
 /// [`CAMERA_TIMEOUT_US`] after it was asked for is given up as
 /// `camera_timeout`. On failure the caller gives the frame up.
-fn stream_frame<R: RowSource, C: CycleCounter, K: Clock, W: Watchdog>(
+pub(crate) fn stream_frame<R: RowSource, C: CycleCounter, K: Clock, W: Watchdog>(
     camera_parts: Camera<R, C, K, W>,
     pipeline: &mut Pipeline,
     index: u32,
@@ -478,7 +504,7 @@ fn log_bench(frame: u32, read: u32, cycle: u32, timing: &FrameTiming, profile: &
     defmt::println!("bench: instructions_per_cycle: {=u32}", cycle);
 }
 
-fn log_report(report: &FrameReport) {
+pub(crate) fn log_report(report: &FrameReport) {
     if report.alarm {
         // Human-readable alarm line; absent distances print as -1, and a
         // drop's height is negative (its depth, -20 mm or lower).
@@ -671,7 +697,7 @@ fn serve_frame<S, A, C, R, K, W>(
 /// GTI (19.6 KB) is configured in place in its static, as the detector.
 /// None on a refused rig (the fault is sent).
 #[cfg(not(feature = "full-frame"))]
-fn gti_stage<S: Read + ReadReady + Write>(link: &mut Link<S>, rig: &Rig, grid: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
+pub(crate) fn gti_stage<S: Read + ReadReady + Write>(link: &mut Link<S>, rig: &Rig, grid: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
     let gti: &'static mut GtiStage = GTI.take();
     match gti.configure(rig, grid) {
         Ok(()) => Some(Some(gti)),
@@ -685,6 +711,6 @@ fn gti_stage<S: Read + ReadReady + Write>(link: &mut Link<S>, rig: &Rig, grid: &
 
 /// The `full-frame` build has no GTI stage: its keyframe needs the RAM.
 #[cfg(feature = "full-frame")]
-fn gti_stage<S>(_: &mut Link<S>, _: &Rig, _: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
+pub(crate) fn gti_stage<S>(_: &mut Link<S>, _: &Rig, _: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
     Some(None)
 }

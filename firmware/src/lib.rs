@@ -11,6 +11,8 @@
 
 pub mod board;
 pub mod frame_loop;
+#[cfg(feature = "mavlink")]
+pub mod mavlink_loop;
 pub mod rt;
 
 use embedded_hal::digital::OutputPin;
@@ -53,7 +55,10 @@ where
     W: Watchdog,
 {
     defmt::info!("flatland firmware {=str} ({=str})", env!("CARGO_PKG_VERSION"), board_name);
+    #[cfg(not(feature = "mavlink"))]
     let stats = frame_loop::run(take(), options);
+    #[cfg(feature = "mavlink")]
+    let stats = mavlink_loop::run(take(), options);
     defmt::info!(
         "done: {=u32} frames; serial garbage {=u32} B, truncated {=u32}, too long {=u32}, bad checksum {=u32}, unknown {=u32}, bad field {=u32}, out of order {=u32}, frame gaps {=u32}, aborted {=u32}",
         stats.frames,

@@ -3,6 +3,7 @@
 use clap::{Args, Parser, Subcommand};
 use flatland_core::grid::GridConfig;
 use flatland_core::report::{FrameReport, CSV_HEADER, MOTION_SCALE, SHIFT_SCALE};
+use flatland_core::scan::{write_csv_header, Scan, Sector, SCAN_INCREMENT_MDEG};
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::evaluate::{is_grace, score, score_hazard};
 use flatland_host::recording::Hazard;
@@ -91,6 +92,16 @@ enum Command {
         /// Say on stderr which evidence decided each frame.
         #[arg(long)]
         verbose: bool,
+        #[command(flatten)]
+        sensors: Sensors,
+    },
+    /// The polar obstacle scan: one csv row per compared frame,
+    /// `frame,angle_start_deg,increment_deg,d0_mm,...`: the nearest hazard
+    /// per 2.5-degree sector (angles clockwise from straight ahead, robot
+    /// frame), `inf` seen and clear, empty unknown (ROS REP 117).
+    Scan {
+        /// Recording directory (rig.toml, poses.csv, frames/).
+        recording: PathBuf,
         #[command(flatten)]
         sensors: Sensors,
     },
@@ -267,10 +278,31 @@ fn run_kg(recording: &Path, frames: Option<Range<u32>>, out: &Path, mm_per_px: O
     ExitCode::SUCCESS
 }
 
-fn json_row(report: &FrameReport) -> String {
+/// The scan as JSON: hazard ranges in mm, `"inf"` free, null unknown.
+fn json_scan(scan: &Scan) -> String {
+    let layout = scan.layout();
+    let sectors: Vec<String> = scan
+        .sectors()
+        .map(|sector| match sector {
+            Sector::Unknown => "null".to_string(),
+            Sector::Free => "\"inf\"".to_string(),
+            Sector::Hazard(range) => range.to_string(),
+        })
+        .collect();
+    format!(
+        "{{\"angle_start_deg\":{},\"increment_deg\":{},\"range_min_mm\":{},\"range_max_mm\":{},\"ranges_mm\":[{}]}}",
+        f64::from(layout.angle_start_mdeg()) / 1000.0,
+        f64::from(SCAN_INCREMENT_MDEG) / 1000.0,
+        layout.range_min_mm,
+        layout.range_max_mm,
+        sectors.join(",")
+    )
+}
+
+fn json_row(report: &FrameReport, scan: &Scan) -> String {
     let optional = |v: Option<i32>| v.map_or("null".to_string(), |v| v.to_string());
     format!(
-        "{{\"frame\":{},\"ref_frame\":{},\"alarm\":{},\"nearest_mm\":{},\"left_mm\":{},\"right_mm\":{},\"sad\":{},\"count50\":{},\"shift_k\":{},\"shift_g\":{},\"tx_mm\":{},\"tz_mm\":{},\"obstacle_h_mm\":{}}}",
+        "{{\"frame\":{},\"ref_frame\":{},\"alarm\":{},\"nearest_mm\":{},\"left_mm\":{},\"right_mm\":{},\"sad\":{},\"count50\":{},\"shift_k\":{},\"shift_g\":{},\"tx_mm\":{},\"tz_mm\":{},\"obstacle_h_mm\":{},\"scan\":{}}}",
         report.frame,
         report.ref_frame,
         report.alarm,
@@ -284,6 +316,7 @@ fn json_row(report: &FrameReport) -> String {
         f64::from(report.tx) / f64::from(MOTION_SCALE),
         f64::from(report.tz) / f64::from(MOTION_SCALE),
         optional(report.obstacle_h_mm),
+        json_scan(scan),
     )
 }
 
@@ -369,7 +402,7 @@ fn run_detect(
                     let _ = report.write_csv(&mut line);
                     line
                 }
-                Format::Json => json_row(&report),
+                Format::Json => json_row(&report, gpa.scan()),
             };
             let _ = writeln!(out, "{line}");
             if verbose {
@@ -436,6 +469,42 @@ fn run_detect(
         }
     }
     ExitCode::SUCCESS
+}
+
+fn run_scan(path: &Path, sensors: &Sensors) -> ExitCode {
+    let recording = match sensors.open(path) {
+        Ok(r) => r,
+        Err(e) => return fatal(e),
+    };
+    let mut detector = match Detector::new(&recording.rig, &DetectConfig::default()) {
+        Ok(d) => d,
+        Err(e) => return fatal(format!("{}: {e}", path.display())),
+    };
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    let mut header = false;
+    let result = detector.run(&recording, |outcome, pipeline| {
+        let scan = pipeline.gpa().scan();
+        if !header {
+            let mut line = String::new();
+            let _ = write_csv_header(&scan.layout(), &mut line);
+            let _ = writeln!(out, "{line}");
+            header = true;
+        }
+        match outcome {
+            FrameOutcome::Report { .. } => {
+                let mut line = String::new();
+                let _ = scan.write_csv(&mut line);
+                let _ = writeln!(out, "{line}");
+            }
+            FrameOutcome::Keyframe { .. } => {}
+            FrameOutcome::Skipped { frame, error } => eprintln!("flatland: skipping frame {frame}: {error}"),
+        }
+    });
+    drop(out);
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => fatal(format!("{}: {e}", path.display())),
+    }
 }
 
 fn print_confusion(truth: &Truth, reports: &[FrameReport]) {
@@ -509,6 +578,7 @@ fn main() -> ExitCode {
         Command::Calibrate { recording, write, height_mm, odometry, camera_info } => {
             run_calibrate(&recording, write, height_mm, odometry, camera_info.as_deref())
         }
+        Command::Scan { recording, sensors } => run_scan(&recording, &sensors),
         Command::Heights { recording, format: HeightsFormat::Csv, png, sensors } => {
             let recording = match sensors.open(&recording) {
                 Ok(r) => r,

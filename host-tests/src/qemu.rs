@@ -113,6 +113,15 @@ pub fn build_firmware() -> Result<PathBuf> {
     cargo_build_firmware(&[])
 }
 
+/// Release build of the `mavlink` firmware (MAVLink 2 on USART1); returns
+/// its ELF, copied to `flatland-firmware-mavlink` beside the default one.
+pub fn build_mavlink_firmware() -> Result<PathBuf> {
+    let release = cargo_build_firmware(&["mavlink"])?;
+    let elf = release.join("flatland-firmware-mavlink");
+    fs::copy(release.join("flatland-firmware"), &elf).map_err(|e| format!("{}: {e}", elf.display()))?;
+    Ok(elf)
+}
+
 /// Release build of the `full-frame` firmware (256x256 keyframe, no GTI);
 /// returns its ELF, copied to `flatland-firmware-full-frame` beside the
 /// default one (cargo puts both builds at the same path).
@@ -171,6 +180,48 @@ pub fn encode_script(messages: &[Message]) -> Result<Vec<u8>> {
 /// The normal script for a recording.
 pub fn host_script(recording: &Recording) -> Result<Vec<u8>> {
     encode_script(&host_messages(recording))
+}
+
+/// How an autopilot sends the poses to the `mavlink` firmware.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PoseMessages {
+    /// One `ODOMETRY` per frame.
+    Odometry,
+    /// `ATTITUDE` then `LOCAL_POSITION_NED` per frame.
+    LocalPosition,
+}
+
+/// The `mavlink` firmware's script for a recording: the rig as `$FLRIG`,
+/// one pose per poses.csv row as MAVLink 2 frames from the autopilot
+/// (system 1, component 1), `$FLEND`.
+pub fn mavlink_script(recording: &Recording, poses: PoseMessages) -> Result<Vec<u8>> {
+    use flatland_core::mavlink::{local_position_for, odometry_for, MessageData};
+    use flatland_core::pipeline::PoseSample;
+    let mut bytes = encode_script(&[Message::Rig(RigRecord::from(&recording.rig))])?;
+    let mut sequence = 0u8;
+    let mut frame = |message: &dyn Fn(&mut mavlink::MAVLinkV2MessageRaw, mavlink::MavHeader), bytes: &mut Vec<u8>| {
+        let header = mavlink::MavHeader { system_id: 1, component_id: 1, sequence };
+        sequence = sequence.wrapping_add(1);
+        let mut raw = mavlink::MAVLinkV2MessageRaw::new();
+        message(&mut raw, header);
+        bytes.extend_from_slice(raw.raw_bytes());
+    };
+    fn put<D: MessageData>(data: D) -> impl Fn(&mut mavlink::MAVLinkV2MessageRaw, mavlink::MavHeader) {
+        move |raw, header| raw.serialize_message_data(header, &data)
+    }
+    for row in &recording.poses {
+        let sample = PoseSample::from(row);
+        match poses {
+            PoseMessages::Odometry => frame(&put(odometry_for(&sample)), &mut bytes),
+            PoseMessages::LocalPosition => {
+                let (position, attitude) = local_position_for(&sample);
+                frame(&put(attitude), &mut bytes);
+                frame(&put(position), &mut bytes);
+            }
+        }
+    }
+    bytes.extend(encode_script(&[Message::End])?);
+    Ok(bytes)
 }
 
 // ------------------------------------------------------------------ QEMU
@@ -291,6 +342,7 @@ fn converse(
     script: Vec<u8>,
     then: Option<Continuation>,
     deadline: Instant,
+    mavlink: bool,
     on_message: &mut dyn FnMut(&Message),
 ) -> Result<SerialOutcome> {
     listener.set_nonblocking(true).map_err(|e| e.to_string())?;
@@ -328,6 +380,17 @@ fn converse(
             Err(e) => return Err(format!("serial: {e}")),
         };
         outcome.raw.extend_from_slice(&chunk[..length]);
+        if mavlink {
+            // No lines: the first bytes (the firmware's HEARTBEAT) say it
+            // listens; the run ends when QEMU closes the port.
+            if let (Some(mut out), Some(bytes)) = (writer.take(), script.take()) {
+                let done = done_tx.clone();
+                thread::spawn(move || {
+                    let _ = done.send(out.write_all(&bytes));
+                });
+            }
+            continue;
+        }
         for &byte in &chunk[..length] {
             let Some(Ok(message)) = decoder.push(byte) else { continue };
             on_message(&message);
@@ -383,6 +446,9 @@ pub struct RunRequest<'a> {
     /// Print the defmt log live.
     pub echo_log: bool,
     pub timeout: Duration,
+    /// The firmware speaks MAVLink (the `mavlink` build): the script goes
+    /// at its first bytes and the run ends at QEMU's exit.
+    pub mavlink: bool,
 }
 
 /// What a run produced.
@@ -410,7 +476,7 @@ pub fn run_firmware(request: RunRequest, on_message: &mut dyn FnMut(&Message)) -
     qemu.current_dir(request.dir);
     let deadline = Instant::now() + request.timeout;
     let emulator = Emulator::start(qemu, request.elf, request.echo_log)?;
-    let serial = converse(listener, request.script, request.then, deadline, on_message);
+    let serial = converse(listener, request.script, request.then, deadline, request.mavlink, on_message);
     let (status, log) = emulator.finish(deadline)?;
     let serial = serial.map_err(|e| format!("{e}; firmware exit {status}; log:\n{log}"))?;
     Ok(RunOutcome { status, log, serial })

@@ -58,6 +58,7 @@ use crate::limits::MAX_BLOBS;
 use crate::motion::{Attitude, GroundMotion, Motion};
 use crate::remap::RemapTable;
 use crate::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE, SHIFT_SCALE};
+use crate::scan::{Scan, ScanLayout, View};
 use band::Band;
 use decision::{Alarm, Noise};
 use estimate::{Estimator, Prior, Scene};
@@ -165,6 +166,8 @@ pub struct Gpa<'b> {
     noise: Noise,
     alarm: Alarm,
     blobs: heapless::Vec<Blob, MAX_BLOBS>,
+    /// The last compared frame's polar scan.
+    scan: Scan,
     /// The frame in progress (begun, not yet ended or aborted).
     frame: u32,
     frame_active: bool,
@@ -215,6 +218,7 @@ impl<'b> Gpa<'b> {
         noise: Noise::NONE,
         alarm: Alarm::NONE,
         blobs: heapless::Vec::new(),
+        scan: Scan::EMPTY,
         frame: 0,
         frame_active: false,
         rows_seen: 0,
@@ -278,6 +282,7 @@ impl<'b> Gpa<'b> {
         self.noise = Noise::new(&config);
         self.alarm = Alarm::NONE;
         self.blobs = heapless::Vec::new();
+        self.scan = Scan::new(scan_layout(&self.layout));
         self.frame = 0;
         self.frame_active = false;
         self.rows_seen = 0;
@@ -303,6 +308,7 @@ impl<'b> Gpa<'b> {
         self.keyframe.forget();
         self.frame_active = false;
         self.alarm.forget();
+        self.scan.forget();
     }
 
     /// Frame the current keyframe was taken at (if any).
@@ -525,11 +531,13 @@ impl<'b> Gpa<'b> {
         let (layout, config) = (&self.layout, &self.config);
         let attitude = self.measured.attitude;
         let drops = libm::fabs(attitude.pitch_deg).max(libm::fabs(attitude.roll_deg)) <= config.drop_attitude_limit_deg;
-        let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &self.residue, config, short_baseline, drops);
+        self.scan.begin(self.frame);
+        let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &self.residue, config, short_baseline, drops, &mut self.scan);
         self.blobs = obstacles::residue_blobs(layout, &self.residue, config);
         let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &self.residue, config);
         let hazard = self.alarm.decide(parallax, residue, baseline_mm, config, &self.prediction.step);
         let obstacle = hazard.map(|(footprint, _)| footprint);
+        self.finish_scan(obstacle);
         let motion = self.prediction.to_last();
         let angle = |degrees: f64| libm::round(degrees * f64::from(ANGLE_SCALE)) as i32;
         FrameReport {
@@ -550,6 +558,59 @@ impl<'b> Gpa<'b> {
             dpitch: angle(self.measured.attitude.pitch_deg),
             droll: angle(self.measured.attitude.roll_deg),
             odometry_fault: self.odometry_fault,
+        }
+    }
+
+    /// The scan's last steps: the last frame's hazards held when the alarm
+    /// is (a baseline too short to see them, and nothing new found), the
+    /// decided obstacle, the view; then this frame's hazards are kept for
+    /// the next.
+    fn finish_scan(&mut self, obstacle: Option<obstacles::Footprint>) {
+        if self.alarm.source() == AlarmSource::Held {
+            self.scan.hold(&self.prediction.step);
+        }
+        if let Some(o) = obstacle {
+            self.scan.add_span(f64::from(o.near_mm), f64::from(o.left_mm), f64::from(o.right_mm));
+        }
+        let (layout, residue) = (&self.layout, &self.residue);
+        let (grid, cells) = (&layout.grid, &layout.cells);
+        let per_mm = (1.0 / grid.mm_per_px) as f32;
+        let (x_left, z_far) = (grid.x_left_mm as f32, grid.z_far_mm as f32);
+        let (width, rows) = (grid.width(), layout.analysis_rows);
+        let cell_pixels = (cells.px * cells.px) as u32;
+        let step_mm = (cells.px as f64 * grid.mm_per_px) as f32;
+        // Ground is seen where the frame compared at least half of its cell;
+        // sampled a cell apart.
+        self.scan.mark_view(step_mm, |x, z| {
+            let (i, j) = ((x - x_left) * per_mm, (z_far - z) * per_mm);
+            if j >= rows as f32 {
+                return View::Blind;
+            }
+            if !(i >= 0.0 && j >= 0.0 && i < width as f32) {
+                return View::Unseen;
+            }
+            let cell = (j as usize / cells.px) * cells.wide + i as usize / cells.px;
+            match residue.cell_valid.get(cell) {
+                Some(&valid) if u32::from(valid) * 2 >= cell_pixels => View::Seen,
+                _ => View::Unseen,
+            }
+        });
+        self.scan.keep();
+    }
+
+    /// The last compared frame's polar scan (its frame is the report's).
+    pub fn scan(&self) -> &Scan {
+        &self.scan
+    }
+
+    /// Puts the frame's final report's obstacle (after fusion, which may
+    /// raise it from GTI's heights) into the scan, so the scan never shows
+    /// clear where the report claims an obstacle.
+    pub fn scan_report(&mut self, report: &FrameReport) {
+        if let (true, Some(near), Some(left), Some(right)) = (report.alarm, report.nearest_mm, report.left_mm, report.right_mm) {
+            if report.frame == self.scan.frame() {
+                self.scan.add_span(f64::from(near), f64::from(left), f64::from(right));
+            }
         }
     }
 
@@ -586,6 +647,18 @@ impl<'b> Gpa<'b> {
     pub fn measured_step(&self) -> Option<Motion> {
         self.last_step
     }
+}
+
+/// The scan's sectors for a rig: wide enough for every analysed grid
+/// column seen from the AOI's near edge, out to the AOI's far corners
+/// (every obstacle the report can name is in range).
+fn scan_layout(layout: &Layout) -> ScanLayout {
+    let aoi = layout.aoi_mm();
+    let grid = &layout.grid;
+    let (x_left, _) = grid.pixel_to_ground(0.0, 0.0);
+    let (x_right, _) = grid.pixel_to_ground(grid.width() as f64, 0.0);
+    let half_angle = libm::atan2(libm::fabs(x_left).max(libm::fabs(x_right)), aoi.near.max(1.0)).to_degrees();
+    ScanLayout::new(half_angle, aoi.near, libm::hypot(aoi.half_width, aoi.far))
 }
 
 /// Maps a current gray level to the keyframe's brightness under `gain`

@@ -11,6 +11,7 @@ use super::parallax::CellHeights;
 use super::layout::{CellSet, Layout};
 use super::residue::Residue;
 use crate::limits::{MAX_BLOBS, MAX_BLOB_CELLS, MAX_CELLS_SIDE, MAX_FLOOD_CELLS};
+use crate::scan::Scan;
 
 /// A connected group of hot cells.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -72,6 +73,22 @@ fn flood_cells(
     }
 }
 
+/// One hazard cell's footprint: a segment at `z` ahead from `left` to
+/// `right` (mm, robot frame), what the scan takes.
+#[derive(Clone, Copy)]
+struct CellSpan {
+    z: i16,
+    left: i16,
+    right: i16,
+}
+
+impl CellSpan {
+    fn new(z: f64, left: f64, right: f64) -> CellSpan {
+        let mm = |v: f64| libm::round(v).clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
+        CellSpan { z: mm(z), left: mm(left), right: mm(right) }
+    }
+}
+
 /// Cells a group needs where heights are coarse (short baselines, drops).
 const LARGE_GROUP_CELLS: usize = 8;
 
@@ -84,9 +101,19 @@ enum Side {
     Below,
 }
 
+/// The groups [`parallax_group`] looks for.
+#[derive(Clone, Copy)]
+struct Wanted {
+    side: Side,
+    /// Cell rows above it are left out.
+    first_row: usize,
+    /// Heights are coarse: only a large group counts.
+    short_baseline: bool,
+}
+
 /// The nearest parallax hazard inside the AOI, obstacle or drop, and its
 /// signed height (mm; a drop's is minus its depth); drops only when `drops`.
-/// See [`parallax_group`].
+/// See [`parallax_group`], which also fills `scan`.
 pub(super) fn parallax_obstacle(
     layout: &Layout,
     heights: &CellHeights,
@@ -94,8 +121,9 @@ pub(super) fn parallax_obstacle(
     config: &GpaConfig,
     short_baseline: bool,
     drops: bool,
+    scan: &mut Scan,
 ) -> Option<(Footprint, i32)> {
-    let drop = if drops { parallax_group(layout, heights, residue, config, short_baseline, Side::Below, 0) } else { None };
+    let drop = if drops { parallax_group(layout, (heights, residue), config, Wanted { side: Side::Below, first_row: 0, short_baseline }, scan) } else { None };
     // Past a drop's edge the floor is gone: what stands there is reached
     // only after the drop, and cells that seem to stand up there are the
     // lower level's blur, which can fake an obstacle nearer than the edge.
@@ -104,7 +132,7 @@ pub(super) fn parallax_obstacle(
         let centre_z = |r: usize| layout.grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1;
         (0..cells.high).find(|&r| centre_z(r) < f64::from(edge.near_mm)).unwrap_or(cells.high)
     });
-    let obstacle = parallax_group(layout, heights, residue, config, short_baseline, Side::Above, first_before_edge);
+    let obstacle = parallax_group(layout, (heights, residue), config, Wanted { side: Side::Above, first_row: first_before_edge, short_baseline }, scan);
     match (obstacle, drop) {
         (Some(o), Some(d)) if d.0.near_mm < o.0.near_mm => Some(d),
         (o, d) => o.or(d),
@@ -115,7 +143,9 @@ pub(super) fn parallax_obstacle(
 /// height on `side` of the ground; returns the nearest footprint inside
 /// the AOI and its height (mm). A `short_baseline` measures heights
 /// coarsely: only a large group counts. Cell rows above `first_row` are
-/// left out.
+/// left out. Every cell of a group that counts goes to `scan` at its
+/// footprint, none nearer than the group's `nearest` (the odd cell whose
+/// height is off would place it there).
 ///
 /// Above: a cell at apparent ground position p with height h stands on
 /// p*(H-h)/H, so every cell of a vertical face points at the face's own
@@ -124,13 +154,12 @@ pub(super) fn parallax_obstacle(
 /// the hole starts at the nearest cells' near side.
 fn parallax_group(
     layout: &Layout,
-    heights: &CellHeights,
-    residue: &Residue,
+    (heights, residue): (&CellHeights, &Residue),
     config: &GpaConfig,
-    short_baseline: bool,
-    side: Side,
-    first_row: usize,
+    wanted: Wanted,
+    scan: &mut Scan,
 ) -> Option<(Footprint, i32)> {
+    let Wanted { side, first_row, short_baseline } = wanted;
     let (grid, cells, camera_height_mm) = (&layout.grid, &layout.cells, layout.camera_height_mm);
     let (w, h) = (cells.wide, cells.high);
     // Heights are whole mm, so |h| >= min_height exactly when |h| >= ceil(min_height):
@@ -140,6 +169,14 @@ fn parallax_group(
         Side::Above => i32::from(heights.get(cell)) >= min_height,
         Side::Below => i32::from(heights.get(cell)) <= -min_height,
     };
+    // A drop must show over an area: its parallax is at most T*d/(H+d),
+    // so an odometry or heading error fakes a small shallow patch more
+    // easily, and a hole a wheel can fall into shows its lower level over
+    // many cells (though, far and seen at a grazing angle, in scattered
+    // ones; the groups in front mark its edge).
+    if side == Side::Below && (0..h * w).filter(|&cell| member(cell)).count() < LARGE_GROUP_CELLS {
+        return None;
+    }
     let aoi = layout.aoi_mm();
     let mut seen = CellSet::EMPTY;
     let mut best: Option<(f64, f64, f64, f64)> = None;
@@ -154,6 +191,7 @@ fn parallax_group(
         // Above: the tallest cell; below: the cells' depths, for their median
         // (past an edge every cell sees the same lower level).
         let mut depths: heapless::Vec<i16, MAX_BLOB_CELLS> = heapless::Vec::new();
+        let mut spans: heapless::Vec<CellSpan, MAX_BLOB_CELLS> = heapless::Vec::new();
         let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
         let mut group = 0usize;
         // Parallax is measured only where there is texture, so a face can
@@ -162,12 +200,12 @@ fn parallax_group(
             group += 1;
             with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
             let height = f64::from(heights.get(cell));
+            // The cell's measured height belongs to its centre.
+            let centre_row = (r as f64 + 0.5) * cells.px as f64 - 0.5;
+            let (_, z_centre) = grid.pixel_to_ground(0.0, centre_row);
             let scale = match side {
-                // The cell's measured height belongs to its centre.
                 Side::Above => {
                     let scale = (camera_height_mm - height) / camera_height_mm;
-                    let centre_row = (r as f64 + 0.5) * cells.px as f64 - 0.5;
-                    let (_, z_centre) = grid.pixel_to_ground(0.0, centre_row);
                     let _ = footprints.push(z_centre * scale);
                     scale
                 }
@@ -178,6 +216,7 @@ fn parallax_group(
             };
             let (x_left, _) = grid.pixel_to_ground((c * cells.px) as f64, 0.0);
             let (x_right, _) = grid.pixel_to_ground(((c + 1) * cells.px) as f64 - 1.0, 0.0);
+            let _ = spans.push(CellSpan::new(z_centre * scale, x_left * scale, x_right * scale));
             left = left.min(x_left * scale);
             right = right.max(x_right * scale);
             match side {
@@ -220,6 +259,9 @@ fn parallax_group(
             Side::Above => footprints[(footprints.len() - 1) / 4],
             Side::Below => footprints[0],
         };
+        for span in &spans {
+            scan.add_span(f64::from(span.z).max(nearest), f64::from(span.left), f64::from(span.right));
+        }
         // A footprint is good to a fraction of a cell (the heights are):
         // one measured a little beyond the far edge may stand on it. A hole
         // reaches on from its edge, so it is in the AOI while the edge is
@@ -230,14 +272,6 @@ fn parallax_group(
         if inside && best.is_none_or(|b| nearest < b.0) {
             best = Some((nearest, left.max(-aoi.half_width), right.min(aoi.half_width), height));
         }
-    }
-    // A drop must show over an area: its parallax is at most T*d/(H+d),
-    // so an odometry or heading error fakes a small shallow patch more
-    // easily, and a hole a wheel can fall into shows its lower level over
-    // many cells (though, far and seen at a grazing angle, in scattered
-    // ones; the groups in front mark its edge).
-    if side == Side::Below && (0..h * w).filter(|&cell| member(cell)).count() < LARGE_GROUP_CELLS {
-        return None;
     }
     best.map(|(z, left, right, height)| {
         let z = z.clamp(aoi.near, aoi.far);

@@ -55,6 +55,11 @@ struct Args {
     full_frame: bool,
     /// What `$FLODO` carries (`--odometry none`, `--imu none`).
     sensors: Sensors,
+    /// `--mavlink`: the `mavlink` build, poses sent as MAVLink (`--local-position`:
+    /// LOCAL_POSITION_NED + ATTITUDE instead of ODOMETRY).
+    mavlink: Option<qemu::PoseMessages>,
+    /// `--capture FILE`: the firmware's raw serial output.
+    capture: Option<PathBuf>,
 }
 
 /// `--odometry poses|none`, `--imu poses|none`, as on `flatland detect`:
@@ -75,6 +80,8 @@ fn parse_args() -> Result<Args> {
     let mut mm_per_px = None;
     let mut full_frame = false;
     let mut sensors = Sensors::ALL;
+    let mut mavlink = None;
+    let mut capture = None;
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         match arg.as_str() {
@@ -82,6 +89,9 @@ fn parse_args() -> Result<Args> {
             "--selftest" => mode = Mode::SelfTest,
             "--bench" => mode = Mode::Bench,
             "--full-frame" => full_frame = true,
+            "--mavlink" => mavlink = Some(mavlink.unwrap_or(qemu::PoseMessages::Odometry)),
+            "--local-position" => mavlink = Some(qemu::PoseMessages::LocalPosition),
+            "--capture" => capture = Some(PathBuf::from(args.next().ok_or("--capture needs a file")?)),
             "--odometry" => sensors.odometry = parse_source("--odometry", args.next())?,
             "--imu" => sensors.imu = parse_source("--imu", args.next())?,
             "--elf" => elf = Some(PathBuf::from(args.next().ok_or("--elf needs a path")?)),
@@ -95,6 +105,8 @@ fn parse_args() -> Result<Args> {
             "-h" | "--help" => {
                 println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame]");
                 println!("       --odometry none / --imu none: $FLODO leaves the wheels' pose / the IMU's attitude out");
+                println!("       --mavlink [--local-position]: the mavlink build; poses as ODOMETRY (or LOCAL_POSITION_NED + ATTITUDE)");
+                println!("       --capture FILE: save the firmware's raw serial output");
                 println!("       fw --elf PATH [same options]: run that firmware ELF (the thumb target's cargo runner)");
                 std::process::exit(0);
             }
@@ -112,7 +124,10 @@ fn parse_args() -> Result<Args> {
     if mode == Mode::Run && elf.as_deref().and_then(Path::file_name).is_some_and(|name| name == "selftest") {
         mode = Mode::SelfTest;
     }
-    Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame, sensors })
+    if mavlink.is_some() && !matches!(mode, Mode::Run) {
+        return Err("--mavlink runs the main job (no --csv, --bench or --selftest)".into());
+    }
+    Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame, sensors, mavlink, capture })
 }
 
 fn describe(message: &Message) -> Option<String> {
@@ -154,11 +169,16 @@ fn run_recording(args: &Args, elf: &Path) -> Result<String> {
         mm_per_px = Some(full.mm_per_px);
     }
     let human = args.mode == Mode::Run;
+    let script = match args.mavlink {
+        Some(poses) => qemu::mavlink_script(&recording, poses)?,
+        None => qemu::host_script(&recording)?,
+    };
     let request = RunRequest {
         elf,
         dir: &args.recording,
-        script: qemu::host_script(&recording)?,
+        script,
         then: None,
+        mavlink: args.mavlink.is_some(),
         bench: args.mode == Mode::Bench,
         bench_mm_per_px: mm_per_px,
         bench_no_margins: args.full_frame,
@@ -172,11 +192,24 @@ fn run_recording(args: &Args, elf: &Path) -> Result<String> {
             }
         }
     })?;
+    if let Some(path) = &args.capture {
+        std::fs::write(path, &outcome.serial.raw).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
     if !outcome.status.success() {
         if !human {
             eprintln!("{}", outcome.log);
         }
         return Err(format!("firmware failed ({})", outcome.status));
+    }
+    if args.mavlink.is_some() {
+        let decoded = flatland_host::mavlink_decode::decode(&outcome.serial.raw);
+        for (_, message) in &decoded.messages {
+            println!("{}", flatland_host::mavlink_decode::describe(message));
+        }
+        if !decoded.errors.is_empty() {
+            return Err(format!("{} MAVLink frames did not decode: {:?}", decoded.errors.len(), decoded.errors));
+        }
+        return Ok(outcome.log);
     }
     if args.mode == Mode::Csv {
         let stdout = io::stdout();
@@ -265,6 +298,7 @@ fn main() {
             Some(elf) => elf.clone(),
             // parse_args allows --full-frame with --bench only.
             None if args.full_frame => qemu::build_full_frame_firmware()?,
+            None if args.mavlink.is_some() => qemu::build_mavlink_firmware()?,
             None => {
                 let release_dir = qemu::build_firmware()?;
                 release_dir.join(if args.mode == Mode::SelfTest { "selftest" } else { "flatland-firmware" })
