@@ -96,6 +96,22 @@ impl GroundMap {
         let [x, z] = self.heading.place([self.planar.tx_mm, self.planar.tz_mm], [self.centre[0] + t * rx, self.centre[2] + t * rz]);
         Some((x, z))
     }
+
+    /// The inverse of [`GroundMap::to_keyframe`]: where the fixed remap
+    /// shows now the keyframe's ground point (`x_mm`, `z_mm`). None when the
+    /// point lies behind the turned camera's horizon.
+    pub fn from_keyframe(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+        let [x, z] = self.heading.to_robot([x_mm - self.planar.tx_mm, z_mm - self.planar.tz_mm]);
+        // The ray from the turned centre to the point, turned back to the body.
+        let p = [x - self.centre[0], -self.centre[1], z - self.centre[2]];
+        let back = |k: usize| self.turn[0][k] * p[0] + self.turn[1][k] * p[1] + self.turn[2][k] * p[2];
+        let (bx, by, bz) = (back(0), back(1), back(2));
+        if by >= -1e-9 {
+            return None;
+        }
+        let t = -self.height_mm / by;
+        Some((t * bx, t * bz))
+    }
 }
 
 impl Motion {
@@ -227,6 +243,21 @@ mod tests {
         assert!((chained.tx_mm - direct.tx_mm).abs() < 1e-9 && (chained.tz_mm - direct.tz_mm).abs() < 1e-9);
         assert!((chained.dyaw_deg - direct.dyaw_deg).abs() < 1e-12);
         assert!((rx - wx).abs() < 1e-9 && (rz - wz).abs() < 1e-9);
+    }
+
+    #[test]
+    fn from_keyframe_undoes_to_keyframe() {
+        let motion = GroundMotion {
+            planar: Motion { tx_mm: 12.0, tz_mm: 80.0, dyaw_deg: 2.5 },
+            attitude: Attitude { pitch_deg: 0.7, roll_deg: -0.4 },
+        };
+        let map = GroundMap::new(&motion, 400.0);
+        for (x, z) in [(0.0, 500.0), (-300.0, 1400.0), (250.0, 900.0)] {
+            let (xk, zk) = map.to_keyframe(x, z).unwrap();
+            assert!(libm::hypot(xk - x, zk - z) > 10.0);
+            let (xb, zb) = map.from_keyframe(xk, zk).unwrap();
+            assert!(libm::hypot(xb - x, zb - z) < 1e-6, "({x}, {z}) -> ({xb}, {zb})");
+        }
     }
 
     #[test]

@@ -19,10 +19,16 @@
 //! the coarsest level. Straight driving determines all four: the tilt and
 //! roll set the ground plane's normal in the camera, the yaw the direction
 //! of travel in the image, the height the flow's metric scale.
+//!
+//! A real body rocks (RECORDING.md's body attitude): each frame's pitch and
+//! roll are unknowns too, turning the ground map as GPA's estimate does
+//! (`GroundMap`). Their mean over each connected set of pairs is held at
+//! zero: the mount is the camera's attitude on the body at rest, and a
+//! constant body attitude is indistinguishable from it.
 
 use crate::recording::{Frame, Recording, RecordingError};
 use flatland_core::geometry::{Intrinsics, Mount, Pixel, Rig, RigError};
-use flatland_core::motion::Motion;
+use flatland_core::motion::{Attitude, GroundMap, GroundMotion, Motion};
 use std::fmt;
 
 /// Least motion between two frames of a pair (mm of chord): less carries no
@@ -74,6 +80,10 @@ pub struct MountEstimate {
     pub samples: usize,
     /// True when the height came from odometry, false when it was given.
     pub height_estimated: bool,
+    /// The body model that explained the frames best.
+    pub body: Body,
+    /// RMS of the frames' estimated body pitch and roll (degrees; 0 for a rigid body).
+    pub body_attitude_rms_deg: f64,
 }
 
 /// Why a recording could not be calibrated.
@@ -188,8 +198,8 @@ struct Pair {
 }
 
 /// The unknowns: the mount angles (the height stays at its nominal value
-/// while solving: the ground flow fixes only motion over height) and each
-/// pair's step.
+/// while solving: the ground flow fixes only motion over height), each
+/// pair's step and each frame's body attitude.
 #[derive(Clone)]
 struct State {
     /// tilt, height, roll, yaw.
@@ -197,6 +207,12 @@ struct State {
     /// Per pair: the scale of its odometry's translation (without odometry,
     /// its chord length in units of [`CHORD_UNIT_MM`]), and its turn, degrees.
     steps: Vec<[f64; 2]>,
+    /// Per frame: the body's pitch and roll, degrees.
+    attitudes: Vec<[f64; 2]>,
+    /// Per frame: the frame whose attitude moves against it, so that the
+    /// attitudes of a connected set of pairs keep summing to zero (the set's
+    /// first frame, which has no unknowns of its own).
+    anchors: Vec<usize>,
 }
 
 /// Chord length unit of a pair's step without odometry.
@@ -222,6 +238,8 @@ enum Unknown {
     Mount(usize),
     /// Pair index, component (scale or chord, turn).
     Step(usize, usize),
+    /// Frame index, axis (pitch 0, roll 1).
+    Attitude(usize, usize),
 }
 
 impl State {
@@ -230,6 +248,10 @@ impl State {
         match unknown {
             Unknown::Mount(k) => s.mount[k] += delta,
             Unknown::Step(p, c) => s.steps[p][c] += delta,
+            Unknown::Attitude(f, axis) => {
+                s.attitudes[f][axis] += delta;
+                s.attitudes[self.anchors[f]][axis] -= delta;
+            }
         }
         s
     }
@@ -238,28 +260,94 @@ impl State {
         pair_motion(pairs[n].odometry.as_ref(), self.steps[n])
     }
 
+    /// Pair `n`'s map from later to earlier pixels.
+    fn pair_map(&self, pairs: &[Pair], n: usize) -> PairMap {
+        let attitude = |f: usize| Attitude { pitch_deg: self.attitudes[f][0], roll_deg: self.attitudes[f][1] };
+        PairMap::new(self.motion(pairs, n), [attitude(pairs[n].earlier), attitude(pairs[n].later)], self.mount[1])
+    }
+
     fn mount(&self) -> Mount {
         Mount { height_mm: self.mount[1], tilt_deg: self.mount[0], roll_deg: self.mount[2], yaw_deg: self.mount[3] }
     }
 }
 
 /// Finite-difference steps: degrees, mm, degrees, degrees; a pair's scale
-/// (or chord unit) and turn (degrees).
+/// (or chord unit) and turn (degrees); a frame's attitude (degrees).
 const MOUNT_STEP: [f64; 4] = [1e-3, 0.05, 1e-3, 1e-3];
 const PAIR_STEP: [f64; 2] = [1e-4, 1e-3];
+const ATTITUDE_STEP: f64 = 1e-3;
 
 fn step_of(unknown: Unknown) -> f64 {
     match unknown {
         Unknown::Mount(k) => MOUNT_STEP[k],
         Unknown::Step(_, c) => PAIR_STEP[c],
+        Unknown::Attitude(..) => ATTITUDE_STEP,
     }
 }
 
-/// Where a later-frame pixel lands in the earlier frame.
-fn warp(rig: &Rig, motion: &Motion, p: Pixel) -> Option<Pixel> {
-    let (x, z) = rig.pixel_to_ground(p)?;
-    let (xe, ze) = motion.to_earlier_frame(x, z);
-    rig.ground_to_pixel(xe, ze)
+/// A pair's map from later-frame pixels to earlier-frame ones: back to the
+/// ground with the rig, through the later frame's body attitude, the
+/// motion, and the earlier frame's attitude undone.
+#[derive(Clone, Copy)]
+struct PairMap {
+    motion: Motion,
+    /// Earlier, later.
+    attitudes: [Attitude; 2],
+    /// The attitudes' ground maps; None for a level body (the identity).
+    maps: [Option<GroundMap>; 2],
+}
+
+impl PairMap {
+    fn new(motion: Motion, attitudes: [Attitude; 2], height_mm: f64) -> PairMap {
+        let map = |attitude: Attitude| {
+            (attitude != Attitude::default()).then(|| GroundMap::new(&GroundMotion { planar: Motion::default(), attitude }, height_mm))
+        };
+        PairMap { motion, attitudes, maps: attitudes.map(map) }
+    }
+
+    fn same_as(&self, other: &PairMap) -> bool {
+        self.motion == other.motion && self.attitudes == other.attitudes
+    }
+
+    /// Where a later-frame pixel lands in the earlier frame.
+    fn warp(&self, rig: &Rig, p: Pixel) -> Option<Pixel> {
+        let (mut x, mut z) = rig.pixel_to_ground(p)?;
+        if let Some(later) = &self.maps[1] {
+            (x, z) = later.to_keyframe(x, z)?;
+        }
+        (x, z) = self.motion.to_earlier_frame(x, z);
+        if let Some(earlier) = &self.maps[0] {
+            (x, z) = earlier.from_keyframe(x, z)?;
+        }
+        rig.ground_to_pixel(x, z)
+    }
+}
+
+/// Each frame's anchor (see [`State::anchors`]) and the attitude unknowns
+/// of the frames that the used pairs connect.
+fn attitude_unknowns(pairs: &[Pair], frames: usize) -> (Vec<usize>, Vec<Unknown>) {
+    // Union-find over the used pairs; a set's root is its first frame.
+    fn find(root: &mut [usize], mut f: usize) -> usize {
+        while root[f] != f {
+            root[f] = root[root[f]];
+            f = root[f];
+        }
+        f
+    }
+    let mut root: Vec<usize> = (0..frames).collect();
+    let mut in_pair = vec![false; frames];
+    for pair in pairs.iter().filter(|p| p.used) {
+        let (a, b) = (find(&mut root, pair.earlier), find(&mut root, pair.later));
+        root[a.max(b)] = a.min(b);
+        in_pair[pair.earlier] = true;
+        in_pair[pair.later] = true;
+    }
+    let anchors: Vec<usize> = (0..frames).map(|f| find(&mut root, f)).collect();
+    let unknowns = (0..frames)
+        .filter(|&f| in_pair[f] && anchors[f] != f)
+        .flat_map(|f| [Unknown::Attitude(f, 0), Unknown::Attitude(f, 1)])
+        .collect();
+    (anchors, unknowns)
 }
 
 /// The calibration problem at one pyramid level.
@@ -276,8 +364,8 @@ impl Level<'_> {
 }
 
 /// Residual of one sample, with its gradient image values: (r, value, gu, gv, warped).
-fn residual(level: &Level, rig: &Rig, pair: &Pair, motion: &Motion, p: Pixel, target: f64) -> Option<(f64, f64, f64)> {
-    let q = warp(rig, motion, p)?;
+fn residual(level: &Level, rig: &Rig, pair: &Pair, map: &PairMap, p: Pixel, target: f64) -> Option<(f64, f64, f64)> {
+    let q = map.warp(rig, p)?;
     let (value, gu, gv) = level.images[pair.earlier].sample(q.u, q.v)?;
     Some((pair.gain * value + pair.offset - target, gu, gv))
 }
@@ -319,13 +407,15 @@ fn rho(r: f64, sigma: f64, huber: bool) -> f64 {
 /// Fits each used pair's gain and offset to the warped earlier frame, given
 /// the weights of the last residuals (all 1 at first).
 fn fit_photometry(level: &Level, rig: &Rig, pairs: &mut [Pair], state: &State, sigma: Option<f64>, huber: bool) {
-    for (n, pair) in pairs.iter_mut().enumerate() {
+    for n in 0..pairs.len() {
+        let map = state.pair_map(pairs, n);
+        let pair = &mut pairs[n];
         if !pair.used {
             continue;
         }
         let (mut sw, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for &(p, target) in &pair.samples {
-            let Some(q) = warp(rig, &pair_motion(pair.odometry.as_ref(), state.steps[n]), p) else { continue };
+            let Some(q) = map.warp(rig, p) else { continue };
             let Some((value, _, _)) = level.images[pair.earlier].sample(q.u, q.v) else { continue };
             let w = sigma.map_or(1.0, |s| weight(pair.gain * value + pair.offset - target, s, huber));
             sw += w;
@@ -353,8 +443,8 @@ fn residuals(level: &Level, pairs: &[Pair], state: &State) -> Option<Vec<Vec<f64
                 if !pair.used {
                     return Vec::new();
                 }
-                let motion = pair_motion(pair.odometry.as_ref(), state.steps[n]);
-                pair.samples.iter().filter_map(|&(p, target)| residual(level, &rig, pair, &motion, p, target).map(|r| r.0)).collect()
+                let map = state.pair_map(pairs, n);
+                pair.samples.iter().filter_map(|&(p, target)| residual(level, &rig, pair, &map, p, target).map(|r| r.0)).collect()
             })
             .collect(),
     )
@@ -416,7 +506,7 @@ fn normal_equations(
         .iter()
         .map(|&u| match u {
             Unknown::Mount(_) => level.rig(&state.with(u, step_of(u))).ok(),
-            Unknown::Step(..) => None,
+            Unknown::Step(..) | Unknown::Attitude(..) => None,
         })
         .collect();
     let mut jtj = vec![vec![0.0; n]; n];
@@ -428,9 +518,22 @@ fn normal_equations(
         if !pair.used {
             continue;
         }
-        let motion = state.motion(pairs, pi);
+        let map = state.pair_map(pairs, pi);
+        // Per unknown: the rig and map it moves this pair's samples with
+        // (None: it does not move them).
+        let moved_by: Vec<Option<(&Rig, PairMap)>> = unknowns
+            .iter()
+            .enumerate()
+            .map(|(k, &unknown)| match unknown {
+                Unknown::Mount(_) => mount_rigs[k].as_ref().map(|moved| (moved, map)),
+                _ => {
+                    let moved = state.with(unknown, step_of(unknown)).pair_map(pairs, pi);
+                    (!moved.same_as(&map)).then_some((&rig, moved))
+                }
+            })
+            .collect();
         for &(p, target) in &pair.samples {
-            let Some(q) = warp(&rig, &motion, p) else { continue };
+            let Some(q) = map.warp(&rig, p) else { continue };
             let Some((value, gu, gv)) = level.images[pair.earlier].sample(q.u, q.v) else { continue };
             let r = pair.gain * value + pair.offset - target;
             let w = weight(r, sigma, huber);
@@ -440,16 +543,8 @@ fn normal_equations(
             let mut touched = false;
             for (k, &unknown) in unknowns.iter().enumerate() {
                 row[k] = 0.0;
-                let moved = match unknown {
-                    Unknown::Mount(_) => mount_rigs[k].as_ref().and_then(|r| warp(r, &motion, p)),
-                    Unknown::Step(owner, component) if owner == pi => {
-                        let mut step = state.steps[pi];
-                        step[component] += step_of(unknown);
-                        warp(&rig, &pair_motion(pair.odometry.as_ref(), step), p)
-                    }
-                    Unknown::Step(..) => continue,
-                };
-                let Some(moved) = moved else { continue };
+                let Some((moved_rig, moved_map)) = &moved_by[k] else { continue };
+                let Some(moved) = moved_map.warp(moved_rig, p) else { continue };
                 let h = step_of(unknown);
                 row[k] = pair.gain * (gu * (moved.u - q.u) + gv * (moved.v - q.v)) / h;
                 touched = true;
@@ -457,7 +552,8 @@ fn normal_equations(
             if !touched {
                 continue;
             }
-            // A sample touches the mount and its own pair's motion only.
+            // A sample touches the mount, its own pair's motion and its
+            // frames' attitudes (all of a set's through its anchor) only.
             nonzero.clear();
             nonzero.extend((0..n).filter(|&k| row[k] != 0.0));
             for &i in &nonzero {
@@ -480,8 +576,34 @@ fn normal_equations(
     Ok((jtj, jtr, wrr, wsum))
 }
 
-/// Calibrates the mount of `recording` (its rig is the starting point).
+/// Whether each frame's body attitude is estimated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Body {
+    /// The body does not rock: every frame at the mount's attitude.
+    Rigid,
+    /// Each frame's pitch and roll are unknowns (mean zero).
+    Rocking,
+}
+
+/// The rocking body's model is taken when it explains the frames this much
+/// better (RMS residual after, as a fraction of the rigid model's): more
+/// unknowns always fit a little better, and on a body that does not rock
+/// they fit noise and what is not flat ground (a drop's lower level).
+pub const ROCKING_RESIDUAL_FRACTION: f64 = 0.9;
+
+/// Calibrates the mount of `recording` (its rig is the starting point):
+/// with a rigid body, and with a rocking one, which is taken when it fits
+/// clearly better ([`ROCKING_RESIDUAL_FRACTION`]).
 pub fn calibrate(recording: &Recording, config: &CalibrationConfig) -> Result<MountEstimate, CalibrationError> {
+    let rigid = calibrate_with(recording, config, Body::Rigid)?;
+    match calibrate_with(recording, config, Body::Rocking) {
+        Ok(rocking) if rocking.residual_after < ROCKING_RESIDUAL_FRACTION * rigid.residual_after => Ok(rocking),
+        _ => Ok(rigid),
+    }
+}
+
+/// [`calibrate`] with the body model given.
+pub fn calibrate_with(recording: &Recording, config: &CalibrationConfig, body: Body) -> Result<MountEstimate, CalibrationError> {
     let rig = recording.rig;
     let frames: Vec<u32> = recording.frames.clone();
     if frames.len() < 2 {
@@ -551,6 +673,8 @@ pub fn calibrate(recording: &Recording, config: &CalibrationConfig) -> Result<Mo
     let mut state = State {
         mount: [initial.tilt_deg, if odometry { initial.height_mm } else { given_height }, initial.roll_deg, initial.yaw_deg],
         steps: pairs.iter().map(|p| [1.0, p.odometry.map_or(0.0, |m| m.dyaw_deg)]).collect(),
+        attitudes: vec![[0.0; 2]; frames.len()],
+        anchors: Vec::new(),
     };
     let start = state.clone();
     // The height stays nominal: each pair's scale takes up the flow's size.
@@ -559,6 +683,12 @@ pub fn calibrate(recording: &Recording, config: &CalibrationConfig) -> Result<Mo
     // the roll on diagonal drives); without, each pair's turn is free too.
     let components = if odometry { 1 } else { 2 };
     unknowns.extend((0..pairs.len()).flat_map(|p| (0..components).map(move |c| Unknown::Step(p, c))));
+    let rocking = body == Body::Rocking;
+    let (anchors, attitude_unknowns_now) = attitude_unknowns(&pairs, frames.len());
+    state.anchors = anchors;
+    if rocking {
+        unknowns.extend(attitude_unknowns_now);
+    }
     let images_at = |level: usize| -> Vec<Image> {
         pyramids.iter().map(|levels| levels.get(level).cloned().unwrap_or(Image { width: 0, height: 0, pixels: Vec::new() })).collect()
     };
@@ -656,6 +786,14 @@ pub fn calibrate(recording: &Recording, config: &CalibrationConfig) -> Result<Mo
                     pairs[n].used = false;
                 }
             }
+            // Dropped pairs may split a set of frames: new anchors, and no
+            // attitude for a frame left without pairs.
+            let (anchors, attitude_unknowns_now) = attitude_unknowns(&pairs, frames.len());
+            unknowns.retain(|u| !matches!(u, Unknown::Attitude(..)));
+            if rocking {
+                unknowns.extend(attitude_unknowns_now);
+            }
+            state.anchors = anchors;
         }
     }
 
@@ -713,6 +851,12 @@ pub fn calibrate(recording: &Recording, config: &CalibrationConfig) -> Result<Mo
         pairs: used.len(),
         samples: used.iter().map(|p| p.samples.len()).sum(),
         height_estimated: odometry,
+        body,
+        body_attitude_rms_deg: {
+            let seen = |f: usize| used.iter().any(|p| p.earlier == f || p.later == f);
+            let rocked: Vec<f64> = (0..frames.len()).filter(|&f| seen(f)).flat_map(|f| state.attitudes[f]).collect();
+            (rocked.iter().map(|a| a * a).sum::<f64>() / rocked.len().max(1) as f64).sqrt()
+        },
     })
 }
 
@@ -730,10 +874,10 @@ fn search_motions(level: &Level, pairs: &mut [Pair], state: &mut State) {
         for chord_cm in -30..=30 {
             for turn in -4..=4 {
                 let step = [f64::from(chord_cm) * 10.0 / CHORD_UNIT_MM, f64::from(turn)];
-                let motion = pair_motion(None, step);
+                let map = PairMap::new(pair_motion(None, step), [Attitude::default(); 2], state.mount[1]);
                 let (mut sum, mut count) = (0.0, 0usize);
                 for &(p, target) in pair.samples.iter().step_by(4) {
-                    if let Some((r, _, _)) = residual(level, &rig, pair, &motion, p, target) {
+                    if let Some((r, _, _)) = residual(level, &rig, pair, &map, p, target) {
                         sum += r.abs();
                         count += 1;
                     }
@@ -749,12 +893,13 @@ fn search_motions(level: &Level, pairs: &mut [Pair], state: &mut State) {
         state.steps[n] = best.1;
     }
 }
+
 /// `key: value` lines for stdout.
 pub fn report(estimate: &MountEstimate) -> String {
     let m = &estimate.mount;
     let s = &estimate.sigma;
     format!(
-        "tilt_deg: {:.3}\ntilt_deg_sigma: {:.3}\nheight_mm: {:.1}\nheight_mm_sigma: {:.1}\nroll_deg: {:.3}\nroll_deg_sigma: {:.3}\nyaw_deg: {:.3}\nyaw_deg_sigma: {:.3}\nheight_from: {}\nresidual_before: {:.2}\nresidual_after: {:.2}\npairs: {}\nsamples: {}\n",
+        "tilt_deg: {:.3}\ntilt_deg_sigma: {:.3}\nheight_mm: {:.1}\nheight_mm_sigma: {:.1}\nroll_deg: {:.3}\nroll_deg_sigma: {:.3}\nyaw_deg: {:.3}\nyaw_deg_sigma: {:.3}\nheight_from: {}\nbody: {}\nbody_attitude_rms_deg: {:.3}\nresidual_before: {:.2}\nresidual_after: {:.2}\npairs: {}\nsamples: {}\n",
         m.tilt_deg,
         s[0],
         m.height_mm,
@@ -764,6 +909,11 @@ pub fn report(estimate: &MountEstimate) -> String {
         m.yaw_deg,
         s[3],
         if estimate.height_estimated { "odometry" } else { "given" },
+        match estimate.body {
+            Body::Rigid => "rigid",
+            Body::Rocking => "rocking",
+        },
+        estimate.body_attitude_rms_deg,
         estimate.residual_before,
         estimate.residual_after,
         estimate.pairs,

@@ -5,7 +5,7 @@ mod common;
 
 use common::{data, TempRecording};
 use flatland_core::geometry::{Mount, Pixel, Rig};
-use flatland_host::calibrate::{calibrate, calibrated_rig_toml, parse_camera_info, CalibrationConfig, CalibrationError, MountEstimate};
+use flatland_host::calibrate::{calibrate, calibrated_rig_toml, parse_camera_info, Body, CalibrationConfig, CalibrationError, MountEstimate};
 use flatland_host::recording::{parse_rig, Recording};
 use std::path::Path;
 use std::process::Command;
@@ -14,11 +14,14 @@ use std::process::Command;
 const BOUNDS: [f64; 4] = [0.1, 5.0, 0.2, 0.3];
 
 /// Bundled recordings with odometry over flat ground (some with a few
-/// obstacles, which the robust weights must reject). Left out: the bumpy
-/// ones (the body rocks between frames: no fixed mount) and
-/// exposure_rolling (rolling shutter: the rows see different poses).
-const FLAT: [&str; 9] =
-    ["flat_marks", "noisy_marks", "diagonal", "turn", "qvga_curb", "approach_box", "noisy_approach", "stool_bags", "slip"];
+/// obstacles or a drop, which the robust weights must reject). The bumpy
+/// ones have their own test; exposure_rolling is left out (rolling shutter:
+/// the rows see different poses, which the model does not describe).
+const FLAT: [&str; 10] =
+    ["flat_marks", "noisy_marks", "diagonal", "turn", "qvga_curb", "approach_box", "noisy_approach", "stool_bags", "slip", "ledge"];
+
+/// Recordings whose body rocks between frames (RECORDING.md's body attitude).
+const ROCKING: [&str; 2] = ["bumpy_marks", "bumpy_approach"];
 
 /// The starting mounts: the perturbations.
 const PERTURBATIONS: [[f64; 4]; 2] = [[2.0, 30.0, 1.5, 2.0], [-2.0, -30.0, -1.5, -2.0]];
@@ -72,6 +75,42 @@ fn check(name: &str, recording: &Recording, truth: &Mount, config: &CalibrationC
 fn perturbed_mounts_come_back_on_the_flat_recordings() {
     let mut failures = Vec::new();
     for name in FLAT {
+        let recording = Recording::open(data(name)).unwrap();
+        let truth = *recording.rig.mount();
+        failures.extend(check(name, &recording, &truth, &CalibrationConfig::default()));
+    }
+    assert!(failures.is_empty(), "outside the bounds {BOUNDS:?}:\n{}", failures.join("\n"));
+}
+
+/// The rocking body's frames are told apart from the mount, and the body
+/// model says so.
+#[test]
+fn a_rocking_body_is_found_and_its_mean_taken_as_level() {
+    for name in ROCKING {
+        let mut recording = Recording::open(data(name)).unwrap();
+        let truth = *recording.rig.mount();
+        recording.rig = with_mount(&recording.rig, offset(&truth, PERTURBATIONS[0]));
+        let estimate = calibrate(&recording, &CalibrationConfig::default()).unwrap();
+        assert_eq!(estimate.body, Body::Rocking, "{name}");
+        assert!(estimate.body_attitude_rms_deg > 0.1, "{name}: {}", estimate.body_attitude_rms_deg);
+    }
+    for name in ["flat_marks", "ledge"] {
+        let recording = Recording::open(data(name)).unwrap();
+        assert_eq!(calibrate(&recording, &CalibrationConfig::default()).unwrap().body, Body::Rigid, "{name}");
+    }
+}
+
+/// The bounds on the rocking recordings. Measured (rocking model):
+/// bumpy_marks tilt +0.104 deg (roll +0.002, height +0.0 mm); bumpy_approach
+/// tilt -0.135 deg, roll -0.213 deg. The body's own mean attitude over the
+/// frames is indistinguishable from the mount (bumpy_marks' IMU, its bias
+/// removed, averages +0.086 deg of pitch), so a fixed-mount truth is met
+/// only to about jitter / sqrt(frames).
+#[test]
+#[ignore = "rocking recordings: bumpy_marks tilt +0.104 deg, bumpy_approach tilt -0.135 / roll -0.213 deg"]
+fn perturbed_mounts_come_back_on_the_rocking_recordings() {
+    let mut failures = Vec::new();
+    for name in ROCKING {
         let recording = Recording::open(data(name)).unwrap();
         let truth = *recording.rig.mount();
         failures.extend(check(name, &recording, &truth, &CalibrationConfig::default()));
