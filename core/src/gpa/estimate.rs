@@ -42,10 +42,6 @@ pub const COARSE_CELL_MM: f32 = 25.0;
 const COARSE_PRIOR_WEIGHT: f32 = 0.01;
 /// Fewest inlier blocks that measure all five parameters.
 const MIN_INLIERS: usize = 8;
-/// The floor of a fit's robust scale, KG px: sub-pixel matches are not better.
-const MIN_SCALE: f32 = 0.15;
-/// Q16 fixed point of the coarse search's cell positions.
-const ONE: f32 = 65536.0;
 
 fn params(motion: &GroundMotion) -> Params {
     [motion.planar.tx_mm as f32, motion.planar.tz_mm as f32, motion.planar.dyaw_deg as f32, motion.attitude.pitch_deg as f32, motion.attitude.roll_deg as f32]
@@ -165,18 +161,23 @@ impl Coarse {
         }
     }
 
-    /// Per cell: whether it and its right, lower and lower-right
-    /// neighbours are all valid (a bilinear sample from it is).
-    fn quads(&self) -> [bool; MAX_COARSE_CELLS] {
-        let mut quads = [false; MAX_COARSE_CELLS];
-        let wide = self.wide;
-        for v in 0..self.high.saturating_sub(1) {
-            for u in 0..wide.saturating_sub(1) {
-                let k = v * wide + u;
-                quads[k] = self.valid[k] && self.valid[k + 1] && self.valid[k + wide] && self.valid[k + wide + 1];
-            }
+    /// Bilinear sample at cell coordinates (u, v) (cell centres at integers).
+    fn at(&self, u: f32, v: f32) -> Option<f32> {
+        if !(u >= 0.0 && v >= 0.0) {
+            return None;
         }
-        quads
+        let (u0, v0) = (u as usize, v as usize);
+        if u0 + 1 >= self.wide || v0 + 1 >= self.high {
+            return None;
+        }
+        let k = v0 * self.wide + u0;
+        let corners = [k, k + 1, k + self.wide, k + self.wide + 1];
+        if !corners.iter().all(|&c| self.valid[c]) {
+            return None;
+        }
+        let (fu, fv) = (u - u0 as f32, v - v0 as f32);
+        let c = |i: usize| f32::from(self.cells[corners[i]]);
+        Some((c(0) * (1.0 - fu) + c(1) * fu) * (1.0 - fv) + (c(2) * (1.0 - fu) + c(3) * fu) * fv)
     }
 }
 
@@ -257,26 +258,11 @@ impl Estimator {
 
     /// Step 4: the ground is the surface the robot stands on. A curb top
     /// or a lower level that fills most of the view wins the vote of the
-    /// whole view, or bends its fit. When the whole view's fit leaves the
-    /// blocks nearest the robot unexplained, they are fitted on their own
-    /// (from the prior, then from the whole view's fit), and that fit
-    /// replaces it when it explains clearly more of them. `self.matches`
-    /// holds the whole view's last matches.
+    /// whole view, or bends its fit. The blocks nearest the robot fitted
+    /// on their own (from the prior, then from the whole view's fit)
+    /// replace it when that fit explains clearly more of them.
     fn nearest_surface(&mut self, scene: &Scene, prior: &Start, fitted: Fit) -> Params {
-        let near_row = near_row(scene) as f32;
-        let (mut near_blocks, mut explained) = (0, 0);
-        let map = scene.map(&fitted.p);
-        for m in self.matches.iter().filter(|m| m.current.1 >= near_row) {
-            near_blocks += 1;
-            // The yardstick of a clean fit (a bent one's scale is inflated).
-            explained += usize::from(residual(&map, m).is_some_and(|r| r < 3.0 * MIN_SCALE));
-        }
-        // Too few left over for a fit of their own to explain clearly more:
-        // the whole view's fit stands, and its matches give the gain.
-        if near_blocks < explained + clearly_more_by(explained) {
-            return fitted.p;
-        }
-        let near_row = near_row as usize;
+        let near_row = near_row(scene);
         let near = self.refine(scene, prior, prior.p, near_row).or_else(|| self.refine(scene, prior, fitted.p, near_row));
         let chosen = match near {
             Some(near) => {
@@ -284,7 +270,8 @@ impl Estimator {
                 let within = 3.0 * near.scale.min(fitted.scale);
                 let near_agreeing = agreeing(scene, &self.matches, &near.p, within);
                 let fitted_agreeing = agreeing(scene, &self.matches, &fitted.p, within);
-                if near_agreeing >= fitted_agreeing + clearly_more_by(fitted_agreeing) { near.p } else { fitted.p }
+                let clearly_more = fitted_agreeing + (MIN_INLIERS / 2).max(fitted_agreeing / 4);
+                if near_agreeing >= clearly_more { near.p } else { fitted.p }
             }
             None => fitted.p,
         };
@@ -319,11 +306,6 @@ impl Estimator {
         // Cell (0, 0)'s centre on the ground, in cells.
         let centre = 0.5 * (cur.side as f32 - 1.0) / cur.side as f32;
         let (origin_u, origin_v) = (grid.x_left_mm as f32 / cell_mm + centre, grid.z_far_mm as f32 / cell_mm - centre);
-        // Integers per cell: Q16 positions stepped along a row, the
-        // keyframe bilinear in Q8 times the gain in Q8, |differences| in Q8.
-        let quads = key.quads();
-        let gain_q8 = (gain * 256.0 + 0.5) as u32;
-        let (wide, high) = (key.wide as i32, key.high as i32);
         let score_at = |yaw_deg: f32, tx_mm: f32, tz_mm: f32| -> f32 {
             let (sin, cos) = libm::sincosf(yaw_deg.to_radians());
             // The heading's turn of the cell axes (+u, and -z for +v) and of the origin.
@@ -332,39 +314,18 @@ impl Estimator {
             let (tu, tv) = (tx_mm / cell_mm, tz_mm / cell_mm);
             let (ou, ov) = (tu + origin_u * cos - origin_v * sin, tv + origin_u * sin + origin_v * cos);
             let (ou, ov) = (ou - origin_u, origin_v - ov);
-            let (step_u, step_v) = ((au * ONE) as i32, (-av * ONE) as i32);
-            let (mut sum, mut count) = (0u32, 0usize);
+            let (mut sum, mut count) = (0f32, 0usize);
             for cj in 0..cur.high {
-                let v_row = cj as f32;
-                let (row_u, row_v) = (bu * v_row + ou, -bv * v_row + ov);
-                // Beyond what the fixed point holds: nothing of this row lands in the keyframe.
-                if !(row_u.abs() < 30000.0 && row_v.abs() < 30000.0) {
-                    continue;
-                }
-                let (mut u, mut v) = ((row_u * ONE) as i32, (row_v * ONE) as i32);
                 for ci in 0..cur.wide {
                     let k = cj * cur.wide + ci;
-                    let (u_here, v_here) = (u, v);
-                    u += step_u;
-                    v += step_v;
-                    if !cur.valid[k] || u_here < 0 || v_here < 0 {
+                    if !cur.valid[k] {
                         continue;
                     }
-                    let (u0, v0) = (u_here >> 16, v_here >> 16);
-                    if u0 >= wide || v0 >= high {
+                    let (u, v) = (ci as f32, cj as f32);
+                    let Some(value) = key.at(au * u + bu * v + ou, -(av * u + bv * v) + ov) else {
                         continue;
-                    }
-                    let corner = v0 as usize * key.wide + u0 as usize;
-                    if !quads[corner] {
-                        continue;
-                    }
-                    let (fu, fv) = (((u_here >> 8) & 0xFF) as u32, ((v_here >> 8) & 0xFF) as u32);
-                    let c = |at: usize| u32::from(key.cells[at]);
-                    let top = c(corner) * (256 - fu) + c(corner + 1) * fu;
-                    let bottom = c(corner + key.wide) * (256 - fu) + c(corner + key.wide + 1) * fu;
-                    let value_q8 = (top * (256 - fv) + bottom * fv + (1 << 7)) >> 8;
-                    let scaled_q8 = ((value_q8 >> 8) * gain_q8 + (((value_q8 & 0xFF) * gain_q8) >> 8)) as i32;
-                    sum += (((u32::from(cur.cells[k])) << 8) as i32 - scaled_q8).unsigned_abs();
+                    };
+                    sum += libm::fabsf(f32::from(cur.cells[k]) - gain * value);
                     count += 1;
                 }
             }
@@ -372,7 +333,7 @@ impl Estimator {
             if count * 3 < counted || count < 12 {
                 f32::MAX
             } else {
-                sum as f32 / (256.0 * count as f32)
+                sum / count as f32
             }
         };
         let at = |dyaw: i32, dx: i32, dz: i32| score_at(p[2] + dyaw as f32 * yaw_step, p[0] + dx as f32 * cell_mm, p[1] + dz as f32 * cell_mm);
@@ -469,11 +430,6 @@ fn agreeing(scene: &Scene, matches: &[BlockMatch], p: &Params, within: f32) -> u
     matches.iter().filter(|m| residual(&map, m).is_some_and(|r| r < within)).count()
 }
 
-/// How many more blocks than `agreeing` a rival fit must explain to win.
-fn clearly_more_by(agreeing: usize) -> usize {
-    (MIN_INLIERS / 2).max(agreeing / 4)
-}
-
 /// The first row of the nearest third of the rows the camera sees.
 fn near_row(scene: &Scene) -> usize {
     let rows = scene.grid.height();
@@ -509,7 +465,7 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start) -> 
         let sorted = &mut sorted[..count];
         sorted.sort_unstable_by(|a, b| a.total_cmp(b));
         let median = sorted[count / 2];
-        scale = (1.4826 * median).max(MIN_SCALE);
+        scale = (1.4826 * median).max(0.15);
         // Huber first (wide basin), Tukey after (rejects obstacles).
         let weight = |r: f32| -> f32 {
             if iteration < 3 {
