@@ -106,7 +106,8 @@ impl<'b> Keyframe<'b> {
         &self.images[self.key_half][j * self.width..][..self.width]
     }
 
-    /// Whether the 2x2 neighbourhood of (i, j) Q16.16 lies in the grid.
+    /// Whether the 2x2 neighbourhood of (i, j) Q16.16 lies in the grid
+    /// (the per-pixel reference's test and the wrapping lines').
     #[inline(always)]
     pub(super) fn inside(&self, i: i32, j: i32) -> bool {
         let rows_limit = (self.height as i32 - 1) << FRAC;
@@ -114,6 +115,7 @@ impl<'b> Keyframe<'b> {
     }
 
     /// Bilinear sample at (i, j) Q16.16; the caller checked [`Self::inside`].
+    /// The definition every line path reproduces.
     #[inline(always)]
     pub(super) fn sample(&self, i: i32, j: i32) -> u8 {
         let (i0, j0) = ((i >> FRAC) as usize, (j >> FRAC) as usize);
@@ -161,6 +163,59 @@ impl<'b> Keyframe<'b> {
             }
             return lo..hi;
         }
+        // A yawed or bent line: the position steps in Q16 (the same sums as
+        // `line.at(c)`) and the 2x2 neighbourhood is read from one offset
+        // without slicing. Each coordinate is linear in c: when it stays in
+        // i32 at both ends nothing wraps, the columns inside are one interval,
+        // found from its ends, and no pixel in it needs a test.
+        let (i_limit, j_limit) = (self.columns_limit(), self.rows_limit());
+        let exact = |c: usize| {
+            let along = |start: i32, step: i32| i64::from(start) + c as i64 * i64::from(step);
+            (along(line.i_start, line.i_step), along(line.j_start, line.j_step))
+        };
+        let fits = |(i, j): (i64, i64)| i32::try_from(i).is_ok() && i32::try_from(j).is_ok();
+        if !(fits(exact(columns.start)) && fits(exact(columns.end - 1))) {
+            return self.sample_line_checked(line, columns, out);
+        }
+        let inside = |c: usize| {
+            let (i, j) = exact(c);
+            (0..i64::from(i_limit)).contains(&i) && (0..i64::from(j_limit)).contains(&j)
+        };
+        let Some(first) = columns.clone().find(|&c| inside(c)) else {
+            out[columns.clone()].fill(0);
+            return columns.start..columns.start;
+        };
+        let end = (first + 1..columns.end).rev().find(|&c| inside(c)).map_or(first + 1, |c| c + 1);
+        out[columns.start..first].fill(0);
+        out[end..columns.end].fill(0);
+        let image: &[u8] = &self.images[self.key_half][..self.height * self.width];
+        let width = self.width;
+        let (mut i, mut j) = line.at(first);
+        for slot in &mut out[first..end] {
+            let index = (j >> FRAC) as usize * width + (i >> FRAC) as usize;
+            // SAFETY: every position from `first` to `end` lies in
+            // 0..(width - 1) << 16 by 0..(height - 1) << 16 (both ends do and
+            // the line is linear without wrapping), so the row index is at
+            // most height - 2, the column at most width - 2, and
+            // index + width + 1 < height * width = image.len().
+            let (p00, p01, p10, p11) = unsafe {
+                (
+                    *image.get_unchecked(index),
+                    *image.get_unchecked(index + 1),
+                    *image.get_unchecked(index + width),
+                    *image.get_unchecked(index + width + 1),
+                )
+            };
+            *slot = blend(p00, p01, p10, p11, i, j);
+            i = i.wrapping_add(line.i_step);
+            j = j.wrapping_add(line.j_step);
+        }
+        first..end
+    }
+
+    /// [`Self::sample_line`] pixel by pixel, for lines whose positions
+    /// leave i32 and wrap (far beyond the grid: a degenerate warp).
+    fn sample_line_checked(&self, line: RowWarp, columns: Range<usize>, out: &mut [u8]) -> Range<usize> {
         let (mut first, mut end) = (usize::MAX, 0);
         for c in columns.clone() {
             let (i, j) = line.at(c);
@@ -178,6 +233,30 @@ impl<'b> Keyframe<'b> {
             first..end
         }
     }
+
+    /// Q16 column positions below this have their right neighbour in the grid.
+    #[inline(always)]
+    fn columns_limit(&self) -> i32 {
+        (self.width as i32 - 1) << FRAC
+    }
+
+    /// Q16 row positions below this have their lower neighbour in the grid.
+    #[inline(always)]
+    fn rows_limit(&self) -> i32 {
+        (self.height as i32 - 1) << FRAC
+    }
+}
+
+/// The bilinear sample of [`Keyframe::sample`] from its four pixels at
+/// (i, j) Q16.16: the same integer, with the weights' complements folded
+/// (`a (256 - w) + b w = 256 a + (b - a) w` exactly), a multiply less.
+#[inline(always)]
+fn blend(p00: u8, p01: u8, p10: u8, p11: u8, i: i32, j: i32) -> u8 {
+    let wx = (i >> 8) & 0xFF;
+    let wy = (j >> 8) & 0xFF;
+    let top = (i32::from(p00) << 8) + (i32::from(p01) - i32::from(p00)) * wx;
+    let bottom = (i32::from(p10) << 8) + (i32::from(p11) - i32::from(p10)) * wx;
+    (((top << 8) + (bottom - top) * wy + (1 << 15)) >> 16) as u8
 }
 
 /// Fraction of the keyframe baseline (travel or turn) within which a frame
