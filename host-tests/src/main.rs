@@ -162,8 +162,21 @@ enum Command {
 #[derive(Subcommand)]
 enum SerialCommand {
     /// Decode the firmware's serial output (FILE, or stdin when absent or `-`)
-    /// into the csv of `flatland detect`.
-    Decode { file: Option<PathBuf> },
+    /// into the csv of `flatland detect`; with `--mavlink`, the `mavlink`
+    /// build's stream into the csv of `flatland scan`.
+    Decode {
+        file: Option<PathBuf>,
+        /// The stream is MAVLink 2 (`cargo fw --protocol mavlink --capture`):
+        /// one row per OBSTACLE_DISTANCE in `flatland scan`'s form, at its 5-degree
+        /// bins from -180 degrees, mm (cm x 10), `inf` free, empty unknown.
+        #[arg(long)]
+        mavlink: bool,
+        /// With `--mavlink`: the recording the stream came from; the first
+        /// column is then the frame whose poses.csv time is the message's
+        /// time_usec (without it, time_usec itself).
+        #[arg(long, requires = "mavlink")]
+        recording: Option<PathBuf>,
+    },
 }
 
 /// Which of poses.csv's sensors a run uses; `t_s` always orders the frames.
@@ -532,15 +545,42 @@ fn print_confusion(truth: &Truth, reports: &[FrameReport]) {
     }
 }
 
+/// FILE, or stdin when absent or `-`.
+fn open_input(file: Option<&Path>) -> Result<Box<dyn std::io::Read>, String> {
+    Ok(match file {
+        None => Box::new(std::io::stdin().lock()),
+        Some(path) if path == Path::new("-") => Box::new(std::io::stdin().lock()),
+        Some(path) => Box::new(std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?),
+    })
+}
+
+/// `flatland serial decode --mavlink`: OBSTACLE_DISTANCE as scan csv rows.
+fn run_mavlink_decode(file: Option<&Path>, recording: Option<&Path>) -> ExitCode {
+    use flatland_host::mavlink_decode::{decode, frames_by_time, write_scan_csv, RowKey, ScanCsvError};
+    let mut bytes = Vec::new();
+    if let Err(e) = open_input(file).and_then(|mut input| input.read_to_end(&mut bytes).map_err(|e| e.to_string())) {
+        return fatal(e);
+    }
+    let frames = match recording.map(Recording::open).transpose() {
+        Ok(recording) => recording.as_ref().map(frames_by_time),
+        Err(e) => return fatal(e),
+    };
+    let key = frames.as_ref().map_or(RowKey::TimeUsec, RowKey::Frame);
+    let decoded = decode(&bytes);
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    if let Err(e) = write_scan_csv(&decoded, key, &mut out).and_then(|_| out.flush().map_err(ScanCsvError::Io)) {
+        return fatal(e);
+    }
+    if !decoded.errors.is_empty() {
+        return fatal(format!("{} MAVLink frame(s) did not decode, the first: {}", decoded.errors.len(), decoded.errors[0]));
+    }
+    ExitCode::SUCCESS
+}
+
 fn run_serial_decode(file: Option<&Path>) -> ExitCode {
-    let stdin = std::io::stdin();
-    let mut input: Box<dyn std::io::Read> = match file {
-        None => Box::new(stdin.lock()),
-        Some(path) if path == Path::new("-") => Box::new(stdin.lock()),
-        Some(path) => match std::fs::File::open(path) {
-            Ok(f) => Box::new(f),
-            Err(e) => return fatal(format!("{}: {e}", path.display())),
-        },
+    let mut input = match open_input(file) {
+        Ok(input) => input,
+        Err(e) => return fatal(e),
     };
     match flatland_host::serial_decode::run_serial_decode(&mut input, &mut std::io::stdout().lock()) {
         Ok(summary) => {
@@ -574,7 +614,10 @@ fn main() -> ExitCode {
                 Err(e) => fatal(e),
             }
         }
-        Command::Serial(SerialCommand::Decode { file }) => run_serial_decode(file.as_deref()),
+        Command::Serial(SerialCommand::Decode { file, mavlink: true, recording }) => {
+            run_mavlink_decode(file.as_deref(), recording.as_deref())
+        }
+        Command::Serial(SerialCommand::Decode { file, mavlink: false, .. }) => run_serial_decode(file.as_deref()),
         Command::Calibrate { recording, write, height_mm, odometry, camera_info } => {
             run_calibrate(&recording, write, height_mm, odometry, camera_info.as_deref())
         }

@@ -2,6 +2,11 @@
 //! own reader (the reference implementation's Rust port, std), not by
 //! core's decoder: what an autopilot or companion computer would read.
 
+use std::collections::BTreeMap;
+use std::fmt;
+use std::io::Write;
+
+use crate::recording::Recording;
 use mavlink::dialects::common::MavMessage;
 use mavlink::error::MessageReadError;
 use mavlink::{MavHeader, MavlinkReader};
@@ -51,4 +56,96 @@ pub fn describe(message: &MavMessage) -> String {
         }
         other => format!("{other:?}"),
     }
+}
+
+/// Elements of `OBSTACLE_DISTANCE`.
+const ELEMENTS: usize = 72;
+
+/// How `flatland serial decode --mavlink` names a row: by the frame whose
+/// poses.csv time is the message's `time_usec` (`--recording`), else by the
+/// time itself.
+pub enum RowKey<'a> {
+    Frame(&'a BTreeMap<u64, u32>),
+    TimeUsec,
+}
+
+/// Frames by their poses.csv time in microseconds, the `time_usec` the
+/// runner sends them with (`qemu::mavlink_script`).
+pub fn frames_by_time(recording: &Recording) -> BTreeMap<u64, u32> {
+    recording.poses.iter().map(|row| ((row.t_s * 1e6).round() as u64, row.frame)).collect()
+}
+
+/// Why the csv could not be written in full.
+#[derive(Debug)]
+pub enum ScanCsvError {
+    Io(std::io::Error),
+    /// An `OBSTACLE_DISTANCE` whose `time_usec` is no frame's time.
+    UnknownTime(u64),
+}
+
+impl fmt::Display for ScanCsvError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ScanCsvError::Io(error) => write!(f, "{error}"),
+            ScanCsvError::UnknownTime(t) => write!(f, "OBSTACLE_DISTANCE at time_usec {t} matches no frame of poses.csv"),
+        }
+    }
+}
+
+impl std::error::Error for ScanCsvError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            ScanCsvError::Io(error) => Some(error),
+            ScanCsvError::UnknownTime(_) => None,
+        }
+    }
+}
+
+impl From<std::io::Error> for ScanCsvError {
+    fn from(error: std::io::Error) -> Self {
+        ScanCsvError::Io(error)
+    }
+}
+
+/// `flatland serial decode --mavlink`: every `OBSTACLE_DISTANCE` of a
+/// stream as a row of `flatland scan`'s csv,
+/// `frame,angle_start_deg,increment_deg,d0_mm,...` (`time_usec` first
+/// instead of `frame` without a recording). The elements are in the
+/// message's own bins (5 degrees for our firmware, where `flatland scan` has
+/// 2.5), turned to start half a circle before `angle_offset` when they go
+/// once round (-180 degrees for ours, so left comes first as in the scan).
+/// An element in `min_distance..=max_distance` is a hazard in mm (the cm
+/// times 10), `max_distance + 1` is `inf` (seen and clear), anything else
+/// (`UINT16_MAX`) empty (unknown). Frames that only (re)started a keyframe
+/// are rows too, all unknown (`flatland scan` has no row for them).
+/// Returns the number of rows.
+pub fn write_scan_csv(decoded: &Decoded, key: RowKey, out: &mut dyn Write) -> Result<usize, ScanCsvError> {
+    write!(out, "{},angle_start_deg,increment_deg", if matches!(key, RowKey::Frame(_)) { "frame" } else { "time_usec" })?;
+    for k in 0..ELEMENTS {
+        write!(out, ",d{k}_mm")?;
+    }
+    writeln!(out)?;
+    let mut rows = 0;
+    for (_, message) in &decoded.messages {
+        let MavMessage::OBSTACLE_DISTANCE(o) = message else { continue };
+        match key {
+            RowKey::Frame(frames) => write!(out, "{}", frames.get(&o.time_usec).ok_or(ScanCsvError::UnknownTime(o.time_usec))?)?,
+            RowKey::TimeUsec => write!(out, "{}", o.time_usec)?,
+        }
+        let increment = if o.increment_f > 0.0 { f64::from(o.increment_f) } else { f64::from(o.increment) };
+        let once_round = (increment * ELEMENTS as f64 - 360.0).abs() < 1e-3;
+        let turn = if once_round { ELEMENTS / 2 } else { 0 };
+        let start = f64::from(o.angle_offset) - turn as f64 * increment;
+        write!(out, ",{start:.3},{increment:.3}")?;
+        for k in 0..ELEMENTS {
+            match o.distances[(k + turn) % ELEMENTS] {
+                d if (o.min_distance..=o.max_distance).contains(&d) => write!(out, ",{}", u32::from(d) * 10)?,
+                d if o.max_distance < u16::MAX && d == o.max_distance + 1 => write!(out, ",inf")?,
+                _ => write!(out, ",")?,
+            }
+        }
+        writeln!(out)?;
+        rows += 1;
+    }
+    Ok(rows)
 }

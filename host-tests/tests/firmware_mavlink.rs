@@ -3,17 +3,20 @@
 //! `flatland scan` gives on the same recording; HEARTBEAT and STATUSTEXT say
 //! the sensor's state; poses go in as ODOMETRY or as LOCAL_POSITION_NED +
 //! ATTITUDE; garbage, damaged and foreign frames are counted and change
-//! nothing.
+//! nothing. The same streams, saved as files, are decoded by pymavlink (the
+//! Python reference implementation, host-tests/tools/mavlink_check.py) and by
+//! `flatland serial decode --mavlink`: each QEMU run serves all three.
 
 mod common;
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::process::Command;
 use std::sync::OnceLock;
 
 use flatland_core::scan::{Scan, Sector, SCAN_INCREMENT_MDEG};
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
-use flatland_host::mavlink_decode::{decode, Decoded};
+use flatland_host::mavlink_decode::{decode, frames_by_time, write_scan_csv, Decoded, RowKey};
 use flatland_host::qemu::{self, PoseMessages, RunRequest};
 use flatland_host::recording::Recording;
 use mavlink::dialects::common::{MavFrame, MavMessage, MavSeverity, MavState, OBSTACLE_DISTANCE_DATA};
@@ -43,13 +46,43 @@ fn mavlink_elf() -> std::path::PathBuf {
     built.clone().unwrap_or_else(|message| panic!("cannot run the firmware in QEMU: {message}"))
 }
 
-fn run(dir: &Path, script: Vec<u8>) -> (Decoded, String) {
+/// The firmware's raw serial output and its log.
+fn run_raw(dir: &Path, script: Vec<u8>) -> (Vec<u8>, String) {
     let elf = mavlink_elf();
     let request =
         RunRequest { elf: &elf, dir, script, then: None, bench: false, bench_mm_per_px: None, bench_no_margins: false, echo_log: false, timeout: common::TIMEOUT, mavlink: true };
     let outcome = qemu::run_firmware(request, &mut |_| {}).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
     assert!(outcome.status.success(), "{}: firmware exit {}; log:\n{}", dir.display(), outcome.status, outcome.log);
-    (decode(&outcome.serial.raw), outcome.log)
+    (outcome.serial.raw, outcome.log)
+}
+
+fn run(dir: &Path, script: Vec<u8>) -> (Decoded, String) {
+    let (raw, log) = run_raw(dir, script);
+    (decode(&raw), log)
+}
+
+/// One recording's stream with the poses as ODOMETRY, saved as a file.
+struct Capture {
+    raw: Vec<u8>,
+    log: String,
+    path: PathBuf,
+}
+
+/// RECORDINGS[index]'s capture: one QEMU run per recording for every test
+/// that reads it (a second test asking waits for the first's run).
+fn capture(index: usize) -> &'static Capture {
+    static CAPTURES: [OnceLock<Capture>; RECORDINGS.len()] = [const { OnceLock::new() }; RECORDINGS.len()];
+    CAPTURES[index].get_or_init(|| {
+        let name = RECORDINGS[index];
+        let dir = common::data(name);
+        let recording = Recording::open(&dir).unwrap();
+        let (raw, log) = run_raw(&dir, qemu::mavlink_script(&recording, PoseMessages::Odometry).unwrap());
+        let captures = Path::new(env!("CARGO_TARGET_TMPDIR")).join("mavlink-captures");
+        std::fs::create_dir_all(&captures).unwrap();
+        let path = captures.join(format!("{name}.bin"));
+        std::fs::write(&path, &raw).unwrap();
+        Capture { raw, log, path }
+    })
 }
 
 /// `flatland scan`'s scans (in-process), by frame time in microseconds.
@@ -150,10 +183,11 @@ fn end_text(decoded: &Decoded) -> String {
 #[test]
 fn obstacle_distance_matches_flatland_scan_on_every_recording() {
     let mut compared = 0;
-    for name in RECORDINGS {
+    for (index, name) in RECORDINGS.into_iter().enumerate() {
         let dir = common::data(name);
         let recording = Recording::open(&dir).unwrap();
-        let (decoded, log) = run(&dir, qemu::mavlink_script(&recording, PoseMessages::Odometry).unwrap());
+        let capture = capture(index);
+        let (decoded, log) = (decode(&capture.raw), &capture.log);
         compared += check_against_host(name, &dir, &decoded);
         let states = heartbeats(&decoded);
         assert_eq!(states.first(), Some(&MavState::MAV_STATE_STANDBY), "{name}");
@@ -161,6 +195,184 @@ fn obstacle_distance_matches_flatland_scan_on_every_recording() {
         assert!(end_text(&decoded).starts_with(&format!("end f{} g0 c0 u0 b0", recording.poses.len())), "{name}: {}\n{log}", end_text(&decoded));
     }
     assert!(compared > 150, "{compared}");
+}
+
+/// The venv's python that has pymavlink: `$FLATLAND_PYTHON` (.ci/test sets
+/// it), else `.venv/bin/python` at the workspace root. Missing: the test
+/// fails and says how to make it.
+fn pymavlink_python() -> PathBuf {
+    let python = std::env::var_os("FLATLAND_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| qemu::workspace_root().join(".venv").join("bin").join("python"));
+    assert!(
+        python.exists(),
+        "no Python for pymavlink at {}: run .ci/ensure-tools (it makes .venv at the repository root and installs \
+         host-tests/tools/requirements.txt), or set FLATLAND_PYTHON to a python that has pymavlink",
+        python.display()
+    );
+    python
+}
+
+/// One OBSTACLE_DISTANCE as mavlink_check.py prints it.
+#[derive(Debug)]
+struct PyObstacleDistance {
+    time_usec: u64,
+    sender: (u8, u8),
+    frame: u8,
+    limits: (u16, u16),
+    increment: u8,
+    increment_f: f32,
+    angle_offset: f32,
+    distances: Vec<u16>,
+}
+
+/// What pymavlink made of a capture: its OBSTACLE_DISTANCE rows and counts.
+struct PymavlinkReport {
+    obstacles: Vec<PyObstacleDistance>,
+    counts: BTreeMap<String, u64>,
+    success: bool,
+}
+
+fn pymavlink_check(path: &Path) -> PymavlinkReport {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools").join("mavlink_check.py");
+    let output = Command::new(pymavlink_python()).arg(&script).arg(path).output().unwrap();
+    let stdout = String::from_utf8(output.stdout).unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    let mut lines = stdout.lines();
+    let header = lines.next().unwrap_or_else(|| {
+        panic!("mavlink_check.py printed nothing ({}; is pymavlink installed? .ci/ensure-tools installs it):\n{stderr}", output.status)
+    });
+    assert!(header.starts_with("time_usec,sysid,compid,frame,") && header.ends_with(",d71"), "{header}");
+    let mut report = PymavlinkReport { obstacles: Vec::new(), counts: BTreeMap::new(), success: output.status.success() };
+    for line in lines {
+        if let Some(counts) = line.strip_prefix("# ") {
+            let words: Vec<&str> = counts.split(' ').collect();
+            for pair in words.chunks(2) {
+                report.counts.insert(pair[0].to_string(), pair[1].parse().unwrap());
+            }
+            continue;
+        }
+        let cells: Vec<&str> = line.split(',').collect();
+        assert_eq!(cells.len(), 9 + 72, "{line}");
+        let int = |k: usize| cells[k].parse::<u64>().unwrap_or_else(|e| panic!("{line}: column {k}: {e}"));
+        report.obstacles.push(PyObstacleDistance {
+            time_usec: int(0),
+            sender: (int(1) as u8, int(2) as u8),
+            frame: int(3) as u8,
+            limits: (int(4) as u16, int(5) as u16),
+            increment: int(6) as u8,
+            increment_f: cells[7].parse().unwrap(),
+            angle_offset: cells[8].parse().unwrap(),
+            distances: (9..cells.len()).map(|k| int(k) as u16).collect(),
+        });
+    }
+    assert!(report.counts.contains_key("messages"), "mavlink_check.py printed no counts ({}):\n{stderr}", output.status);
+    report
+}
+
+/// Messages of each type, as mavlink_check.py names them.
+fn type_counts(decoded: &Decoded) -> BTreeMap<String, u64> {
+    let mut counts = BTreeMap::new();
+    for (_, message) in &decoded.messages {
+        let name = format!("{message:?}");
+        let name = name.split('(').next().unwrap().to_string();
+        *counts.entry(name).or_default() += 1;
+    }
+    counts
+}
+
+/// pymavlink, the reference implementation, reads every byte of every
+/// recording's stream as valid MAVLink 2 (no CRC or length error, no byte
+/// outside a frame, no unknown message, no sequence gap), finds the messages
+/// the `mavlink` crate finds, and its OBSTACLE_DISTANCE equals `flatland scan`
+/// by the README's rule. The recordings are taken last first, so that this
+/// test and the one above run QEMU on different recordings at once.
+#[test]
+fn pymavlink_decodes_every_recording_and_agrees_with_flatland_scan() {
+    let python = pymavlink_python();
+    let mut compared = 0;
+    for (index, name) in RECORDINGS.into_iter().enumerate().rev() {
+        let dir = common::data(name);
+        let capture = capture(index);
+        let report = pymavlink_check(&capture.path);
+        for fault in ["receive_errors", "bad_data", "unknown", "mavlink1", "seq_gaps", "leftover_bytes"] {
+            assert_eq!(report.counts[fault], 0, "{name}: pymavlink {fault} ({} with {})", capture.path.display(), python.display());
+        }
+        assert!(report.success, "{name}: mavlink_check.py failed");
+        let decoded = decode(&capture.raw);
+        assert_eq!(report.counts["messages"], decoded.messages.len() as u64, "{name}: messages");
+        assert_eq!(report.counts["bytes"], capture.raw.len() as u64, "{name}");
+        for (kind, count) in type_counts(&decoded) {
+            assert_eq!(report.counts.get(&kind), Some(&count), "{name}: {kind}");
+        }
+        let (scans, frames) = host_scans(&dir);
+        assert_eq!(report.obstacles.len(), frames.len(), "{name}: one OBSTACLE_DISTANCE per pose");
+        for message in &report.obstacles {
+            let frame = frames[&message.time_usec];
+            assert_eq!(message.sender, (1, 196), "{name} frame {frame}");
+            assert_eq!(message.frame, MavFrame::MAV_FRAME_BODY_FRD as u8, "{name} frame {frame}");
+            assert_eq!((message.increment, message.increment_f, message.angle_offset), (5, 5.0, 0.0), "{name} frame {frame}");
+            match scans.get(&message.time_usec) {
+                Some(scan) => {
+                    let (distances, min, max) = expected(scan);
+                    assert_eq!(message.limits, (min, max), "{name} frame {frame}");
+                    assert_eq!(message.distances, distances, "{name} frame {frame}");
+                    compared += 1;
+                }
+                None => assert!(message.distances.iter().all(|&d| d == u16::MAX), "{name} frame {frame}: nothing compared, all unknown"),
+            }
+        }
+    }
+    assert!(compared > 150, "{compared}");
+}
+
+/// `flatland serial decode --mavlink --recording REC` on each capture prints,
+/// per pose, the scan merged into OBSTACLE_DISTANCE's 5-degree bins by the
+/// README's rule, from -180 degrees, in `flatland scan`'s csv form (mm, `inf`
+/// free, empty unknown); frames that compared nothing are all unknown.
+#[test]
+fn serial_decode_mavlink_prints_the_merged_scan() {
+    for (index, name) in RECORDINGS.into_iter().enumerate() {
+        let dir = common::data(name);
+        let capture = capture(index);
+        let (scans, frames) = host_scans(&dir);
+        let mut expected_csv = String::from("frame,angle_start_deg,increment_deg");
+        for k in 0..72 {
+            expected_csv += &format!(",d{k}_mm");
+        }
+        expected_csv.push('\n');
+        for (time, frame) in &frames {
+            expected_csv += &format!("{frame},-180.000,5.000");
+            // Frames that compared nothing: every cell empty.
+            let (distances, _, max) = scans.get(time).map_or(([u16::MAX; 72], 0, 0), expected);
+            for k in 0..72 {
+                expected_csv.push(',');
+                match distances[(k + 36) % 72] {
+                    u16::MAX => {}
+                    d if d == max + 1 => expected_csv += "inf",
+                    d => expected_csv += &(u32::from(d) * 10).to_string(),
+                }
+            }
+            expected_csv.push('\n');
+        }
+        let output = Command::new(env!("CARGO_BIN_EXE_flatland"))
+            .args(["serial", "decode", "--mavlink", "--recording"])
+            .arg(&dir)
+            .arg(&capture.path)
+            .output()
+            .unwrap();
+        assert!(output.status.success(), "{name}: {}", String::from_utf8_lossy(&output.stderr));
+        assert_eq!(String::from_utf8(output.stdout).unwrap(), expected_csv, "{name}");
+        // Without the recording the rows are keyed by time_usec.
+        let mut by_time = Vec::new();
+        let rows = write_scan_csv(&decode(&capture.raw), RowKey::TimeUsec, &mut by_time).unwrap();
+        assert_eq!(rows, frames.len(), "{name}");
+        let by_time = String::from_utf8(by_time).unwrap();
+        let first_row = by_time.lines().nth(1).unwrap();
+        assert_eq!(first_row.split(',').next(), frames.keys().next().map(u64::to_string).as_deref(), "{name}");
+        let recording = Recording::open(&dir).unwrap();
+        assert_eq!(frames_by_time(&recording), frames, "{name}");
+    }
 }
 
 #[test]

@@ -16,6 +16,12 @@
 //! - `--odometry none`, `--imu none`: the poses go without the wheels' pose
 //!   / the IMU's attitude (`$FLODO`'s optional fields), as `flatland detect`
 //!   ignores them with the same options.
+//! - `--protocol mavlink`: the `mavlink` firmware build, the poses sent as
+//!   MAVLink `ODOMETRY` (`--poses local-position`: `LOCAL_POSITION_NED` +
+//!   `ATTITUDE`); prints the stream as the `mavlink` crate decodes it, or
+//!   with `--csv` the csv of `flatland serial decode --mavlink --recording`.
+//!   `--protocol lines` (the default) is the line protocol.
+//! - `--capture FILE`: saves the firmware's raw serial output to FILE.
 //! - `--elf PATH`: runs that firmware ELF instead of building one; the
 //!   thumb target's cargo runner (`cargo run --target thumbv7em-none-eabihf`
 //!   in .cargo/config.toml). An ELF named `selftest` gets `--selftest`'s
@@ -33,9 +39,18 @@ use flatland_core::protocol::Message;
 use flatland_host::bench::FullFrame;
 use flatland_host::qemu::{self, RunRequest, Sensors, DEFAULT_RECORDING};
 use flatland_host::recording::Recording;
-use flatland_host::serial_decode;
+use flatland_host::{mavlink_decode, serial_decode};
 
 type Result<T> = std::result::Result<T, String>;
+
+/// What the firmware speaks on USART1 (`--protocol`).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Protocol {
+    /// `$FL...` lines (the default build).
+    Lines,
+    /// MAVLink 2 (the `mavlink` build).
+    Mavlink,
+}
 
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Mode {
@@ -55,8 +70,9 @@ struct Args {
     full_frame: bool,
     /// What `$FLODO` carries (`--odometry none`, `--imu none`).
     sensors: Sensors,
-    /// `--mavlink`: the `mavlink` build, poses sent as MAVLink (`--local-position`:
-    /// LOCAL_POSITION_NED + ATTITUDE instead of ODOMETRY).
+    /// `--protocol mavlink`: the `mavlink` build, poses sent as MAVLink
+    /// (`--poses local-position`: LOCAL_POSITION_NED + ATTITUDE instead of
+    /// ODOMETRY). None: `--protocol lines`, the line protocol.
     mavlink: Option<qemu::PoseMessages>,
     /// `--capture FILE`: the firmware's raw serial output.
     capture: Option<PathBuf>,
@@ -80,7 +96,8 @@ fn parse_args() -> Result<Args> {
     let mut mm_per_px = None;
     let mut full_frame = false;
     let mut sensors = Sensors::ALL;
-    let mut mavlink = None;
+    let mut protocol = Protocol::Lines;
+    let mut poses = None;
     let mut capture = None;
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
@@ -89,8 +106,20 @@ fn parse_args() -> Result<Args> {
             "--selftest" => mode = Mode::SelfTest,
             "--bench" => mode = Mode::Bench,
             "--full-frame" => full_frame = true,
-            "--mavlink" => mavlink = Some(mavlink.unwrap_or(qemu::PoseMessages::Odometry)),
-            "--local-position" => mavlink = Some(qemu::PoseMessages::LocalPosition),
+            "--protocol" => {
+                protocol = match args.next().as_deref() {
+                    Some("lines") => Protocol::Lines,
+                    Some("mavlink") => Protocol::Mavlink,
+                    _ => return Err("--protocol takes `lines` (the default) or `mavlink`".into()),
+                }
+            }
+            "--poses" => {
+                poses = Some(match args.next().as_deref() {
+                    Some("odometry") => qemu::PoseMessages::Odometry,
+                    Some("local-position") => qemu::PoseMessages::LocalPosition,
+                    _ => return Err("--poses takes `odometry` (ODOMETRY, the default) or `local-position` (LOCAL_POSITION_NED + ATTITUDE)".into()),
+                })
+            }
             "--capture" => capture = Some(PathBuf::from(args.next().ok_or("--capture needs a file")?)),
             "--odometry" => sensors.odometry = parse_source("--odometry", args.next())?,
             "--imu" => sensors.imu = parse_source("--imu", args.next())?,
@@ -105,7 +134,9 @@ fn parse_args() -> Result<Args> {
             "-h" | "--help" => {
                 println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame]");
                 println!("       --odometry none / --imu none: $FLODO leaves the wheels' pose / the IMU's attitude out");
-                println!("       --mavlink [--local-position]: the mavlink build; poses as ODOMETRY (or LOCAL_POSITION_NED + ATTITUDE)");
+                println!("       --protocol lines|mavlink: the serial protocol (default lines); mavlink runs the mavlink build, poses sent as MAVLink;");
+                println!("         with --csv it prints OBSTACLE_DISTANCE as `flatland serial decode --mavlink --recording RECORDING` does");
+                println!("       --poses odometry|local-position: with --protocol mavlink, poses as ODOMETRY (default) or LOCAL_POSITION_NED + ATTITUDE");
                 println!("       --capture FILE: save the firmware's raw serial output");
                 println!("       fw --elf PATH [same options]: run that firmware ELF (the thumb target's cargo runner)");
                 std::process::exit(0);
@@ -124,8 +155,13 @@ fn parse_args() -> Result<Args> {
     if mode == Mode::Run && elf.as_deref().and_then(Path::file_name).is_some_and(|name| name == "selftest") {
         mode = Mode::SelfTest;
     }
-    if mavlink.is_some() && !matches!(mode, Mode::Run) {
-        return Err("--mavlink runs the main job (no --csv, --bench or --selftest)".into());
+    let mavlink = match (protocol, poses) {
+        (Protocol::Mavlink, poses) => Some(poses.unwrap_or(qemu::PoseMessages::Odometry)),
+        (Protocol::Lines, None) => None,
+        (Protocol::Lines, Some(_)) => return Err("--poses is for --protocol mavlink".into()),
+    };
+    if mavlink.is_some() && !matches!(mode, Mode::Run | Mode::Csv) {
+        return Err("--protocol mavlink runs the main job (no --bench or --selftest)".into());
     }
     Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame, sensors, mavlink, capture })
 }
@@ -202,9 +238,15 @@ fn run_recording(args: &Args, elf: &Path) -> Result<String> {
         return Err(format!("firmware failed ({})", outcome.status));
     }
     if args.mavlink.is_some() {
-        let decoded = flatland_host::mavlink_decode::decode(&outcome.serial.raw);
-        for (_, message) in &decoded.messages {
-            println!("{}", flatland_host::mavlink_decode::describe(message));
+        let decoded = mavlink_decode::decode(&outcome.serial.raw);
+        if args.mode == Mode::Csv {
+            let frames = mavlink_decode::frames_by_time(&recording);
+            mavlink_decode::write_scan_csv(&decoded, mavlink_decode::RowKey::Frame(&frames), &mut io::stdout().lock())
+                .map_err(|e| e.to_string())?;
+        } else {
+            for (_, message) in &decoded.messages {
+                println!("{}", mavlink_decode::describe(message));
+            }
         }
         if !decoded.errors.is_empty() {
             return Err(format!("{} MAVLink frames did not decode: {:?}", decoded.errors.len(), decoded.errors));
