@@ -104,6 +104,13 @@ impl Scene<'_> {
     }
 }
 
+/// Most yaw steps the coarse search takes either side of its start: 3 sigma
+/// of the no-odometry prior (`GpaConfig::max_step_yaw_deg`, 24 deg) at the
+/// step of a grid reaching 2.4 m on 50 mm cells (0.6 deg). Was 16, which
+/// held a 1.4 m grid's search to 15 deg: short of a robot that turns 20
+/// deg between frames.
+const MAX_YAW_STEPS: i32 = 40;
+
 /// The yaw step that moves the grid's farthest corner by half a cell.
 fn yaw_step(grid: &KgGrid, cell_mm: f32) -> f32 {
     let far_mm = libm::hypotf(grid.x_left_mm as f32, grid.z_far_mm as f32).max(1.0);
@@ -345,7 +352,7 @@ impl Estimator {
         let reach_cells = |sigma_mm: f32| (libm::ceilf(3.0 * sigma_mm / cell_mm) as i32).clamp(1, 8);
         let (reach_x, reach_z) = (reach_cells(sigma[0]), reach_cells(sigma[1]));
         let yaw_step = yaw_step(grid, cell_mm);
-        let yaw_reach = (libm::ceilf(3.0 * sigma[2] / yaw_step) as i32).clamp(0, 16);
+        let yaw_reach = (libm::ceilf(3.0 * sigma[2] / yaw_step) as i32).clamp(0, MAX_YAW_STEPS);
         let counted = (0..cur.wide * cur.high).filter(|&k| cur.valid[k]).count();
         // A planar motion moves coarse cells affinely: keyframe cell =
         // rotation * cell + offset, in cell units (G runs against z).
