@@ -42,8 +42,6 @@ pub const COARSE_CELL_MM: f32 = 25.0;
 const COARSE_PRIOR_WEIGHT: f32 = 0.01;
 /// Fewest inlier blocks that measure all five parameters.
 const MIN_INLIERS: usize = 8;
-/// Q16 fixed point of the coarse search's cell positions.
-const ONE: f32 = 65536.0;
 
 fn params(motion: &GroundMotion) -> Params {
     [motion.planar.tx_mm as f32, motion.planar.tz_mm as f32, motion.planar.dyaw_deg as f32, motion.attitude.pitch_deg as f32, motion.attitude.roll_deg as f32]
@@ -170,67 +168,23 @@ impl Coarse {
         }
     }
 
-    /// Per cell: whether it and its right, lower and lower-right
-    /// neighbours are all valid (a bilinear sample from it is).
-    fn quads(&self) -> [bool; MAX_COARSE_CELLS] {
-        let mut quads = [false; MAX_COARSE_CELLS];
-        let wide = self.wide;
-        for v in 0..self.high.saturating_sub(1) {
-            for u in 0..wide.saturating_sub(1) {
-                let k = v * wide + u;
-                quads[k] = self.valid[k] && self.valid[k + 1] && self.valid[k + wide] && self.valid[k + wide + 1];
-            }
+    /// Bilinear sample at cell coordinates (u, v) (cell centres at integers).
+    fn at(&self, u: f32, v: f32) -> Option<f32> {
+        if !(u >= 0.0 && v >= 0.0) {
+            return None;
         }
-        quads
-    }
-}
-
-/// One current row against the keyframe's coarse image in the coarse
-/// search: its own function so that the per-cell loop keeps everything
-/// in registers.
-struct CoarseLine<'a> {
-    cells: &'a [u8],
-    quads: &'a [bool],
-    wide: usize,
-    /// Q16 bounds of a quad's top-left corner (one cell inside the last column and row).
-    limit_u: u32,
-    limit_v: u32,
-    /// The brightness gain keyframe -> current, Q8.
-    gain_q8: u32,
-}
-
-impl CoarseLine<'_> {
-    /// The sum of |current - gain x keyframe bilinear| (Q8) over the
-    /// valid cells of `current` whose Q16 keyframe position, `start`
-    /// stepped by `step` per cell, has a valid quad, and their count.
-    fn sum(&self, current: &[u8], valid: &[bool], start: (i32, i32), step: (i32, i32)) -> (u32, usize) {
-        let (mut u, mut v) = start;
-        let (mut sum, mut count) = (0u32, 0usize);
-        for (&value, &valid) in current.iter().zip(valid) {
-            let (u_here, v_here) = (u, v);
-            u = u.wrapping_add(step.0);
-            v = v.wrapping_add(step.1);
-            if !valid || u_here as u32 >= self.limit_u || v_here as u32 >= self.limit_v {
-                continue;
-            }
-            let corner = (v_here >> 16) as usize * self.wide + (u_here >> 16) as usize;
-            if !self.quads.get(corner).is_some_and(|&q| q) {
-                continue;
-            }
-            let Some(quad) = self.cells.get(corner..corner + self.wide + 2) else {
-                continue;
-            };
-            let (fu, fv) = (((u_here >> 8) & 0xFF) as u32, ((v_here >> 8) & 0xFF) as u32);
-            let c = |at: usize| u32::from(quad[at]);
-            let top = c(0) * (256 - fu) + c(1) * fu;
-            let bottom = c(self.wide) * (256 - fu) + c(self.wide + 1) * fu;
-            let value_q8 = (top * (256 - fv) + bottom * fv + (1 << 7)) >> 8;
-            // Both at most 255 * 256: the product fits u32.
-            let scaled_q8 = ((value_q8 * self.gain_q8) >> 8) as i32;
-            sum += ((u32::from(value) << 8) as i32 - scaled_q8).unsigned_abs();
-            count += 1;
+        let (u0, v0) = (u as usize, v as usize);
+        if u0 + 1 >= self.wide || v0 + 1 >= self.high {
+            return None;
         }
-        (sum, count)
+        let k = v0 * self.wide + u0;
+        let corners = [k, k + 1, k + self.wide, k + self.wide + 1];
+        if !corners.iter().all(|&c| self.valid[c]) {
+            return None;
+        }
+        let (fu, fv) = (u - u0 as f32, v - v0 as f32);
+        let c = |i: usize| f32::from(self.cells[corners[i]]);
+        Some((c(0) * (1.0 - fu) + c(1) * fu) * (1.0 - fv) + (c(2) * (1.0 - fu) + c(3) * fu) * fv)
     }
 }
 
@@ -359,19 +313,6 @@ impl Estimator {
         // Cell (0, 0)'s centre on the ground, in cells.
         let centre = 0.5 * (cur.side as f32 - 1.0) / cur.side as f32;
         let (origin_u, origin_v) = (grid.x_left_mm as f32 / cell_mm + centre, grid.z_far_mm as f32 / cell_mm - centre);
-        // Integers per cell: Q16 positions stepped along a row, the
-        // keyframe bilinear in Q8 times the gain in Q8, |differences| in Q8.
-        let quads = key.quads();
-        // A bilinear quad starts at most one cell before the last column
-        // and row: one unsigned compare per axis rejects both sides.
-        let line = CoarseLine {
-            cells: &key.cells[..key.wide * key.high],
-            quads: &quads[..key.wide * key.high],
-            wide: key.wide,
-            limit_u: (key.wide.saturating_sub(1) as u32) << 16,
-            limit_v: (key.high.saturating_sub(1) as u32) << 16,
-            gain_q8: (gain * 256.0 + 0.5) as u32,
-        };
         let score_at = |yaw_deg: f32, tx_mm: f32, tz_mm: f32| -> f32 {
             let (sin, cos) = libm::sincosf(yaw_deg.to_radians());
             // The heading's turn of the cell axes (+u, and -z for +v) and of the origin.
@@ -380,28 +321,26 @@ impl Estimator {
             let (tu, tv) = (tx_mm / cell_mm, tz_mm / cell_mm);
             let (ou, ov) = (tu + origin_u * cos - origin_v * sin, tv + origin_u * sin + origin_v * cos);
             let (ou, ov) = (ou - origin_u, origin_v - ov);
-            let (step_u, step_v) = ((au * ONE) as i32, (-av * ONE) as i32);
-            // u64: a pathological gain (a black keyframe) could pass u32
-            // over the cells; a row's sum fits (at most 128 cells of 255 x 255 x 256).
-            let (mut sum, mut count) = (0u64, 0usize);
+            let (mut sum, mut count) = (0f32, 0usize);
             for cj in 0..cur.high {
-                let v_row = cj as f32;
-                let (row_u, row_v) = (bu * v_row + ou, -bv * v_row + ov);
-                // Beyond what the fixed point holds: nothing of this row lands in the keyframe.
-                if !(row_u.abs() < 30000.0 && row_v.abs() < 30000.0) {
-                    continue;
+                for ci in 0..cur.wide {
+                    let k = cj * cur.wide + ci;
+                    if !cur.valid[k] {
+                        continue;
+                    }
+                    let (u, v) = (ci as f32, cj as f32);
+                    let Some(value) = key.at(au * u + bu * v + ou, -(av * u + bv * v) + ov) else {
+                        continue;
+                    };
+                    sum += libm::fabsf(f32::from(cur.cells[k]) - gain * value);
+                    count += 1;
                 }
-                let start = ((row_u * ONE) as i32, (row_v * ONE) as i32);
-                let row = cj * cur.wide..(cj + 1) * cur.wide;
-                let (row_sum, row_count) = line.sum(&cur.cells[row.clone()], &cur.valid[row], start, (step_u, step_v));
-                sum += u64::from(row_sum);
-                count += row_count;
             }
             // Too little overlap is no measurement.
             if count * 3 < counted || count < 12 {
                 f32::MAX
             } else {
-                sum as f32 / (256.0 * count as f32)
+                sum / count as f32
             }
         };
         let at = |dyaw: i32, dx: i32, dz: i32| score_at(p[2] + dyaw as f32 * yaw_step, p[0] + dx as f32 * cell_mm, p[1] + dz as f32 * cell_mm);
