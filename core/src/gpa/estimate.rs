@@ -8,68 +8,71 @@
 //!    after a global gain match). Needed when there is no odometry or the
 //!    wheels slipped; with good odometry the reach is small.
 //! 2. `blocks`: blocks of the current image are matched in the keyframe
-//!    around where the model puts them (zero-mean normalised correlation,
-//!    so exposure steps and shading do not bias it), to sub-pixel.
+//!    around where the model puts them ([`block_match`](super::block_match)),
+//!    to sub-pixel.
 //! 3. `fit`: the five parameters from the block positions by robust least
 //!    squares (Tukey weights: obstacles, whose blocks move by parallax, are
 //!    outliers) with the priors as extra observations. Blocks are matched
 //!    again around the fitted model, and the fit repeated.
 //! 4. `nearest_surface`: the ground is the surface under the robot. When
-//!    the nearest third of the blocks mostly disagree with the fit (a curb
-//!    top or a lower level filling most of the view won the vote), their
-//!    own fit replaces it if it explains more of them.
+//!    the whole view's fit leaves the nearest third of the blocks
+//!    unexplained (a curb top or a lower level filling most of the view
+//!    won the vote), their own fit replaces it if it explains more of them.
+//!
+//! All of it in `f32` and integers (the M4 has a single-precision FPU):
+//! the model is a [`PixelMap`] homography, the block sums are integers.
 //!
 //! The remap table stays fixed: an attitude change moves the ground in the
 //! KG plane non-uniformly (see [`GroundMotion::to_keyframe`]), which the
 //! model carries into the warp of the comparison.
 
+use super::block_match::{self, Images, BLOCK_PX};
+use super::homography::{Params, PixelMap};
 use super::warp::Coverage;
 use crate::grid::KgGrid;
 use crate::limits::{MAX_BLOCK_MATCHES, MAX_COARSE_CELLS};
-use crate::motion::{Attitude, GroundMap, GroundMotion, Motion, Rotation};
+use crate::motion::{Attitude, GroundMotion, Motion};
 
 /// Ground side of a coarse cell, mm: coarse enough that the widest search
 /// stays small, fine enough for floor texture to survive.
-pub const COARSE_CELL_MM: f64 = 25.0;
+pub const COARSE_CELL_MM: f32 = 25.0;
 /// How much a coarse candidate's score grows per squared prior sigma from
 /// the start: enough to break near-ties toward the prior (3 sigma: +9 %),
 /// not enough to hide a clear minimum elsewhere within reach.
-const COARSE_PRIOR_WEIGHT: f64 = 0.01;
-/// Block side, KG pixels, and its search reach around the model.
-const BLOCK_PX: usize = 16;
-const BLOCK_REACH: i32 = 3;
-/// A block's patch: the block and the reach on each side.
-const PATCH: usize = BLOCK_PX + 2 * BLOCK_REACH as usize;
+const COARSE_PRIOR_WEIGHT: f32 = 0.01;
 /// Fewest inlier blocks that measure all five parameters.
 const MIN_INLIERS: usize = 8;
 
-/// Parameters: tx mm, tz mm, yaw deg, pitch deg, roll deg.
-type Params = [f64; 5];
-
 fn params(motion: &GroundMotion) -> Params {
-    [motion.planar.tx_mm, motion.planar.tz_mm, motion.planar.dyaw_deg, motion.attitude.pitch_deg, motion.attitude.roll_deg]
+    [motion.planar.tx_mm as f32, motion.planar.tz_mm as f32, motion.planar.dyaw_deg as f32, motion.attitude.pitch_deg as f32, motion.attitude.roll_deg as f32]
 }
 
 fn motion(p: &Params) -> GroundMotion {
     GroundMotion {
-        planar: Motion { tx_mm: p[0], tz_mm: p[1], dyaw_deg: p[2] },
-        attitude: Attitude { pitch_deg: p[3], roll_deg: p[4] },
+        planar: Motion { tx_mm: f64::from(p[0]), tz_mm: f64::from(p[1]), dyaw_deg: f64::from(p[2]) },
+        attitude: Attitude { pitch_deg: f64::from(p[3]), roll_deg: f64::from(p[4]) },
     }
 }
 
 /// What the estimate starts from: a motion and how far off it may be
-/// (one sigma per parameter, same units).
+/// (one sigma per parameter: mm, mm, deg, deg, deg).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Prior {
     pub(super) motion: GroundMotion,
-    pub(super) sigma: Params,
+    pub(super) sigma: [f64; 5],
+}
+
+/// The prior in the estimate's units.
+struct Start {
+    p: Params,
+    sigma: Params,
 }
 
 /// One block's match: where the current block's centre lies in the keyframe.
 #[derive(Clone, Copy, Debug, Default)]
 struct BlockMatch {
-    current: (f64, f64),
-    keyframe: (f64, f64),
+    current: (f32, f32),
+    keyframe: (f32, f32),
     /// Mean brightness of the current block over the keyframe's at the match.
     gain: f32,
 }
@@ -85,15 +88,8 @@ pub(super) struct Scene<'a> {
 
 impl Scene<'_> {
     /// The map of the motion `p`.
-    fn ground_map(&self, p: &Params) -> GroundMap {
-        GroundMap::new(&motion(p), self.height_mm)
-    }
-
-    /// Keyframe pixel of current pixel (i, j) under `map`.
-    fn map(&self, map: &GroundMap, i: f64, j: f64) -> Option<(f64, f64)> {
-        let (x, z) = self.grid.pixel_to_ground(i, j);
-        let (xk, zk) = map.to_keyframe(x, z)?;
-        Some(self.grid.ground_to_pixel(xk, zk))
+    fn map(&self, p: &Params) -> PixelMap {
+        PixelMap::new(p, self.height_mm as f32, self.grid)
     }
 
     /// Whether pixel (i, j) of either image is in the camera's view.
@@ -101,22 +97,8 @@ impl Scene<'_> {
         j < self.grid.height() && self.coverage.seen(j).is_some_and(|columns| columns.contains(&i))
     }
 
-    /// Bilinear keyframe sample at (i, j), None off the camera's view.
-    fn keyframe_at(&self, i: f64, j: f64) -> Option<f32> {
-        // (Also refuses NaN.)
-        if !(i >= 0.0 && j >= 0.0 && i < self.grid.width() as f64 && j < self.grid.height() as f64) {
-            return None;
-        }
-        let (i0, j0) = (i as usize, j as usize);
-        if !(self.seen(i0, j0) && self.seen(i0 + 1, j0) && self.seen(i0, j0 + 1) && self.seen(i0 + 1, j0 + 1)) {
-            return None;
-        }
-        let w = self.grid.width();
-        let (fx, fy) = ((i - i0 as f64) as f32, (j - j0 as f64) as f32);
-        let at = |ii: usize, jj: usize| f32::from(self.keyframe[jj * w + ii]);
-        let top = at(i0, j0) * (1.0 - fx) + at(i0 + 1, j0) * fx;
-        let bottom = at(i0, j0 + 1) * (1.0 - fx) + at(i0 + 1, j0 + 1) * fx;
-        Some(top * (1.0 - fy) + bottom * fy)
+    fn images(&self) -> Images<'_> {
+        Images { keyframe: self.keyframe, current: self.current, grid: self.grid, coverage: self.coverage }
     }
 }
 
@@ -128,8 +110,8 @@ impl Scene<'_> {
 const MAX_YAW_STEPS: i32 = 40;
 
 /// The yaw step that moves the grid's farthest corner by half a cell.
-fn yaw_step(grid: &KgGrid, cell_mm: f64) -> f64 {
-    let far_mm = libm::hypot(grid.x_left_mm, grid.z_far_mm).max(1.0);
+fn yaw_step(grid: &KgGrid, cell_mm: f32) -> f32 {
+    let far_mm = libm::hypotf(grid.x_left_mm as f32, grid.z_far_mm as f32).max(1.0);
     (0.5 * cell_mm / far_mm).to_degrees()
 }
 
@@ -171,18 +153,18 @@ impl Coarse {
         }
     }
 
-    fn mean(&self) -> f64 {
-        let (mut sum, mut count) = (0u64, 0u64);
+    fn mean(&self) -> f32 {
+        let (mut sum, mut count) = (0u32, 0u32);
         for k in 0..self.wide * self.high {
             if self.valid[k] {
-                sum += u64::from(self.cells[k]);
+                sum += u32::from(self.cells[k]);
                 count += 1;
             }
         }
         if count == 0 {
             0.0
         } else {
-            sum as f64 / count as f64
+            sum as f32 / count as f32
         }
     }
 
@@ -206,6 +188,15 @@ impl Coarse {
     }
 }
 
+/// A coarse search's answer: the motion, its score (mean absolute
+/// difference per cell, `f32::MAX` when nothing was measured), and the
+/// next best candidate.
+struct CoarseFound {
+    p: Params,
+    score: f32,
+    runner_up: Option<Params>,
+}
+
 /// The estimator's memory: the coarse images and the block matches.
 pub(super) struct Estimator {
     coarse_keyframe: Coarse,
@@ -214,8 +205,11 @@ pub(super) struct Estimator {
 }
 
 impl Estimator {
-    pub(super) const EMPTY: Estimator =
-        Estimator { coarse_keyframe: Coarse::EMPTY, coarse_current: Coarse::EMPTY, matches: heapless::Vec::new() };
+    pub(super) const EMPTY: Estimator = Estimator {
+        coarse_keyframe: Coarse::EMPTY,
+        coarse_current: Coarse::EMPTY,
+        matches: heapless::Vec::new(),
+    };
 
     /// The brightness of the current frame over the keyframe's (auto
     /// exposure), the median over the last estimate's block matches; 1
@@ -236,25 +230,39 @@ impl Estimator {
     /// coarse search's reach (3 sigma); a reach of more than a few cells is
     /// searched on cells twice as large first.
     pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior) -> Option<GroundMotion> {
-        let start = self.coarse_start(scene, prior);
-        let fitted = self.refine(scene, prior, start, 0)?;
-        Some(self.nearest_surface(scene, prior, fitted))
+        let prior = Start { p: params(&prior.motion), sigma: prior.sigma.map(|s| s as f32) };
+        let start = self.coarse_start(scene, &prior);
+        let fitted = self.refine(scene, &prior, start, 0)?;
+        Some(motion(&self.nearest_surface(scene, &prior, fitted)))
     }
 
     /// Steps 1: where the blocks start from.
-    fn coarse_start(&mut self, scene: &Scene, prior: &Prior) -> Params {
-        let fine_mm = COARSE_CELL_MM.max(2.0 * scene.grid.mm_per_px);
-        let reach = |sigma: f64, unit: f64| 3.0 * sigma / unit;
-        let mut p = params(&prior.motion);
+    fn coarse_start(&mut self, scene: &Scene, prior: &Start) -> Params {
+        let fine_mm = COARSE_CELL_MM.max(2.0 * scene.grid.mm_per_px as f32);
+        let reach = |sigma: f32, unit: f32| 3.0 * sigma / unit;
+        let mut p = prior.p;
         let mut sigma = prior.sigma;
         if reach(sigma[0].max(sigma[1]), fine_mm) > 3.0 {
-            p = self.coarse_search(scene, &p, &sigma, 2.0 * fine_mm);
+            let wide = self.coarse_search(scene, &p, &sigma, 2.0 * fine_mm);
             // What is left: about a large cell, and its yaw step.
             sigma[0] = 2.0 * fine_mm / 3.0;
             sigma[1] = sigma[0];
             sigma[2] = sigma[2].min(yaw_step(scene.grid, 2.0 * fine_mm));
+            // The large cells rank the candidates; the fine cells decide
+            // between the two best (a near obstacle filling the view leaves
+            // the large cells a near-tie a yaw step apart, which the
+            // least rounding tips either way).
+            let best = self.coarse_search(scene, &wide.p, &sigma, fine_mm);
+            p = match wide.runner_up {
+                Some(runner_up) => {
+                    let other = self.coarse_search(scene, &runner_up, &sigma, fine_mm);
+                    if other.score < best.score { other.p } else { best.p }
+                }
+                None => best.p,
+            };
+        } else {
+            p = self.coarse_search(scene, &p, &sigma, fine_mm).p;
         }
-        p = self.coarse_search(scene, &p, &sigma, fine_mm);
         // The coarse search moves level images: its translation is the one
         // that best explains the attitude change too, so the blocks start
         // from it level (the fit then splits the two, with the prior).
@@ -265,13 +273,13 @@ impl Estimator {
 
     /// Steps 2 and 3 from `start`, twice, on the blocks whose centres lie
     /// from `from_row` on.
-    fn refine(&mut self, scene: &Scene, prior: &Prior, start: Params, from_row: usize) -> Option<Fit> {
+    fn refine(&mut self, scene: &Scene, prior: &Start, start: Params, from_row: usize) -> Option<Fit> {
         let mut p = start;
         let mut fitted = None;
         for _ in 0..2 {
             self.match_blocks(scene, &p, from_row);
             let fit = fit(scene, &self.matches, &p, prior)?;
-            p = params(&fit.motion);
+            p = fit.p;
             fitted = Some(fit);
         }
         fitted
@@ -282,58 +290,60 @@ impl Estimator {
     /// whole view, or bends its fit. The blocks nearest the robot fitted
     /// on their own (from the prior, then from the whole view's fit)
     /// replace it when that fit explains clearly more of them.
-    fn nearest_surface(&mut self, scene: &Scene, prior: &Prior, fitted: Fit) -> GroundMotion {
+    fn nearest_surface(&mut self, scene: &Scene, prior: &Start, fitted: Fit) -> Params {
         let near_row = near_row(scene);
-        let near = self
-            .refine(scene, prior, params(&prior.motion), near_row)
-            .or_else(|| self.refine(scene, prior, params(&fitted.motion), near_row));
+        let near = self.refine(scene, prior, prior.p, near_row).or_else(|| self.refine(scene, prior, fitted.p, near_row));
         let chosen = match near {
             Some(near) => {
                 // One yardstick for both: the tighter fit's.
                 let within = 3.0 * near.scale.min(fitted.scale);
-                let near_agreeing = agreeing(scene, &self.matches, &near.motion, within);
-                let fitted_agreeing = agreeing(scene, &self.matches, &fitted.motion, within);
+                let near_agreeing = agreeing(scene, &self.matches, &near.p, within);
+                let fitted_agreeing = agreeing(scene, &self.matches, &fitted.p, within);
                 let clearly_more = fitted_agreeing + (MIN_INLIERS / 2).max(fitted_agreeing / 4);
-                if near_agreeing >= clearly_more { near.motion } else { fitted.motion }
+                if near_agreeing >= clearly_more { near.p } else { fitted.p }
             }
-            None => fitted.motion,
+            None => fitted.p,
         };
         // Every block again, around the choice: the gain is their median.
-        self.match_blocks(scene, &params(&chosen), 0);
+        self.match_blocks(scene, &chosen, 0);
         chosen
     }
 
     /// Step 1: the planar motion (tx, tz, yaw) on images of `cell_mm`
     /// cells, searched over 3 `sigma` around `start`.
-    fn coarse_search(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f64) -> Params {
+    fn coarse_search(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32) -> CoarseFound {
         let mut p = *start;
-        let side = ((cell_mm / scene.grid.mm_per_px) as usize).max(2);
+        let unmeasured = CoarseFound { p: *start, score: f32::MAX, runner_up: None };
+        let grid = scene.grid;
+        let mm_per_px = grid.mm_per_px as f32;
+        let side = ((cell_mm / mm_per_px) as usize).max(2);
         self.coarse_keyframe.build(scene.keyframe, scene, side);
         self.coarse_current.build(scene.current, scene, side);
         let (key, cur) = (&self.coarse_keyframe, &self.coarse_current);
         let (key_mean, cur_mean) = (key.mean(), cur.mean());
         if key_mean < 1.0 || cur_mean < 1.0 {
-            return p;
+            return unmeasured;
         }
-        let gain = (cur_mean / key_mean) as f32;
-        let grid = scene.grid;
-        let cell_mm = grid.mm_per_px * cur.side as f64;
-        let reach_cells = |sigma_mm: f64| (libm::ceil(3.0 * sigma_mm / cell_mm) as i32).clamp(1, 8);
+        let gain = cur_mean / key_mean;
+        let cell_mm = mm_per_px * cur.side as f32;
+        let reach_cells = |sigma_mm: f32| (libm::ceilf(3.0 * sigma_mm / cell_mm) as i32).clamp(1, 8);
         let (reach_x, reach_z) = (reach_cells(sigma[0]), reach_cells(sigma[1]));
         let yaw_step = yaw_step(grid, cell_mm);
-        let yaw_reach = (libm::ceil(3.0 * sigma[2] / yaw_step) as i32).clamp(0, MAX_YAW_STEPS);
+        let yaw_reach = (libm::ceilf(3.0 * sigma[2] / yaw_step) as i32).clamp(0, MAX_YAW_STEPS);
         let counted = (0..cur.wide * cur.high).filter(|&k| cur.valid[k]).count();
         // A planar motion moves coarse cells affinely: keyframe cell =
         // rotation * cell + offset, in cell units (G runs against z).
         // Cell (0, 0)'s centre on the ground, in cells.
-        let centre = 0.5 * (cur.side as f64 - 1.0) / cur.side as f64;
-        let (origin_u, origin_v) = (grid.x_left_mm / cell_mm + centre, grid.z_far_mm / cell_mm - centre);
-        let score_at = |yaw_deg: f64, tx_mm: f64, tz_mm: f64| -> f64 {
-            let heading = Rotation::from_degrees(yaw_deg).to_f32();
-            let [au, av] = heading.to_world([1.0, 0.0]);
-            let [bu, bv] = heading.to_world([0.0, -1.0]);
-            let [ou, ov] = heading.place([(tx_mm / cell_mm) as f32, (tz_mm / cell_mm) as f32], [origin_u as f32, origin_v as f32]);
-            let (ou, ov) = (ou - origin_u as f32, origin_v as f32 - ov);
+        let centre = 0.5 * (cur.side as f32 - 1.0) / cur.side as f32;
+        let (origin_u, origin_v) = (grid.x_left_mm as f32 / cell_mm + centre, grid.z_far_mm as f32 / cell_mm - centre);
+        let score_at = |yaw_deg: f32, tx_mm: f32, tz_mm: f32| -> f32 {
+            let (sin, cos) = libm::sincosf(yaw_deg.to_radians());
+            // The heading's turn of the cell axes (+u, and -z for +v) and of the origin.
+            let (au, av) = (cos, sin);
+            let (bu, bv) = (sin, -cos);
+            let (tu, tv) = (tx_mm / cell_mm, tz_mm / cell_mm);
+            let (ou, ov) = (tu + origin_u * cos - origin_v * sin, tv + origin_u * sin + origin_v * cos);
+            let (ou, ov) = (ou - origin_u, origin_v - ov);
             let (mut sum, mut count) = (0f32, 0usize);
             for cj in 0..cur.high {
                 for ci in 0..cur.wide {
@@ -351,57 +361,71 @@ impl Estimator {
             }
             // Too little overlap is no measurement.
             if count * 3 < counted || count < 12 {
-                f64::MAX
+                f32::MAX
             } else {
-                f64::from(sum) / count as f64
+                sum / count as f32
             }
         };
-        let at = |dyaw: i32, dx: i32, dz: i32| {
-            score_at(p[2] + f64::from(dyaw) * yaw_step, p[0] + f64::from(dx) * cell_mm, p[1] + f64::from(dz) * cell_mm)
-        };
+        let at = |dyaw: i32, dx: i32, dz: i32| score_at(p[2] + dyaw as f32 * yaw_step, p[0] + dx as f32 * cell_mm, p[1] + dz as f32 * cell_mm);
         // The prior breaks near-ties: a candidate's score grows by
         // PRIOR_WEIGHT per squared sigma it lies from the start (a floor
         // with little texture at this scale, or one edge across the view,
         // scores alike along a whole line of candidates).
         let squared_sigmas = |dyaw: i32, dx: i32, dz: i32| {
-            let scaled = |steps: i32, unit: f64, sigma: f64| {
-                let sigmas = f64::from(steps) * unit / sigma.max(1e-9);
+            let scaled = |steps: i32, unit: f32, sigma: f32| {
+                let sigmas = steps as f32 * unit / sigma.max(1e-9);
                 sigmas * sigmas
             };
             scaled(dx, cell_mm, sigma[0]) + scaled(dz, cell_mm, sigma[1]) + scaled(dyaw, yaw_step, sigma[2])
         };
-        let mut best = (f64::MAX, 0i32, 0i32, 0i32);
+        let mut best = (f32::MAX, 0i32, 0i32, 0i32);
+        // The next best, the other start a wider search hands on.
+        let mut second = best;
         for dyaw in -yaw_reach..=yaw_reach {
             for dz in -reach_z..=reach_z {
                 for dx in -reach_x..=reach_x {
                     let score = at(dyaw, dx, dz);
+                    if score == f32::MAX {
+                        continue;
+                    }
                     let cost = score * (1.0 + COARSE_PRIOR_WEIGHT * squared_sigmas(dyaw, dx, dz));
                     if cost < best.0 {
+                        second = best;
                         best = (cost, dyaw, dx, dz);
+                    } else if cost < second.0 {
+                        second = (cost, dyaw, dx, dz);
                     }
                 }
             }
         }
         let (cost, by, bx, bz) = best;
-        if cost == f64::MAX {
-            return p;
+        if cost == f32::MAX {
+            return unmeasured;
         }
+        let runner_up = (second.0 < f32::MAX).then(|| {
+            let (_, dyaw, dx, dz) = second;
+            let mut q = p;
+            q[2] += dyaw as f32 * yaw_step;
+            q[0] += dx as f32 * cell_mm;
+            q[1] += dz as f32 * cell_mm;
+            q
+        });
         let centre = at(by, bx, bz);
         // Sub-cell: a parabola along each axis through the best.
-        let offset = |minus: f64, plus: f64| {
-            if minus == f64::MAX || plus == f64::MAX {
+        let offset = |minus: f32, plus: f32| {
+            if minus == f32::MAX || plus == f32::MAX {
                 0.0
             } else {
                 crate::subpixel::minimum_offset(minus, centre, plus).clamp(-0.5, 0.5)
             }
         };
-        let yaw = f64::from(by) + offset(at(by - 1, bx, bz), at(by + 1, bx, bz));
-        let x = f64::from(bx) + offset(at(by, bx - 1, bz), at(by, bx + 1, bz));
-        let z = f64::from(bz) + offset(at(by, bx, bz - 1), at(by, bx, bz + 1));
+        let yaw = by as f32 + offset(at(by - 1, bx, bz), at(by + 1, bx, bz));
+        let x = bx as f32 + offset(at(by, bx - 1, bz), at(by, bx + 1, bz));
+        let z = bz as f32 + offset(at(by, bx, bz - 1), at(by, bx, bz + 1));
         p[2] += yaw * yaw_step;
         p[0] += x * cell_mm;
         p[1] += z * cell_mm;
-        p
+        CoarseFound { p, score: centre, runner_up }
     }
 
     /// Step 2: every textured block of the current image whose centre
@@ -409,17 +433,18 @@ impl Estimator {
     /// puts it.
     fn match_blocks(&mut self, scene: &Scene, p: &Params, from_row: usize) {
         self.matches.clear();
-        let map = scene.ground_map(p);
+        let map = scene.map(p);
+        let images = scene.images();
         let (w, h) = (scene.grid.width(), scene.grid.height());
-        let half = (BLOCK_PX / 2) as f64;
+        let half = (BLOCK_PX / 2) as f32;
         let mut bj = 0;
         while bj + BLOCK_PX <= h {
-            let centre_row = bj as f64 + half - 0.5;
+            let centre_row = bj as f32 + half - 0.5;
             let mut bi = 0;
-            while centre_row >= from_row as f64 && bi + BLOCK_PX <= w {
-                if let Some((found, gain)) = match_block(scene, &map, bi, bj) {
-                    let centre = (bi as f64 + half - 0.5, centre_row);
-                    if self.matches.push(BlockMatch { current: centre, keyframe: found, gain }).is_err() {
+            while centre_row >= from_row as f32 && bi + BLOCK_PX <= w {
+                if let Some(found) = block_match::match_block(&images, &map, bi, bj) {
+                    let centre = (bi as f32 + half - 0.5, centre_row);
+                    if self.matches.push(BlockMatch { current: centre, keyframe: found.keyframe, gain: found.gain }).is_err() {
                         return;
                     }
                 }
@@ -430,115 +455,22 @@ impl Estimator {
     }
 }
 
-/// The keyframe position of the centre of the block at (`bi`, `bj`) and
-/// the brightness gain there, or None when it is off the view, flat, or
-/// ambiguous.
-fn match_block(scene: &Scene, map: &GroundMap, bi: usize, bj: usize) -> Option<((f64, f64), f32)> {
-    let w = scene.grid.width();
-    if !(bj..bj + BLOCK_PX).all(|j| scene.seen(bi, j) && scene.seen(bi + BLOCK_PX - 1, j)) {
-        return None;
-    }
-    // The current block, zero-mean; flat blocks measure nothing.
-    let mut block = [[0f32; BLOCK_PX]; BLOCK_PX];
-    let mut mean = 0f32;
-    for (v, row) in block.iter_mut().enumerate() {
-        for (u, value) in row.iter_mut().enumerate() {
-            *value = f32::from(scene.current[(bj + v) * w + bi + u]);
-            mean += *value;
-        }
-    }
-    mean /= (BLOCK_PX * BLOCK_PX) as f32;
-    let mut energy = 0f32;
-    for value in block.iter_mut().flatten() {
-        *value -= mean;
-        energy += *value * *value;
-    }
-    // Below ~3 gray levels RMS it is sensor noise, not texture.
-    if energy < 9.0 * (BLOCK_PX * BLOCK_PX) as f32 {
-        return None;
-    }
-    // The keyframe patch around the model's footprint: the model as an
-    // affine map about the block's centre.
-    let half = (BLOCK_PX / 2) as f64;
-    let (ci, cj) = (bi as f64 + half - 0.5, bj as f64 + half - 0.5);
-    let origin = scene.map(map, ci, cj)?;
-    let along = scene.map(map, ci + 1.0, cj)?;
-    let down = scene.map(map, ci, cj + 1.0)?;
-    let (du, dv) = ((along.0 - origin.0, along.1 - origin.1), (down.0 - origin.0, down.1 - origin.1));
-    let mut patch = [[0f32; PATCH]; PATCH];
-    let first = -(half - 0.5) - f64::from(BLOCK_REACH);
-    for (v, row) in patch.iter_mut().enumerate() {
-        for (u, value) in row.iter_mut().enumerate() {
-            let (a, b) = (first + u as f64, first + v as f64);
-            *value = scene.keyframe_at(origin.0 + a * du.0 + b * dv.0, origin.1 + a * du.1 + b * dv.1)?;
-        }
-    }
-    // Zero-mean normalised correlation at every shift.
-    let reach = BLOCK_REACH as usize;
-    let window = 2 * reach + 1;
-    let mut scores = [[0f32; 2 * BLOCK_REACH as usize + 1]; 2 * BLOCK_REACH as usize + 1];
-    let n = (BLOCK_PX * BLOCK_PX) as f32;
-    for (sv, score_row) in scores.iter_mut().enumerate().take(window) {
-        for (su, score) in score_row.iter_mut().enumerate().take(window) {
-            let (mut sum, mut squares, mut cross) = (0f32, 0f32, 0f32);
-            for (v, row) in block.iter().enumerate() {
-                let keyframe = &patch[v + sv][su..su + BLOCK_PX];
-                for (&c, &k) in row.iter().zip(keyframe) {
-                    sum += k;
-                    squares += k * k;
-                    cross += c * k;
-                }
-            }
-            let variance = squares - sum * sum / n;
-            *score = if variance > 1.0 { cross / libm::sqrtf(energy * variance) } else { -1.0 };
-        }
-    }
-    let (mut best_u, mut best_v) = (reach, reach);
-    for (sv, row) in scores.iter().enumerate().take(window) {
-        for (su, &score) in row.iter().enumerate().take(window) {
-            if score > scores[best_v][best_u] {
-                best_u = su;
-                best_v = sv;
-            }
-        }
-    }
-    let best = scores[best_v][best_u];
-    // On the reach's edge, weakly correlated, or as good a step away: no measurement.
-    if best_u == 0 || best_v == 0 || best_u == window - 1 || best_v == window - 1 || best < 0.6 {
-        return None;
-    }
-    for (sv, row) in scores.iter().enumerate().take(window) {
-        for (su, &score) in row.iter().enumerate().take(window) {
-            let apart = sv.abs_diff(best_v).max(su.abs_diff(best_u)) >= 2;
-            if apart && score > best - 0.02 {
-                return None;
-            }
-        }
-    }
-    let peak = |minus: f32, centre: f32, plus: f32| crate::subpixel::maximum_offset(minus, centre, plus);
-    let su = best_u as f64 - reach as f64 + f64::from(peak(scores[best_v][best_u - 1], best, scores[best_v][best_u + 1]));
-    let sv = best_v as f64 - reach as f64 + f64::from(peak(scores[best_v - 1][best_u], best, scores[best_v + 1][best_u]));
-    let keyframe_sum: f32 = (0..BLOCK_PX).map(|v| patch[v + best_v][best_u..best_u + BLOCK_PX].iter().sum::<f32>()).sum();
-    let gain = (mean + 1.0) / (keyframe_sum / n + 1.0);
-    Some(((origin.0 + su * du.0 + sv * dv.0, origin.1 + su * du.1 + sv * dv.1), gain))
-}
-
 /// A fitted motion and the robust scale of its block residuals (KG px).
 #[derive(Clone, Copy, Debug)]
 struct Fit {
-    motion: GroundMotion,
-    scale: f64,
+    p: Params,
+    scale: f32,
 }
 
 /// How far the model `map` puts a block from where it was found, KG px.
-fn residual(scene: &Scene, map: &GroundMap, m: &BlockMatch) -> Option<f64> {
-    scene.map(map, m.current.0, m.current.1).map(|at| libm::hypot(at.0 - m.keyframe.0, at.1 - m.keyframe.1))
+fn residual(map: &PixelMap, m: &BlockMatch) -> Option<f32> {
+    map.at(m.current.0, m.current.1).map(|at| libm::hypotf(at.0 - m.keyframe.0, at.1 - m.keyframe.1))
 }
 
-/// How many of the `matches` `motion` puts within `within` KG px.
-fn agreeing(scene: &Scene, matches: &[BlockMatch], motion: &GroundMotion, within: f64) -> usize {
-    let map = scene.ground_map(&params(motion));
-    matches.iter().filter(|m| residual(scene, &map, m).is_some_and(|r| r < within)).count()
+/// How many of the `matches` the motion `p` puts within `within` KG px.
+fn agreeing(scene: &Scene, matches: &[BlockMatch], p: &Params, within: f32) -> usize {
+    let map = scene.map(p);
+    matches.iter().filter(|m| residual(&map, m).is_some_and(|r| r < within)).count()
 }
 
 /// The first row of the nearest third of the rows the camera sees.
@@ -551,29 +483,26 @@ fn near_row(scene: &Scene) -> usize {
 
 /// Step 3: the parameters that put the blocks where they were found,
 /// robustly (Tukey), with the prior as five more observations.
-fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> Option<Fit> {
+fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start) -> Option<Fit> {
     if matches.len() < MIN_INLIERS {
         return None;
     }
-    let prior_p = params(&prior.motion);
     // Finite-difference steps per parameter.
     const STEP: Params = [0.5, 0.5, 0.02, 0.01, 0.01];
     let mut p = *start;
-    let mut scale = 1.0f64;
-    let mut residuals = [0f64; MAX_BLOCK_MATCHES];
+    let mut scale = 1.0f32;
+    let mut residuals = [0f32; MAX_BLOCK_MATCHES];
     for iteration in 0..8 {
         // Residual sizes and their robust scale (MAD), floored: sub-pixel matches are not better than ~0.1 px.
-        let map = scene.ground_map(&p);
-        let mut moved_maps = [map; 5];
-        for (k, moved_map) in moved_maps.iter_mut().enumerate() {
+        let map = scene.map(&p);
+        let moved_maps: [PixelMap; 5] = core::array::from_fn(|k| {
             let mut moved = p;
             moved[k] += STEP[k];
-            *moved_map = scene.ground_map(&moved);
-        }
-        let mut count = 0;
+            scene.map(&moved)
+        });
+        let count = matches.len();
         for (m, r) in matches.iter().zip(residuals.iter_mut()) {
-            *r = residual(scene, &map, m).unwrap_or(f64::MAX);
-            count += 1;
+            *r = residual(&map, m).unwrap_or(f32::MAX);
         }
         let mut sorted = residuals;
         let sorted = &mut sorted[..count];
@@ -581,7 +510,7 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> 
         let median = sorted[count / 2];
         scale = (1.4826 * median).max(0.15);
         // Huber first (wide basin), Tukey after (rejects obstacles).
-        let weight = |r: f64| -> f64 {
+        let weight = |r: f32| -> f32 {
             if iteration < 3 {
                 let k = 2.0 * scale;
                 if r <= k { 1.0 } else { k / r }
@@ -590,18 +519,18 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> 
                 if r >= c { 0.0 } else { { let u = 1.0 - (r / c) * (r / c); u * u } }
             }
         };
-        let mut normal = [[0f64; 5]; 5];
-        let mut gradient = [0f64; 5];
+        let mut normal = [[0f32; 5]; 5];
+        let mut gradient = [0f32; 5];
         for (m, &r) in matches.iter().zip(residuals.iter()) {
             let w = weight(r) / (scale * scale);
             if w == 0.0 {
                 continue;
             }
-            let Some(at) = scene.map(&map, m.current.0, m.current.1) else { continue };
+            let Some(at) = map.at(m.current.0, m.current.1) else { continue };
             let error = [at.0 - m.keyframe.0, at.1 - m.keyframe.1];
-            let mut jacobian = [[0f64; 5]; 2];
+            let mut jacobian = [[0f32; 5]; 2];
             for k in 0..5 {
-                let Some(there) = scene.map(&moved_maps[k], m.current.0, m.current.1) else { continue };
+                let Some(there) = moved_maps[k].at(m.current.0, m.current.1) else { continue };
                 jacobian[0][k] = (there.0 - at.0) / STEP[k];
                 jacobian[1][k] = (there.1 - at.1) / STEP[k];
             }
@@ -617,31 +546,31 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Prior) -> 
         for k in 0..5 {
             let precision = 1.0 / (prior.sigma[k] * prior.sigma[k]);
             normal[k][k] += precision;
-            gradient[k] += precision * (p[k] - prior_p[k]);
+            gradient[k] += precision * (p[k] - prior.p[k]);
         }
         let delta = solve(normal, gradient)?;
         for k in 0..5 {
             p[k] -= delta[k];
         }
-        if delta.iter().zip(STEP).all(|(d, s)| libm::fabs(*d) < 0.05 * s) {
+        if delta.iter().zip(STEP).all(|(d, s)| libm::fabsf(*d) < 0.05 * s) {
             break;
         }
     }
     // Inliers: within 3 scales of the final model.
-    let map = scene.ground_map(&p);
-    let inliers = matches.iter().filter_map(|m| residual(scene, &map, m)).filter(|&r| r < 3.0 * scale).count();
+    let map = scene.map(&p);
+    let inliers = matches.iter().filter_map(|m| residual(&map, m)).filter(|&r| r < 3.0 * scale).count();
     // A model most blocks disagree with is a wrong one (or the view is mostly obstacle).
     if inliers < MIN_INLIERS || 3 * inliers < matches.len() {
         return None;
     }
-    Some(Fit { motion: motion(&p), scale })
+    Some(Fit { p, scale })
 }
 
 /// Solves the 5x5 symmetric positive definite system (Cholesky); None if singular.
 // Indexed loops on purpose: the factorisation is written as in the textbook.
 #[allow(clippy::needless_range_loop)]
-fn solve(a: [[f64; 5]; 5], b: [f64; 5]) -> Option<[f64; 5]> {
-    let mut l = [[0f64; 5]; 5];
+fn solve(a: [[f32; 5]; 5], b: [f32; 5]) -> Option<[f32; 5]> {
+    let mut l = [[0f32; 5]; 5];
     for i in 0..5 {
         for j in 0..=i {
             let mut sum = a[i][j];
@@ -649,16 +578,16 @@ fn solve(a: [[f64; 5]; 5], b: [f64; 5]) -> Option<[f64; 5]> {
                 sum -= l[i][k] * l[j][k];
             }
             if i == j {
-                if sum <= 0.0 {
+                if !(sum > 0.0) {
                     return None;
                 }
-                l[i][i] = libm::sqrt(sum);
+                l[i][i] = libm::sqrtf(sum);
             } else {
                 l[i][j] = sum / l[j][j];
             }
         }
     }
-    let mut y = [0f64; 5];
+    let mut y = [0f32; 5];
     for i in 0..5 {
         let mut sum = b[i];
         for k in 0..i {
@@ -666,7 +595,7 @@ fn solve(a: [[f64; 5]; 5], b: [f64; 5]) -> Option<[f64; 5]> {
         }
         y[i] = sum / l[i][i];
     }
-    let mut x = [0f64; 5];
+    let mut x = [0f32; 5];
     for i in (0..5).rev() {
         let mut sum = y[i];
         for k in i + 1..5 {
@@ -680,6 +609,7 @@ fn solve(a: [[f64; 5]; 5], b: [f64; 5]) -> Option<[f64; 5]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::motion::GroundMap;
     use std::vec::Vec;
 
     /// Value noise: a hashed lattice of `cell_mm`, bilinear between.
@@ -743,7 +673,7 @@ mod tests {
         let (f, t) = (params(found), params(truth));
         let tolerance = [1.0, 1.0, 0.05, 0.05, 0.05];
         for k in 0..5 {
-            assert!(libm::fabs(f[k] - t[k]) < tolerance[k], "parameter {k}: {} vs {} ({found:?})", f[k], t[k]);
+            assert!(libm::fabsf(f[k] - t[k]) < tolerance[k], "parameter {k}: {} vs {} ({found:?})", f[k], t[k]);
         }
     }
 

@@ -28,9 +28,11 @@
 //! every stage borrows only what it reads and writes.
 
 mod band;
+mod block_match;
 mod config;
 mod decision;
 mod estimate;
+mod homography;
 mod keyframe;
 mod layout;
 mod obstacles;
@@ -107,6 +109,10 @@ pub struct GpaProfile {
     pub shift_search: u32,
     /// Copying the row into the new keyframe.
     pub keyframe_update: u32,
+    /// The motion estimate (coarse search, block matches, fits).
+    pub estimate: u32,
+    /// The seed's search around the prediction, when the estimate differs from it.
+    pub seed_search: u32,
 }
 
 /// The benchmark clock and what it measured.
@@ -222,7 +228,7 @@ impl<'b> Gpa<'b> {
         frame: 0,
         frame_active: false,
         rows_seen: 0,
-        profiler: Profiler { clock: None, profile: GpaProfile { warp: 0, residue: 0, parallax: 0, shift_search: 0, keyframe_update: 0 } },
+        profiler: Profiler { clock: None, profile: GpaProfile { warp: 0, residue: 0, parallax: 0, shift_search: 0, keyframe_update: 0, estimate: 0, seed_search: 0 } },
         #[cfg(test)]
         reference: false,
     };
@@ -420,7 +426,9 @@ impl<'b> Gpa<'b> {
             coverage: &self.coverage,
             height_mm: self.layout.camera_height_mm,
         };
+        let start = self.profiler.now();
         let estimate = self.estimator.estimate(&scene, &prior);
+        self.profiler.charge(start, |p| &mut p.estimate);
         let measured = match (estimate, self.odometry) {
             (Some(estimate), _) => estimate,
             (None, Some(_)) => prior.motion,
@@ -442,7 +450,9 @@ impl<'b> Gpa<'b> {
         // and statistics are what the seed's GPA, trusting it, would see.
         let seed_apart = measured != prior.motion;
         if seed_apart {
+            let start = self.profiler.now();
             self.search_prediction(&store, &prior.motion, exposure.as_ref());
+            self.profiler.charge(start, |p| &mut p.seed_search);
         }
         store.plan(due);
         self.keyframe = store;

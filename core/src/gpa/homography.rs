@@ -1,0 +1,97 @@
+//! The motion estimate's model as one 3x3 homography in single precision:
+//! current KG pixel -> keyframe KG pixel, the same map as
+//! [`GroundMap::to_keyframe`](crate::motion::GroundMap) between the grid's
+//! pixel and ground coordinates, but a few multiply-adds and one division
+//! per point on the M4's FPU instead of software `f64`.
+//!
+//! The chain (each step linear in homogeneous coordinates): pixel -> the
+//! ray to the ground point (x, -H, z) -> turned by the attitude change ->
+//! met with the ground again from the turned camera centre -> moved back by
+//! the planar motion -> keyframe pixel.
+
+use crate::grid::KgGrid;
+
+/// Motion parameters: tx mm, tz mm, yaw deg, pitch deg, roll deg.
+pub(super) type Params = [f32; 5];
+
+type Matrix = [[f32; 3]; 3];
+
+fn product(a: &Matrix, b: &Matrix) -> Matrix {
+    core::array::from_fn(|r| core::array::from_fn(|c| a[r][0] * b[0][c] + a[r][1] * b[1][c] + a[r][2] * b[2][c]))
+}
+
+/// Current KG pixel -> keyframe KG pixel under one motion.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct PixelMap {
+    /// Scaled so that the third coordinate is positive (and ~1) where the
+    /// turned ray meets the ground.
+    h: Matrix,
+}
+
+impl PixelMap {
+    pub(super) fn new(p: &Params, height_mm: f32, grid: &KgGrid) -> PixelMap {
+        let (sp, cp) = libm::sincosf(p[3].to_radians());
+        let (sr, cr) = libm::sincosf(p[4].to_radians());
+        let (sy, cy) = libm::sincosf(p[2].to_radians());
+        // Rz(roll) Rx(pitch) of a body vector (x right, y up, z forward), as GroundMap.
+        let turn = [[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [0.0, sp, cp]];
+        let centre = [turn[0][1] * height_mm, turn[1][1] * height_mm, turn[2][1] * height_mm];
+        let (m, left, far) = (grid.mm_per_px as f32, grid.x_left_mm as f32, grid.z_far_mm as f32);
+        // Pixel -> the ground point's vector from the camera (x, -H, z).
+        let to_ray = [[m, 0.0, left], [0.0, 0.0, -height_mm], [0.0, -m, far]];
+        // Turned ray r -> the ground point where it meets the ground, times r_y.
+        let meet = [[-centre[1], centre[0], 0.0], [0.0, centre[2], -centre[1]], [0.0, 1.0, 0.0]];
+        // The planar motion: keyframe ground = tx,tz + yaw-turned point.
+        let planar = [[cy, -sy, p[0]], [sy, cy, p[1]], [0.0, 0.0, 1.0]];
+        let to_pixel = [[1.0 / m, 0.0, -left / m], [0.0, -1.0 / m, far / m], [0.0, 0.0, 1.0]];
+        let mut h = product(&to_pixel, &product(&planar, &product(&meet, &product(&turn, &to_ray))));
+        // r_y < 0 where the ray meets the ground: flip and scale by the grid centre's.
+        let (ci, cj) = (0.5 * grid.width() as f32, 0.5 * grid.height() as f32);
+        let w = h[2][0] * ci + h[2][1] * cj + h[2][2];
+        let scale = if w < 0.0 { 1.0 / w } else { -1.0 };
+        for row in h.iter_mut() {
+            for value in row.iter_mut() {
+                *value *= scale;
+            }
+        }
+        PixelMap { h }
+    }
+
+    /// Keyframe pixel of current pixel (i, j); None where the turned ray
+    /// no longer meets the ground.
+    #[inline]
+    pub(super) fn at(&self, i: f32, j: f32) -> Option<(f32, f32)> {
+        let h = &self.h;
+        let w = h[2][0] * i + h[2][1] * j + h[2][2];
+        if !(w > 1e-6) {
+            return None;
+        }
+        let inverse = 1.0 / w;
+        Some(((h[0][0] * i + h[0][1] * j + h[0][2]) * inverse, (h[1][0] * i + h[1][1] * j + h[1][2]) * inverse))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::motion::{Attitude, GroundMap, GroundMotion, Motion};
+
+    #[test]
+    fn agrees_with_the_ground_map() {
+        let grid = KgGrid { mm_per_px: 5.0, x_left_mm: -350.0, z_far_mm: 1600.0, width: 141, height: 255 };
+        let motion = GroundMotion {
+            planar: Motion { tx_mm: 12.0, tz_mm: 90.0, dyaw_deg: 2.0 },
+            attitude: Attitude { pitch_deg: 0.6, roll_deg: -0.4 },
+        };
+        let p = [12.0, 90.0, 2.0, 0.6, -0.4];
+        let map = PixelMap::new(&p, 400.0, &grid);
+        let exact = GroundMap::new(&motion, 400.0);
+        for (i, j) in [(0.0, 0.0), (70.5, 127.0), (140.0, 254.0), (3.25, 200.5)] {
+            let (x, z) = grid.pixel_to_ground(i, j);
+            let (xk, zk) = exact.to_keyframe(x, z).unwrap();
+            let (ie, je) = grid.ground_to_pixel(xk, zk);
+            let (ia, ja) = map.at(i as f32, j as f32).unwrap();
+            assert!((f64::from(ia) - ie).abs() < 1e-3 && (f64::from(ja) - je).abs() < 1e-3, "({i}, {j}): {ia},{ja} vs {ie},{je}");
+        }
+    }
+}
