@@ -569,6 +569,7 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start) -> 
 /// Solves the 5x5 symmetric positive definite system (Cholesky); None if singular.
 // Indexed loops on purpose: the factorisation is written as in the textbook.
 #[allow(clippy::needless_range_loop)]
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(sum > 0.0)` also refuses NaN
 fn solve(a: [[f32; 5]; 5], b: [f32; 5]) -> Option<[f32; 5]> {
     let mut l = [[0f32; 5]; 5];
     for i in 0..5 {

@@ -60,6 +60,7 @@ impl PixelMap {
     /// Keyframe pixel of current pixel (i, j); None where the turned ray
     /// no longer meets the ground.
     #[inline]
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(w > 1e-6)` also refuses NaN
     pub(super) fn at(&self, i: f32, j: f32) -> Option<(f32, f32)> {
         let h = &self.h;
         let w = h[2][0] * i + h[2][1] * j + h[2][2];
