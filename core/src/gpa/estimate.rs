@@ -312,8 +312,8 @@ impl Estimator {
     /// Step 1: the planar motion (tx, tz, yaw) on images of `cell_mm`
     /// cells, searched over 3 `sigma` around `start`.
     fn coarse_search(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32) -> CoarseFound {
-        let mut p = *start;
-        let unmeasured = CoarseFound { p: *start, score: f32::MAX, runner_up: None };
+        let p = *start;
+        let unmeasured = CoarseFound { p, score: f32::MAX, runner_up: None };
         let grid = scene.grid;
         let mm_per_px = grid.mm_per_px as f32;
         let side = ((cell_mm / mm_per_px) as usize).max(2);
@@ -402,14 +402,15 @@ impl Estimator {
         if cost == f32::MAX {
             return unmeasured;
         }
-        let runner_up = (second.0 < f32::MAX).then(|| {
-            let (_, dyaw, dx, dz) = second;
+        // `start` moved by (yaw, x, z) steps.
+        let moved = |yaw: f32, x: f32, z: f32| {
             let mut q = p;
-            q[2] += dyaw as f32 * yaw_step;
-            q[0] += dx as f32 * cell_mm;
-            q[1] += dz as f32 * cell_mm;
+            q[2] += yaw * yaw_step;
+            q[0] += x * cell_mm;
+            q[1] += z * cell_mm;
             q
-        });
+        };
+        let runner_up = (second.0 < f32::MAX).then(|| moved(second.1 as f32, second.2 as f32, second.3 as f32));
         let centre = at(by, bx, bz);
         // Sub-cell: a parabola along each axis through the best.
         let offset = |minus: f32, plus: f32| {
@@ -422,10 +423,7 @@ impl Estimator {
         let yaw = by as f32 + offset(at(by - 1, bx, bz), at(by + 1, bx, bz));
         let x = bx as f32 + offset(at(by, bx - 1, bz), at(by, bx + 1, bz));
         let z = bz as f32 + offset(at(by, bx, bz - 1), at(by, bx, bz + 1));
-        p[2] += yaw * yaw_step;
-        p[0] += x * cell_mm;
-        p[1] += z * cell_mm;
-        CoarseFound { p, score: centre, runner_up }
+        CoarseFound { p: moved(yaw, x, z), score: centre, runner_up }
     }
 
     /// Step 2: every textured block of the current image whose centre
