@@ -539,6 +539,12 @@ pub fn sample_from_local_position(position: &LOCAL_POSITION_NED_DATA, attitude: 
     })
 }
 
+/// A sample's time `t_s` as the `time_usec` of the `ODOMETRY` sent for it
+/// (and echoed in the frame's `OBSTACLE_DISTANCE`).
+pub fn time_usec(t_s: f64) -> u64 {
+    libm::round(t_s * 1e6) as u64
+}
+
 /// What an autopilot would send for `sample`: `ODOMETRY` in
 /// `MAV_FRAME_LOCAL_NED` (the inverse of [`sample_from_odometry`]). A
 /// sample without odometry sends NaN x, y and heading 0; without attitude,
@@ -553,7 +559,7 @@ pub fn odometry_for(sample: &PoseSample) -> ODOMETRY_DATA {
     }
     let (x, y) = sample.pose.map_or((f32::NAN, f32::NAN), |pose| ((pose.z_mm / 1000.0) as f32, (pose.x_mm / 1000.0) as f32));
     ODOMETRY_DATA {
-        time_usec: libm::round(sample.t_s * 1e6) as u64,
+        time_usec: time_usec(sample.t_s),
         x,
         y,
         z: 0.0,

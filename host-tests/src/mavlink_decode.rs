@@ -72,7 +72,7 @@ pub enum RowKey<'a> {
 /// Frames by their poses.csv time in microseconds, the `time_usec` the
 /// runner sends them with (`qemu::mavlink_script`).
 pub fn frames_by_time(recording: &Recording) -> BTreeMap<u64, u32> {
-    recording.poses.iter().map(|row| ((row.t_s * 1e6).round() as u64, row.frame)).collect()
+    recording.poses.iter().map(|row| (flatland_core::mavlink::time_usec(row.t_s), row.frame)).collect()
 }
 
 /// Why the csv could not be written in full.
