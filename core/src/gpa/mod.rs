@@ -32,6 +32,7 @@ mod block_match;
 mod config;
 mod decision;
 mod estimate;
+mod fit;
 mod homography;
 mod keyframe;
 mod layout;
