@@ -103,11 +103,11 @@ macro_rules! without_odometry {
 
 without_odometry! {
     flat_marks,
-    #[ignore = "issue 13: the estimate fails on frame 5 (keyframe restart, no report)"] stool_bags,
+    stool_bags,
     approach_box,
     diagonal,
     turn,
-    #[ignore = "issue 13: frame 9 missed (the curb's first frame at the far AOI edge)"] qvga_curb,
+    qvga_curb,
     noisy_marks,
     noisy_approach,
     bumpy_marks,
