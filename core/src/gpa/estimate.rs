@@ -3,10 +3,11 @@
 //! measured between the two KG images. Odometry and IMU are priors.
 //!
 //! Coarse to fine, as PX4FLOW does on a downward camera:
-//! 1. `coarse`: both images box-averaged to cells of ~[`COARSE_CELL_MM`];
-//!    every yaw and translation within the prior's reach is scored (SAD
-//!    after a global gain match). Needed when there is no odometry or the
-//!    wheels slipped; with good odometry the reach is small.
+//! 1. [`coarse`](super::coarse): both images box-averaged to cells of
+//!    ~[`COARSE_CELL_MM`]; every yaw and translation within the prior's
+//!    reach is scored (SAD after a global gain match). Needed when there
+//!    is no odometry or the wheels slipped; with good odometry the reach
+//!    is small.
 //! 2. `blocks`: blocks of the current image are matched in the keyframe
 //!    around where the model puts them ([`block_match`](super::block_match)),
 //!    to sub-pixel.
@@ -30,20 +31,14 @@
 //! model carries into the warp of the comparison.
 
 use super::block_match::{self, Images, BLOCK_PX};
+use super::coarse::{yaw_step, CoarseSearch, COARSE_CELL_MM};
 use super::fit::{capped_chi2, robust_fit, Problem, Surfaces};
 use super::homography::{Params, PixelMap};
 use super::warp::Coverage;
 use crate::grid::KgGrid;
-use crate::limits::{MAX_BLOCK_MATCHES, MAX_COARSE_CELLS};
+use crate::limits::MAX_BLOCK_MATCHES;
 use crate::motion::{Attitude, GroundMotion, Motion};
 
-/// Ground side of a coarse cell, mm: coarse enough that the widest search
-/// stays small, fine enough for floor texture to survive.
-pub const COARSE_CELL_MM: f32 = 25.0;
-/// How much a coarse candidate's score grows per squared prior sigma from
-/// the start: enough to break near-ties toward the prior (3 sigma: +9 %),
-/// not enough to hide a clear minimum elsewhere within reach.
-const COARSE_PRIOR_WEIGHT: f32 = 0.01;
 /// Fewest inlier blocks that measure all five parameters.
 const MIN_INLIERS: usize = 8;
 /// Finite-difference steps per parameter (mm, mm, deg, deg, deg).
@@ -110,7 +105,7 @@ impl Scene<'_> {
     }
 
     /// Whether pixel (i, j) of either image is in the camera's view.
-    fn seen(&self, i: usize, j: usize) -> bool {
+    pub(super) fn seen(&self, i: usize, j: usize) -> bool {
         j < self.grid.height() && self.coverage.seen(j).is_some_and(|columns| columns.contains(&i))
     }
 
@@ -119,112 +114,15 @@ impl Scene<'_> {
     }
 }
 
-/// Most yaw steps the coarse search takes either side of its start: 3 sigma
-/// of the no-odometry prior (`GpaConfig::max_step_yaw_deg`, 24 deg) at the
-/// step of a grid reaching 2.4 m on 50 mm cells (0.6 deg). Was 16, which
-/// held a 1.4 m grid's search to 15 deg: short of a robot that turns 20
-/// deg between frames.
-const MAX_YAW_STEPS: i32 = 40;
-
-/// The yaw step that moves the grid's farthest corner by half a cell.
-fn yaw_step(grid: &KgGrid, cell_mm: f32) -> f32 {
-    let far_mm = libm::hypotf(grid.x_left_mm as f32, grid.z_far_mm as f32).max(1.0);
-    (0.5 * cell_mm / far_mm).to_degrees()
-}
-
-/// A box-averaged image: `side` px cells, valid where the camera saw all of it.
-struct Coarse {
-    cells: [u8; MAX_COARSE_CELLS],
-    valid: [bool; MAX_COARSE_CELLS],
-    wide: usize,
-    high: usize,
-    side: usize,
-}
-
-impl Coarse {
-    const EMPTY: Coarse = Coarse { cells: [0; MAX_COARSE_CELLS], valid: [false; MAX_COARSE_CELLS], wide: 0, high: 0, side: 1 };
-
-    /// Averages `image` over cells of `side` px (more if the grid would need too many).
-    fn build(&mut self, image: &[u8], scene: &Scene, side: usize) {
-        let grid = scene.grid;
-        let (w, h) = (grid.width(), grid.height());
-        let mut side = side;
-        while w.div_ceil(side) * h.div_ceil(side) > MAX_COARSE_CELLS {
-            side += 1;
-        }
-        self.side = side;
-        self.wide = w / side;
-        self.high = h / side;
-        for cj in 0..self.high {
-            for ci in 0..self.wide {
-                let (mut sum, mut valid) = (0u32, true);
-                for j in cj * side..(cj + 1) * side {
-                    let row = &image[j * w..][..w];
-                    valid &= scene.seen(ci * side, j) && scene.seen((ci + 1) * side - 1, j);
-                    sum += row[ci * side..(ci + 1) * side].iter().map(|&v| u32::from(v)).sum::<u32>();
-                }
-                let k = cj * self.wide + ci;
-                self.cells[k] = (sum / (side * side) as u32) as u8;
-                self.valid[k] = valid;
-            }
-        }
-    }
-
-    fn mean(&self) -> f32 {
-        let (mut sum, mut count) = (0u32, 0u32);
-        for k in 0..self.wide * self.high {
-            if self.valid[k] {
-                sum += u32::from(self.cells[k]);
-                count += 1;
-            }
-        }
-        if count == 0 {
-            0.0
-        } else {
-            sum as f32 / count as f32
-        }
-    }
-
-    /// Bilinear sample at cell coordinates (u, v) (cell centres at integers).
-    fn at(&self, u: f32, v: f32) -> Option<f32> {
-        if !(u >= 0.0 && v >= 0.0) {
-            return None;
-        }
-        let (u0, v0) = (u as usize, v as usize);
-        if u0 + 1 >= self.wide || v0 + 1 >= self.high {
-            return None;
-        }
-        let k = v0 * self.wide + u0;
-        let corners = [k, k + 1, k + self.wide, k + self.wide + 1];
-        if !corners.iter().all(|&c| self.valid[c]) {
-            return None;
-        }
-        let (fu, fv) = (u - u0 as f32, v - v0 as f32);
-        let c = |i: usize| f32::from(self.cells[corners[i]]);
-        Some((c(0) * (1.0 - fu) + c(1) * fu) * (1.0 - fv) + (c(2) * (1.0 - fu) + c(3) * fu) * fv)
-    }
-}
-
-/// A coarse search's answer: the motion, its score (mean absolute
-/// difference per cell, `f32::MAX` when nothing was measured), and the
-/// next best candidate.
-struct CoarseFound {
-    p: Params,
-    score: f32,
-    runner_up: Option<Params>,
-}
-
-/// The estimator's memory: the coarse images and the block matches.
+/// The estimator's memory: the coarse search's images and the block matches.
 pub(super) struct Estimator {
-    coarse_keyframe: Coarse,
-    coarse_current: Coarse,
+    coarse: CoarseSearch,
     matches: heapless::Vec<BlockMatch, MAX_BLOCK_MATCHES>,
 }
 
 impl Estimator {
     pub(super) const EMPTY: Estimator = Estimator {
-        coarse_keyframe: Coarse::EMPTY,
-        coarse_current: Coarse::EMPTY,
+        coarse: CoarseSearch::EMPTY,
         matches: heapless::Vec::new(),
     };
 
@@ -262,7 +160,7 @@ impl Estimator {
         let mut p = prior.p;
         let mut sigma = prior.sigma;
         if reach(sigma[0].max(sigma[1]), fine_mm) > 3.0 {
-            let wide = self.coarse_search(scene, &p, &sigma, 2.0 * fine_mm);
+            let wide = self.coarse.search(scene, &p, &sigma, 2.0 * fine_mm);
             // What is left: about a large cell, and its yaw step.
             sigma[0] = 2.0 * fine_mm / 3.0;
             sigma[1] = sigma[0];
@@ -271,16 +169,16 @@ impl Estimator {
             // between the two best (a near obstacle filling the view leaves
             // the large cells a near-tie a yaw step apart, which the
             // least rounding tips either way).
-            let best = self.coarse_search(scene, &wide.p, &sigma, fine_mm);
+            let best = self.coarse.search(scene, &wide.p, &sigma, fine_mm);
             p = match wide.runner_up {
                 Some(runner_up) => {
-                    let other = self.coarse_search(scene, &runner_up, &sigma, fine_mm);
+                    let other = self.coarse.search(scene, &runner_up, &sigma, fine_mm);
                     if other.score < best.score { other.p } else { best.p }
                 }
                 None => best.p,
             };
         } else {
-            p = self.coarse_search(scene, &p, &sigma, fine_mm).p;
+            p = self.coarse.search(scene, &p, &sigma, fine_mm).p;
         }
         // The coarse search moves level images: its translation is the one
         // that best explains the attitude change too, so the blocks start
@@ -364,123 +262,6 @@ impl Estimator {
             }
         }
         best.map(|(_, ground)| ground)
-    }
-
-    /// Step 1: the planar motion (tx, tz, yaw) on images of `cell_mm`
-    /// cells, searched over 3 `sigma` around `start`.
-    fn coarse_search(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32) -> CoarseFound {
-        let p = *start;
-        let unmeasured = CoarseFound { p, score: f32::MAX, runner_up: None };
-        let grid = scene.grid;
-        let mm_per_px = grid.mm_per_px as f32;
-        let side = ((cell_mm / mm_per_px) as usize).max(2);
-        self.coarse_keyframe.build(scene.keyframe, scene, side);
-        self.coarse_current.build(scene.current, scene, side);
-        let (key, cur) = (&self.coarse_keyframe, &self.coarse_current);
-        let (key_mean, cur_mean) = (key.mean(), cur.mean());
-        if key_mean < 1.0 || cur_mean < 1.0 {
-            return unmeasured;
-        }
-        let gain = cur_mean / key_mean;
-        let cell_mm = mm_per_px * cur.side as f32;
-        let reach_cells = |sigma_mm: f32| (libm::ceilf(3.0 * sigma_mm / cell_mm) as i32).clamp(1, 8);
-        let (reach_x, reach_z) = (reach_cells(sigma[0]), reach_cells(sigma[1]));
-        let yaw_step = yaw_step(grid, cell_mm);
-        let yaw_reach = (libm::ceilf(3.0 * sigma[2] / yaw_step) as i32).clamp(0, MAX_YAW_STEPS);
-        let counted = (0..cur.wide * cur.high).filter(|&k| cur.valid[k]).count();
-        // A planar motion moves coarse cells affinely: keyframe cell =
-        // rotation * cell + offset, in cell units (G runs against z).
-        // Cell (0, 0)'s centre on the ground, in cells.
-        let centre = 0.5 * (cur.side as f32 - 1.0) / cur.side as f32;
-        let (origin_u, origin_v) = (grid.x_left_mm as f32 / cell_mm + centre, grid.z_far_mm as f32 / cell_mm - centre);
-        let score_at = |yaw_deg: f32, tx_mm: f32, tz_mm: f32| -> f32 {
-            let (sin, cos) = libm::sincosf(yaw_deg.to_radians());
-            // The heading's turn of the cell axes (+u, and -z for +v) and of the origin.
-            let (au, av) = (cos, sin);
-            let (bu, bv) = (sin, -cos);
-            let (tu, tv) = (tx_mm / cell_mm, tz_mm / cell_mm);
-            let (ou, ov) = (tu + origin_u * cos - origin_v * sin, tv + origin_u * sin + origin_v * cos);
-            let (ou, ov) = (ou - origin_u, origin_v - ov);
-            let (mut sum, mut count) = (0f32, 0usize);
-            for cj in 0..cur.high {
-                for ci in 0..cur.wide {
-                    let k = cj * cur.wide + ci;
-                    if !cur.valid[k] {
-                        continue;
-                    }
-                    let (u, v) = (ci as f32, cj as f32);
-                    let Some(value) = key.at(au * u + bu * v + ou, -(av * u + bv * v) + ov) else {
-                        continue;
-                    };
-                    sum += libm::fabsf(f32::from(cur.cells[k]) - gain * value);
-                    count += 1;
-                }
-            }
-            // Too little overlap is no measurement.
-            if count * 3 < counted || count < 12 {
-                f32::MAX
-            } else {
-                sum / count as f32
-            }
-        };
-        let at = |dyaw: i32, dx: i32, dz: i32| score_at(p[2] + dyaw as f32 * yaw_step, p[0] + dx as f32 * cell_mm, p[1] + dz as f32 * cell_mm);
-        // The prior breaks near-ties: a candidate's score grows by
-        // PRIOR_WEIGHT per squared sigma it lies from the start (a floor
-        // with little texture at this scale, or one edge across the view,
-        // scores alike along a whole line of candidates).
-        let squared_sigmas = |dyaw: i32, dx: i32, dz: i32| {
-            let scaled = |steps: i32, unit: f32, sigma: f32| {
-                let sigmas = steps as f32 * unit / sigma.max(1e-9);
-                sigmas * sigmas
-            };
-            scaled(dx, cell_mm, sigma[0]) + scaled(dz, cell_mm, sigma[1]) + scaled(dyaw, yaw_step, sigma[2])
-        };
-        let mut best = (f32::MAX, 0i32, 0i32, 0i32);
-        // The next best, the other start a wider search hands on.
-        let mut second = best;
-        for dyaw in -yaw_reach..=yaw_reach {
-            for dz in -reach_z..=reach_z {
-                for dx in -reach_x..=reach_x {
-                    let score = at(dyaw, dx, dz);
-                    if score == f32::MAX {
-                        continue;
-                    }
-                    let cost = score * (1.0 + COARSE_PRIOR_WEIGHT * squared_sigmas(dyaw, dx, dz));
-                    if cost < best.0 {
-                        second = best;
-                        best = (cost, dyaw, dx, dz);
-                    } else if cost < second.0 {
-                        second = (cost, dyaw, dx, dz);
-                    }
-                }
-            }
-        }
-        let (cost, by, bx, bz) = best;
-        if cost == f32::MAX {
-            return unmeasured;
-        }
-        // `start` moved by (yaw, x, z) steps.
-        let moved = |yaw: f32, x: f32, z: f32| {
-            let mut q = p;
-            q[2] += yaw * yaw_step;
-            q[0] += x * cell_mm;
-            q[1] += z * cell_mm;
-            q
-        };
-        let runner_up = (second.0 < f32::MAX).then(|| moved(second.1 as f32, second.2 as f32, second.3 as f32));
-        let centre = at(by, bx, bz);
-        // Sub-cell: a parabola along each axis through the best.
-        let offset = |minus: f32, plus: f32| {
-            if minus == f32::MAX || plus == f32::MAX {
-                0.0
-            } else {
-                crate::subpixel::minimum_offset(minus, centre, plus).clamp(-0.5, 0.5)
-            }
-        };
-        let yaw = by as f32 + offset(at(by - 1, bx, bz), at(by + 1, bx, bz));
-        let x = bx as f32 + offset(at(by, bx - 1, bz), at(by, bx + 1, bz));
-        let z = bz as f32 + offset(at(by, bx, bz - 1), at(by, bx, bz + 1));
-        CoarseFound { p: moved(yaw, x, z), score: centre, runner_up }
     }
 
     /// Step 2: every textured block of the current image whose centre

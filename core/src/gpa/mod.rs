@@ -29,6 +29,7 @@
 
 mod band;
 mod block_match;
+mod coarse;
 mod config;
 mod decision;
 mod estimate;

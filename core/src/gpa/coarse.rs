@@ -1,0 +1,462 @@
+//! Step 1 of the motion estimate: the planar motion (tx, tz, yaw) on both
+//! KG images box-averaged to coarse cells, every candidate within the
+//! prior's reach scored by its mean absolute difference after a global
+//! gain match.
+//!
+//! A candidate's translation moves the keyframe position of every cell by
+//! the same whole number of cells, so the current image is turned onto the
+//! keyframe's cells once per yaw ([`Turned`]), in Q4 gray levels, and each
+//! translation is then an integer difference of two aligned images.
+
+use super::estimate::Scene;
+use super::homography::Params;
+use crate::grid::KgGrid;
+use crate::limits::MAX_COARSE_CELLS;
+
+/// Ground side of a coarse cell, mm: coarse enough that the widest search
+/// stays small, fine enough for floor texture to survive.
+pub(super) const COARSE_CELL_MM: f32 = 25.0;
+/// How much a coarse candidate's score grows per squared prior sigma from
+/// the start: enough to break near-ties toward the prior (3 sigma: +9 %),
+/// not enough to hide a clear minimum elsewhere within reach.
+const COARSE_PRIOR_WEIGHT: f32 = 0.01;
+/// Most yaw steps the coarse search takes either side of its start: 3 sigma
+/// of the no-odometry prior (`GpaConfig::max_step_yaw_deg`, 24 deg) at the
+/// step of a grid reaching 2.4 m on 50 mm cells (0.6 deg). Was 16, which
+/// held a 1.4 m grid's search to 15 deg: short of a robot that turns 20
+/// deg between frames.
+const MAX_YAW_STEPS: i32 = 40;
+/// Most translation steps either side of the start, per axis.
+const MAX_SHIFT_STEPS: i32 = 8;
+/// Fractional bits of the turned image's gray levels.
+const TURNED_FRAC: u32 = 4;
+/// A turned cell the current image does not cover.
+const UNSEEN: u16 = u16::MAX;
+
+/// The yaw step that moves the grid's farthest corner by half a cell.
+pub(super) fn yaw_step(grid: &KgGrid, cell_mm: f32) -> f32 {
+    let far_mm = libm::hypotf(grid.x_left_mm as f32, grid.z_far_mm as f32).max(1.0);
+    (0.5 * cell_mm / far_mm).to_degrees()
+}
+
+/// A box-averaged image: `side` px cells, valid where the camera saw all of it.
+struct Coarse {
+    cells: [u8; MAX_COARSE_CELLS],
+    valid: [bool; MAX_COARSE_CELLS],
+    wide: usize,
+    high: usize,
+    side: usize,
+}
+
+impl Coarse {
+    const EMPTY: Coarse = Coarse { cells: [0; MAX_COARSE_CELLS], valid: [false; MAX_COARSE_CELLS], wide: 0, high: 0, side: 1 };
+
+    /// Averages `image` over cells of `side` px (more if the grid would need too many).
+    fn build(&mut self, image: &[u8], scene: &Scene, side: usize) {
+        let grid = scene.grid;
+        let (w, h) = (grid.width(), grid.height());
+        let mut side = side;
+        while w.div_ceil(side) * h.div_ceil(side) > MAX_COARSE_CELLS {
+            side += 1;
+        }
+        self.side = side;
+        self.wide = w / side;
+        self.high = h / side;
+        for cj in 0..self.high {
+            for ci in 0..self.wide {
+                let (mut sum, mut valid) = (0u32, true);
+                for j in cj * side..(cj + 1) * side {
+                    let row = &image[j * w..][..w];
+                    valid &= scene.seen(ci * side, j) && scene.seen((ci + 1) * side - 1, j);
+                    sum += row[ci * side..(ci + 1) * side].iter().map(|&v| u32::from(v)).sum::<u32>();
+                }
+                let k = cj * self.wide + ci;
+                self.cells[k] = (sum / (side * side) as u32) as u8;
+                self.valid[k] = valid;
+            }
+        }
+    }
+
+    fn mean(&self) -> f32 {
+        let (mut sum, mut count) = (0u32, 0u32);
+        for k in 0..self.wide * self.high {
+            if self.valid[k] {
+                sum += u32::from(self.cells[k]);
+                count += 1;
+            }
+        }
+        if count == 0 {
+            0.0
+        } else {
+            sum as f32 / count as f32
+        }
+    }
+
+    /// Bilinear sample at cell coordinates (u, v) (cell centres at integers).
+    fn at(&self, u: f32, v: f32) -> Option<f32> {
+        if !(u >= 0.0 && v >= 0.0) {
+            return None;
+        }
+        let (u0, v0) = (u as usize, v as usize);
+        if u0 + 1 >= self.wide || v0 + 1 >= self.high {
+            return None;
+        }
+        let k = v0 * self.wide + u0;
+        let corners = [k, k + 1, k + self.wide, k + self.wide + 1];
+        if !corners.iter().all(|&c| self.valid[c]) {
+            return None;
+        }
+        let (fu, fv) = (u - u0 as f32, v - v0 as f32);
+        let c = |i: usize| f32::from(self.cells[corners[i]]);
+        Some((c(0) * (1.0 - fu) + c(1) * fu) * (1.0 - fv) + (c(2) * (1.0 - fu) + c(3) * fu) * fv)
+    }
+}
+
+/// The current coarse image turned by one yaw onto the keyframe's cells
+/// and divided by the gain, in Q4 gray levels ([`UNSEEN`] where the
+/// current image does not cover the cell).
+struct Turned {
+    cells: [u16; MAX_COARSE_CELLS],
+}
+
+impl Turned {
+    const EMPTY: Turned = Turned { cells: [UNSEEN; MAX_COARSE_CELLS] };
+
+    /// Samples `current` at every keyframe cell `q` through the inverse of
+    /// `placement`, divided by `gain`.
+    fn build(&mut self, current: &Coarse, placement: &Placement, gain: f32) {
+        let Placement { sin, cos, offset } = *placement;
+        let scale = (1u32 << TURNED_FRAC) as f32 / gain;
+        for qj in 0..current.high {
+            let dv = qj as f32 - offset.1;
+            for qi in 0..current.wide {
+                let du = qi as f32 - offset.0;
+                let (u, v) = (cos * du - sin * dv, sin * du + cos * dv);
+                self.cells[qj * current.wide + qi] = match current.at(u, v) {
+                    Some(value) => libm::roundf(value * scale).min(f32::from(UNSEEN - 1)) as u16,
+                    None => UNSEEN,
+                };
+            }
+        }
+    }
+
+    /// The sum of |turned(k - shift) - keyframe(k) in Q4| over the keyframe
+    /// cells `k` both images cover, and their count.
+    fn difference(&self, keyframe: &Coarse, (di, dj): (i32, i32)) -> (u32, u32) {
+        let (wide, high) = (keyframe.wide as i32, keyframe.high as i32);
+        let columns = di.max(0)..(wide + di).min(wide);
+        let (mut sum, mut count) = (0u32, 0u32);
+        if columns.is_empty() {
+            return (0, 0);
+        }
+        for kj in dj.max(0)..(high + dj).min(high) {
+            let key_at = (kj * wide + columns.start) as usize;
+            let turned_at = ((kj - dj) * wide + columns.start - di) as usize;
+            let len = columns.len();
+            let keys = &keyframe.cells[key_at..][..len];
+            let valid = &keyframe.valid[key_at..][..len];
+            let turned = &self.cells[turned_at..][..len];
+            for ((&k, &seen), &t) in keys.iter().zip(valid).zip(turned) {
+                let both = seen && t != UNSEEN;
+                sum += if both { u32::from(t).abs_diff(u32::from(k) << TURNED_FRAC) } else { 0 };
+                count += u32::from(both);
+            }
+        }
+        (sum, count)
+    }
+}
+
+/// Where a candidate puts the current cells in the keyframe: keyframe
+/// cell = R(yaw) cell + `offset`, in cell units (G runs against z).
+#[derive(Clone, Copy)]
+struct Placement {
+    sin: f32,
+    cos: f32,
+    offset: (f32, f32),
+}
+
+/// One search's candidates: the start moved by whole steps of yaw, x and z.
+struct Candidates {
+    start: Params,
+    /// The prior's sigmas (mm, mm, deg; pitch and roll unused).
+    sigma: Params,
+    cell_mm: f32,
+    yaw_step: f32,
+    /// Cell (0, 0)'s centre on the ground, in cells.
+    origin: (f32, f32),
+    /// The current image's brightness over the keyframe's.
+    gain: f32,
+    /// Valid current cells: a candidate must overlap a third of them.
+    counted: u32,
+}
+
+impl Candidates {
+    fn placement(&self, dyaw: i32, dx: i32, dz: i32) -> Placement {
+        let p = &self.start;
+        let (origin_u, origin_v) = self.origin;
+        let (sin, cos) = libm::sincosf((p[2] + dyaw as f32 * self.yaw_step).to_radians());
+        let (tu, tv) = ((p[0] + dx as f32 * self.cell_mm) / self.cell_mm, (p[1] + dz as f32 * self.cell_mm) / self.cell_mm);
+        let (ou, ov) = (tu + origin_u * cos - origin_v * sin, tv + origin_u * sin + origin_v * cos);
+        Placement { sin, cos, offset: (ou - origin_u, origin_v - ov) }
+    }
+
+    /// A candidate's score with the prior's say: it grows by
+    /// [`COARSE_PRIOR_WEIGHT`] per squared sigma the candidate lies from
+    /// the start (a floor with little texture at this scale, or one edge
+    /// across the view, scores alike along a whole line of candidates).
+    fn cost(&self, score: f32, dyaw: i32, dx: i32, dz: i32) -> f32 {
+        let squared_sigmas = |steps: i32, unit: f32, sigma: f32| {
+            let sigmas = steps as f32 * unit / sigma.max(1e-9);
+            sigmas * sigmas
+        };
+        let sigma = &self.sigma;
+        let squared = squared_sigmas(dx, self.cell_mm, sigma[0]) + squared_sigmas(dz, self.cell_mm, sigma[1]) + squared_sigmas(dyaw, self.yaw_step, sigma[2]);
+        score * (1.0 + COARSE_PRIOR_WEIGHT * squared)
+    }
+
+    /// The start moved by (yaw, x, z) steps.
+    fn moved(&self, yaw: f32, x: f32, z: f32) -> Params {
+        let mut q = self.start;
+        q[2] += yaw * self.yaw_step;
+        q[0] += x * self.cell_mm;
+        q[1] += z * self.cell_mm;
+        q
+    }
+
+    /// `sum / count`, or f32::MAX when too few cells overlap to measure.
+    fn mean(&self, sum: f32, count: u32) -> f32 {
+        if count * 3 < self.counted || count < 12 {
+            f32::MAX
+        } else {
+            sum / count as f32
+        }
+    }
+
+    /// The mean |current - gain * keyframe| over the current cells, the
+    /// keyframe sampled bilinearly where `placement` puts each.
+    fn exact_score(&self, keyframe: &Coarse, current: &Coarse, placement: &Placement) -> f32 {
+        let Placement { sin, cos, offset: (ou, ov) } = *placement;
+        // The heading's turn of the cell axes (+u, and -z for +v).
+        let (au, av, bu, bv) = (cos, sin, sin, -cos);
+        let (mut sum, mut count) = (0f32, 0u32);
+        for cj in 0..current.high {
+            for ci in 0..current.wide {
+                let k = cj * current.wide + ci;
+                if !current.valid[k] {
+                    continue;
+                }
+                let (u, v) = (ci as f32, cj as f32);
+                let Some(value) = keyframe.at(au * u + bu * v + ou, -(av * u + bv * v) + ov) else {
+                    continue;
+                };
+                sum += libm::fabsf(f32::from(current.cells[k]) - self.gain * value);
+                count += 1;
+            }
+        }
+        self.mean(sum, count)
+    }
+
+    /// The same score from the current image turned by the candidate's
+    /// yaw, moved by its (dx, dz) steps.
+    fn turned_score(&self, turned: &Turned, keyframe: &Coarse, dx: i32, dz: i32) -> f32 {
+        let (sum, count) = turned.difference(keyframe, (dx, -dz));
+        match self.mean(sum as f32, count) {
+            f32::MAX => f32::MAX,
+            mean => self.gain * mean / (1u32 << TURNED_FRAC) as f32,
+        }
+    }
+}
+
+/// Candidates the turned image ranks best, rescored exactly.
+const SHORTLIST: usize = 32;
+
+/// The [`SHORTLIST`] lowest costs offered, with their steps (yaw, z, x).
+struct Shortlist {
+    entries: [(f32, [i32; 3]); SHORTLIST],
+}
+
+impl Shortlist {
+    const EMPTY: Shortlist = Shortlist { entries: [(f32::MAX, [0; 3]); SHORTLIST] };
+
+    fn offer(&mut self, cost: f32, steps: [i32; 3]) {
+        let last = SHORTLIST - 1;
+        if cost >= self.entries[last].0 {
+            return;
+        }
+        let mut k = last;
+        while k > 0 && cost < self.entries[k - 1].0 {
+            self.entries[k] = self.entries[k - 1];
+            k -= 1;
+        }
+        self.entries[k] = (cost, steps);
+    }
+
+    /// The steps kept, in the order the search visits them (so that ties
+    /// go as they would over the whole search).
+    fn in_search_order(&self) -> impl Iterator<Item = [i32; 3]> {
+        let mut steps = [[0i32; 3]; SHORTLIST];
+        let mut count = 0;
+        for (slot, &(cost, entry)) in steps.iter_mut().zip(&self.entries) {
+            if cost < f32::MAX {
+                *slot = entry;
+                count += 1;
+            }
+        }
+        steps[..count].sort_unstable();
+        steps.into_iter().take(count)
+    }
+}
+
+/// A coarse search's answer: the motion, its score (mean absolute
+/// difference per cell, `f32::MAX` when nothing was measured), and the
+/// next best candidate.
+pub(super) struct CoarseFound {
+    pub(super) p: Params,
+    pub(super) score: f32,
+    pub(super) runner_up: Option<Params>,
+}
+
+/// The coarse search's memory: both coarse images and the turned one.
+pub(super) struct CoarseSearch {
+    keyframe: Coarse,
+    current: Coarse,
+    turned: Turned,
+}
+
+impl CoarseSearch {
+    pub(super) const EMPTY: CoarseSearch = CoarseSearch { keyframe: Coarse::EMPTY, current: Coarse::EMPTY, turned: Turned::EMPTY };
+
+    /// The planar motion (tx, tz, yaw) on images of `cell_mm` cells,
+    /// searched over 3 `sigma` around `start`.
+    pub(super) fn search(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32) -> CoarseFound {
+        let p = *start;
+        let unmeasured = CoarseFound { p, score: f32::MAX, runner_up: None };
+        let grid = scene.grid;
+        let mm_per_px = grid.mm_per_px as f32;
+        let side = ((cell_mm / mm_per_px) as usize).max(2);
+        self.keyframe.build(scene.keyframe, scene, side);
+        self.current.build(scene.current, scene, side);
+        let (key_mean, cur_mean) = (self.keyframe.mean(), self.current.mean());
+        if key_mean < 1.0 || cur_mean < 1.0 {
+            return unmeasured;
+        }
+        let gain = cur_mean / key_mean;
+        let cell_mm = mm_per_px * self.current.side as f32;
+        let reach_cells = |sigma_mm: f32| (libm::ceilf(3.0 * sigma_mm / cell_mm) as i32).clamp(1, MAX_SHIFT_STEPS);
+        let (reach_x, reach_z) = (reach_cells(sigma[0]), reach_cells(sigma[1]));
+        let yaw_step = yaw_step(grid, cell_mm);
+        let yaw_reach = (libm::ceilf(3.0 * sigma[2] / yaw_step) as i32).clamp(0, MAX_YAW_STEPS);
+        let counted = (0..self.current.wide * self.current.high).filter(|&k| self.current.valid[k]).count() as u32;
+        let cell_centre = 0.5 * (self.current.side as f32 - 1.0) / self.current.side as f32;
+        let origin = (grid.x_left_mm as f32 / cell_mm + cell_centre, grid.z_far_mm as f32 / cell_mm - cell_centre);
+        let candidates = Candidates { start: p, sigma: *sigma, cell_mm, yaw_step, origin, gain, counted };
+        // Rank every candidate on the turned image; keep the few best.
+        let mut shortlist = Shortlist::EMPTY;
+        for dyaw in -yaw_reach..=yaw_reach {
+            self.turned.build(&self.current, &candidates.placement(dyaw, 0, 0), gain);
+            for dz in -reach_z..=reach_z {
+                for dx in -reach_x..=reach_x {
+                    let score = candidates.turned_score(&self.turned, &self.keyframe, dx, dz);
+                    if score != f32::MAX {
+                        shortlist.offer(candidates.cost(score, dyaw, dx, dz), [dyaw, dz, dx]);
+                    }
+                }
+            }
+        }
+        // The shortlist scored again sampling the keyframe at each current
+        // cell: the turned image samples the current one instead, as good
+        // for ranking but rounded differently cell by cell, and the fine
+        // steps start from what is chosen here.
+        let exact = |dyaw: i32, dx: i32, dz: i32| candidates.exact_score(&self.keyframe, &self.current, &candidates.placement(dyaw, dx, dz));
+        let mut best = (f32::MAX, 0i32, 0i32, 0i32);
+        // The next best, the other start a wider search hands on.
+        let mut second = best;
+        for [dyaw, dz, dx] in shortlist.in_search_order() {
+            let score = exact(dyaw, dx, dz);
+            if score == f32::MAX {
+                continue;
+            }
+            let cost = candidates.cost(score, dyaw, dx, dz);
+            if cost < best.0 {
+                second = best;
+                best = (cost, dyaw, dx, dz);
+            } else if cost < second.0 {
+                second = (cost, dyaw, dx, dz);
+            }
+        }
+        let (cost, by, bx, bz) = best;
+        if cost == f32::MAX {
+            return unmeasured;
+        }
+        let runner_up = (second.0 < f32::MAX).then(|| candidates.moved(second.1 as f32, second.2 as f32, second.3 as f32));
+        // Sub-cell: a parabola along each axis through the best.
+        let centre = exact(by, bx, bz);
+        let offset = |minus: f32, plus: f32| {
+            if minus == f32::MAX || plus == f32::MAX {
+                0.0
+            } else {
+                crate::subpixel::minimum_offset(minus, centre, plus).clamp(-0.5, 0.5)
+            }
+        };
+        let yaw = by as f32 + offset(exact(by - 1, bx, bz), exact(by + 1, bx, bz));
+        let x = bx as f32 + offset(exact(by, bx - 1, bz), exact(by, bx + 1, bz));
+        let z = bz as f32 + offset(exact(by, bx, bz - 1), exact(by, bx, bz + 1));
+        CoarseFound { p: candidates.moved(yaw, x, z), score: centre, runner_up }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shortlist_keeps_the_lowest_costs_in_search_order() {
+        let mut shortlist = Shortlist::EMPTY;
+        // Costs falling then rising along the search: the lowest are the middle ones.
+        for k in 0..100i32 {
+            shortlist.offer((k - 50).abs() as f32, [k / 10, k % 10, 0]);
+        }
+        let kept: std::vec::Vec<_> = shortlist.in_search_order().collect();
+        assert_eq!(kept.len(), SHORTLIST);
+        let expected: std::vec::Vec<_> = (34..=65).map(|k| [k / 10, k % 10, 0]).collect();
+        assert_eq!(kept, expected);
+    }
+
+    /// A coarse image of `wide` x `high` cells, every one valid.
+    fn coarse(wide: usize, high: usize, value: impl Fn(usize, usize) -> u8) -> Coarse {
+        let mut image = Coarse::EMPTY;
+        (image.wide, image.high, image.side) = (wide, high, 5);
+        for j in 0..high {
+            for i in 0..wide {
+                image.cells[j * wide + i] = value(i, j);
+                image.valid[j * wide + i] = true;
+            }
+        }
+        image
+    }
+
+    #[test]
+    fn turned_and_exact_scores_agree_and_find_the_shift() {
+        let texture = |i: i32, j: i32| ((i * 37 + j * 91) % 61 * 4) as u8;
+        // The current image is the keyframe moved by (+2, -1) cells.
+        let keyframe = coarse(20, 30, |i, j| texture(i as i32, j as i32));
+        let current = coarse(20, 30, |i, j| texture(i as i32 + 2, j as i32 - 1));
+        let candidates = Candidates {
+            start: [0.0; 5],
+            sigma: [50.0, 50.0, 1.0, 1.0, 1.0],
+            cell_mm: 25.0,
+            yaw_step: 0.5,
+            origin: (-5.0, 40.0),
+            gain: 1.0,
+            counted: 600,
+        };
+        let mut turned = Turned::EMPTY;
+        turned.build(&current, &candidates.placement(0, 0, 0), 1.0);
+        for (dx, dz) in [(2, 1), (0, 0), (1, 1), (2, 0), (-1, 2)] {
+            let fast = candidates.turned_score(&turned, &keyframe, dx, dz);
+            let exact = candidates.exact_score(&keyframe, &current, &candidates.placement(0, dx, dz));
+            assert!((fast - exact).abs() < 0.05 * exact.max(1.0), "({dx}, {dz}): {fast} vs {exact}");
+            assert_eq!(fast == 0.0, (dx, dz) == (2, 1), "({dx}, {dz}): {fast}");
+        }
+    }
+}
