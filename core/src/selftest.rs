@@ -59,6 +59,7 @@ checks! {
         seed_statistics_equal_plain,
         pinhole_rows_equal_bilinear,
         copy_row_copies,
+        dot_shifts_equal_plain,
     ],
     health: [
         alarm_is_asserted_until_a_frame_is_judged_clear,

@@ -6,10 +6,12 @@
 //! Integer throughout: the keyframe patch is sampled bilinearly along the
 //! model's local affine map in Q16 steps into Q4 gray levels, and every shift's
 //! sums (keyframe, its squares, the product with the block) are exact
-//! integers; only the 49 scores are divided in `f32`.
+//! integers; only the 49 scores are divided in `f32`. The products run
+//! two at a time ([`kernels::dot_shifts`], `smlad` on the M4).
 
 use super::homography::PixelMap;
 use super::warp::Coverage;
+use crate::kernels;
 use crate::grid::KgGrid;
 
 /// Block side, KG pixels, and its search reach around the model.
@@ -199,21 +201,37 @@ fn correlate(block: &[[u8; BLOCK_PX]; BLOCK_PX], sum: i64, energy: i64, patch: &
             squares[su] = q;
         }
     }
+    // The block's rows two pixels to a word, for the kernel's paired products.
+    let mut pairs = [[0u32; BLOCK_PX / 2]; BLOCK_PX];
+    for (row, packed) in block.iter().zip(pairs.iter_mut()) {
+        kernels::pack_pairs(row, packed);
+    }
+    // Per horizontal shift, the keyframe's sums over the block's rows at
+    // the vertical shift, slid down a row at a time.
+    let mut window_sums = [0i64; WINDOW];
+    let mut window_squares = [0i64; WINDOW];
+    for v in 0..BLOCK_PX {
+        for su in 0..WINDOW {
+            window_sums[su] += i64::from(run_sums[v][su]);
+            window_squares[su] += i64::from(run_squares[v][su]);
+        }
+    }
     let mut scores = [[0f32; WINDOW]; WINDOW];
     for (sv, score_row) in scores.iter_mut().enumerate() {
         let mut cross = [0u32; WINDOW];
-        for (v, current) in block.iter().enumerate() {
-            let keyframe = &patch[v + sv];
-            for (su, total) in cross.iter_mut().enumerate() {
-                *total += current.iter().zip(&keyframe[su..su + BLOCK_PX]).map(|(&c, &k)| u32::from(c) * u32::from(k)).sum::<u32>();
+        for (v, packed) in pairs.iter().enumerate() {
+            kernels::dot_shifts(packed, &patch[v + sv], &mut cross);
+        }
+        if sv > 0 {
+            // The rows sv..sv + BLOCK_PX: one row in, one out.
+            let (into, out) = (sv + BLOCK_PX - 1, sv - 1);
+            for su in 0..WINDOW {
+                window_sums[su] += i64::from(run_sums[into][su]) - i64::from(run_sums[out][su]);
+                window_squares[su] += i64::from(run_squares[into][su]) - i64::from(run_squares[out][su]);
             }
         }
         for (su, score) in score_row.iter_mut().enumerate() {
-            let (mut s, mut q) = (0i64, 0i64);
-            for v in sv..sv + BLOCK_PX {
-                s += i64::from(run_sums[v][su]);
-                q += i64::from(run_squares[v][su]);
-            }
+            let (s, q) = (window_sums[su], window_squares[su]);
             // n^2 times the keyframe's variance and the covariance.
             let variance = PIXELS * q - s * s;
             let covariance = PIXELS * i64::from(cross[su]) - sum * s;

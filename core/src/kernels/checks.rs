@@ -225,6 +225,39 @@ pub fn pinhole_rows_equal_bilinear() -> Outcome {
     Ok(())
 }
 
+/// The block matcher's `dot_shifts` equals per-product loops: rows of 0
+/// to 20 pairs (the tails included), 1 to 7 shifts, patch values up to the
+/// Q4 gray levels' 4,080 and the 2^15 - 1 the M4's signed lanes allow.
+pub fn dot_shifts_equal_plain() -> Outcome {
+    let mut state = 0xC0FF_EE11u32;
+    let mut row = [0u8; 40];
+    let mut patch = [0u16; 48];
+    for round in 0..3 {
+        let top = [4081u32, 32768, 256][round];
+        for value in row.iter_mut() {
+            *value = xorshift32(&mut state) as u8;
+        }
+        for value in patch.iter_mut() {
+            *value = (xorshift32(&mut state) % top) as u16;
+        }
+        for pairs_len in 0..=20 {
+            let mut pairs = [0u32; 20];
+            super::pack_pairs(&row[..2 * pairs_len], &mut pairs[..pairs_len]);
+            for shifts in 1..=7 {
+                let mut sums = [5u32; 7];
+                super::dot_shifts(&pairs[..pairs_len], &patch[1..], &mut sums[..shifts]);
+                for (k, &sum) in sums[..shifts].iter().enumerate() {
+                    let plain = (0..2 * pairs_len).map(|x| u32::from(row[x]) * u32::from(patch[1 + k + x])).fold(5u32, u32::wrapping_add);
+                    if sum != plain {
+                        return Err("dot_shifts differs from the per-product loop");
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The ring's row copy (`ldm`/`stm` on the M4 when word aligned) equals
 /// `copy_from_slice` for every length 0..=70 and alignment.
 pub fn copy_row_copies() -> Outcome {

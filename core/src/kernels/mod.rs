@@ -124,6 +124,30 @@ pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8
     selected::bilinear_line(upper, lower, wx, wy, out)
 }
 
+// ------------------------------------------------------- block matching
+
+/// A row of bytes as 16-bit lanes, two to a word (`row[2i]` low,
+/// `row[2i + 1]` high): the block side of [`dot_shifts`]. Fills
+/// `row.len() / 2` words.
+pub fn pack_pairs(row: &[u8], pairs: &mut [u32]) {
+    for (pair, two) in pairs.iter_mut().zip(row.chunks_exact(2)) {
+        *pair = u32::from(two[0]) | (u32::from(two[1]) << 16);
+    }
+}
+
+/// The block matcher's correlation: `sums[k] += sum over x of row[x] *
+/// patch[k + x]` for every shift `k` in `0..sums.len()`, the row packed by
+/// [`pack_pairs`] into `pairs`. `patch` values stay below 2^15 (the M4
+/// multiplies signed lanes) and it holds at least `2 * pairs.len() +
+/// sums.len() - 1` of them (fewer: no-op). Sums wrap, as the M4's do.
+#[inline]
+pub fn dot_shifts(pairs: &[u32], patch: &[u16], sums: &mut [u32]) {
+    if sums.is_empty() || patch.len() + 1 < 2 * pairs.len() + sums.len() {
+        return;
+    }
+    selected::dot_shifts(pairs, patch, sums)
+}
+
 // ---------------------------------------------------------------- remap
 
 /// Fractional bits of the fixed-point source coordinates (Q16.16 pixels).

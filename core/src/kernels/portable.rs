@@ -91,3 +91,11 @@ pub unsafe fn pinhole_horizontal_flipped(line: &[u16], u: i32, step: i32, out: &
 pub fn copy_row(dst: &mut [u8], src: &[u8]) {
     dst.copy_from_slice(src);
 }
+
+#[inline]
+pub fn dot_shifts(pairs: &[u32], patch: &[u16], sums: &mut [u32]) {
+    for (k, sum) in sums.iter_mut().enumerate() {
+        let products = pairs.iter().zip(patch[k..].chunks_exact(2)).map(|(&pair, two)| (pair & 0xFFFF) * u32::from(two[0]) + (pair >> 16) * u32::from(two[1]));
+        *sum = products.fold(*sum, u32::wrapping_add);
+    }
+}
