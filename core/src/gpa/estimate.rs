@@ -450,20 +450,22 @@ mod tests {
     }
 
     /// The KG image, seen from `pose` (a planar motion from the keyframe),
-    /// of a floor with a plateau `height_mm` high beyond `edge_z_mm`
-    /// (keyframe frame), textured as the floor.
-    fn render_plateau(pose: &Motion, edge_z_mm: f64, height_mm: f64) -> Vec<u8> {
+    /// of a floor whose part past `edge_z_mm` (keyframe frame) is a level
+    /// `level_mm` above it (a plateau; negative, a drop's lower level),
+    /// textured as the floor. A ray meets a level h above the floor at
+    /// (H - h) / H of its apparent ground distance; it meets the level when
+    /// that point lies past the edge, and (below) has passed the edge.
+    fn render_level(pose: &Motion, edge_z_mm: f64, level_mm: f64) -> Vec<u8> {
         let grid = grid();
         let map = GroundMap::new(&GroundMotion { planar: *pose, attitude: Attitude::default() }, 400.0);
+        let scale = (400.0 - level_mm) / 400.0;
         let mut image = Vec::new();
         for j in 0..grid.height() {
             for i in 0..grid.width() {
                 let (x, z) = grid.pixel_to_ground(i as f64, j as f64);
                 let (xk, zk) = map.to_keyframe(x, z).unwrap();
-                // The ray meets the plateau at (H - h) / H of its ground distance.
-                let scale = (400.0 - height_mm) / 400.0;
                 let (xt, zt) = map.to_keyframe(x * scale, z * scale).unwrap();
-                let value = if zt >= edge_z_mm { floor(xt, zt) } else { floor(xk, zk) };
+                let value = if zk >= edge_z_mm && zt >= edge_z_mm { floor(xt, zt) } else { floor(xk, zk) };
                 image.push(value.clamp(0.0, 255.0) as u8);
             }
         }
@@ -475,8 +477,8 @@ mod tests {
         // A 60 mm curb from 700 mm on (keyframe): its top fills most of the
         // view and moves 18 % faster than the floor the robot stands on.
         let step = Motion { tx_mm: 0.0, tz_mm: 80.0, dyaw_deg: 0.0 };
-        let keyframe = render_plateau(&Motion::default(), 700.0, 60.0);
-        let current = render_plateau(&step, 700.0, 60.0);
+        let keyframe = render_level(&Motion::default(), 700.0, 60.0);
+        let current = render_level(&step, 700.0, 60.0);
         // Odometry (or, without it, the last step) 10 % long.
         let predicted = GroundMotion { planar: Motion { tz_mm: 88.0, ..step }, attitude: Attitude::default() };
         let prior = Prior { motion: predicted, sigma: [12.0, 12.0, 1.0, 1.0, 1.0] };
@@ -484,32 +486,13 @@ mod tests {
         assert_close(&found, &GroundMotion { planar: step, attitude: Attitude::default() });
     }
 
-    /// The floor seen from `pose`, falling away by `depth_mm` past world
-    /// `edge_z_mm`: a ray past the edge meets the lower level at
-    /// (H + d) / H of its apparent ground distance.
-    fn render_ledge(pose: &Motion, edge_z_mm: f64, depth_mm: f64) -> Vec<u8> {
-        let grid = grid();
-        let map = GroundMap::new(&GroundMotion { planar: *pose, attitude: Attitude::default() }, 400.0);
-        let scale = (400.0 + depth_mm) / 400.0;
-        let mut image = Vec::new();
-        for j in 0..grid.height() {
-            for i in 0..grid.width() {
-                let (x, z) = grid.pixel_to_ground(i as f64, j as f64);
-                let (xk, zk) = map.to_keyframe(x, z).unwrap();
-                let value = if zk < edge_z_mm { floor(xk, zk) } else { map.to_keyframe(x * scale, z * scale).map_or(0.0, |(xt, zt)| floor(xt, zt)) };
-                image.push(value.clamp(0.0, 255.0) as u8);
-            }
-        }
-        image
-    }
-
     #[test]
     fn a_lower_level_is_not_taken_for_a_pitch_change() {
         // A 30 mm drop past 1200 mm: level, the lower level moves 7 % less
         // than the floor, which a small pitch change nearly mimics.
         let step = Motion { tx_mm: 0.0, tz_mm: 100.0, dyaw_deg: 0.0 };
-        let keyframe = render_ledge(&Motion::default(), 1200.0, 30.0);
-        let current = render_ledge(&step, 1200.0, 30.0);
+        let keyframe = render_level(&Motion::default(), 1200.0, -30.0);
+        let current = render_level(&step, 1200.0, -30.0);
         let predicted = GroundMotion { planar: step, attitude: Attitude::default() };
         let prior = Prior { motion: predicted, sigma: [15.0, 15.0, 0.5, 1.0, 1.0] };
         let found = estimate_between(&keyframe, &current, &prior);

@@ -126,7 +126,12 @@ pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N]
                 if r <= k { 1.0 } else { k / r }
             } else {
                 let c = 4.685 * scale;
-                if r >= c { 0.0 } else { { let u = 1.0 - (r / c) * (r / c); u * u } }
+                if r >= c {
+                    0.0
+                } else {
+                    let u = 1.0 - (r / c) * (r / c);
+                    u * u
+                }
             }
         };
         let mut normal = [[0f32; N]; N];
