@@ -35,6 +35,11 @@ pub struct Attitude {
 }
 
 impl Attitude {
+    /// This attitude changed by `change`.
+    pub fn then(&self, change: &Attitude) -> Attitude {
+        Attitude { pitch_deg: self.pitch_deg + change.pitch_deg, roll_deg: self.roll_deg + change.roll_deg }
+    }
+
     /// The change from `earlier` to this attitude.
     pub fn since(&self, earlier: &Attitude) -> Attitude {
         Attitude { pitch_deg: self.pitch_deg - earlier.pitch_deg, roll_deg: self.roll_deg - earlier.roll_deg }

@@ -145,6 +145,11 @@ impl Slip {
             };
             recording.poses[n].pose = Some(moved(&previous, &step));
         }
+        // The IMU is on the body, which stands where its images show.
+        let attitude_of = |frame: u32| original.iter().find(|row| row.frame == frame).and_then(|row| row.attitude);
+        for row in recording.poses.iter_mut().filter(|row| row.attitude.is_some()) {
+            row.attitude = attitude_of(self.source(row.frame));
+        }
         if let Some(truth) = recording.truth.as_mut() {
             let pairs = std::mem::take(&mut truth.pair);
             truth.pair = recording
@@ -244,6 +249,12 @@ impl Perturbation {
             slip.rewrite(recording);
         }
         self.poses(recording);
+        // An IMU turns with the body: its columns read the applied attitude too.
+        for row in recording.poses.iter_mut() {
+            if let Some(imu) = row.attitude.as_mut() {
+                *imu = imu.then(&self.attitude(row.frame));
+            }
+        }
         FramePerturber::new(*self, &recording.rig)
     }
 

@@ -282,6 +282,27 @@ fn imu_columns_carry_the_applied_attitude() {
     }
 }
 
+#[test]
+fn an_imu_turns_with_the_body_and_stands_with_the_images() {
+    // bumpy_marks carries IMU columns: the applied attitude adds to them.
+    let original = Recording::open(data("bumpy_marks")).unwrap();
+    let mut recording = original.clone();
+    let p = perturbation("pitch-jitter=0.3,roll=2:1,seed=4");
+    p.apply(&mut recording);
+    for (row, before) in recording.poses.iter().zip(&original.poses) {
+        assert_eq!(row.attitude, Some(before.attitude.unwrap().then(&p.attitude(row.frame))), "frame {}", row.frame);
+    }
+    // Slipping, the body stands where its images show, and so does its IMU.
+    let mut recording = original.clone();
+    let slip = perturbation("slip=3-6");
+    slip.apply(&mut recording);
+    let source = |frame: u32| slip.slip.unwrap().source(frame);
+    for row in &recording.poses {
+        assert_eq!(row.attitude, original.pose(source(row.frame)).unwrap().attitude, "frame {}", row.frame);
+    }
+    assert_ne!(recording.poses[8].attitude, original.poses[8].attitude);
+}
+
 // ---- detection under the perturbations ----
 
 /// Body pitch and roll, white per frame, sigma 0.3 deg (real robots: 0.3-1 deg).
@@ -337,7 +358,7 @@ zero_errors! {
     sustained_attitude: super::SUSTAINED => [
         #[ignore = "issue 13, measured: FA 11, 12"] approach_box,
         #[ignore = "issue 13, measured: frames 5, 14"] bumpy_approach,
-        #[ignore = "issue 13, measured: FA 4, 5"] bumpy_marks,
+        #[ignore = "issue 13, measured: FA 4 (the step pair: roll 1.9 deg, a residue at 453 mm)"] bumpy_marks,
         #[ignore = "issue 13, measured: FA 4"] diagonal,
         #[ignore = "issue 13, measured: miss 10"] exposure_rolling,
         flat_marks,
@@ -354,7 +375,7 @@ zero_errors! {
     slip: super::SLIP => [
         approach_box,
         bumpy_approach,
-        #[ignore = "issue 13, measured: FA 13, 14"] bumpy_marks,
+        bumpy_marks,
         diagonal,
         exposure_rolling,
         #[ignore = "issue 13, measured: FA 3-6"] flat_marks,
