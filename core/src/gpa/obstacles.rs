@@ -250,13 +250,15 @@ fn parallax_group(
             }
         };
         // Above, every cell of a vertical face points at the same footprint:
-        // the lower quartile is robust to the odd cell whose height is off.
+        // the lower quartile is robust to the odd cell whose height is off,
+        // and so that it is in the small groups too (3-5 cells, where the
+        // quartile is the nearest cell), never the nearest one alone.
         // Below, a cell straddling the edge mostly sees the floor, so every
         // column's nearest drop cell starts up to a cell past the edge: the
         // nearest column is the edge.
         footprints.sort_unstable_by(|a, b| a.total_cmp(b));
         let nearest = match side {
-            Side::Above => footprints[(footprints.len() - 1) / 4],
+            Side::Above => footprints[((footprints.len() - 1) / 4).max(1).min(footprints.len() - 1)],
             Side::Below => footprints[0],
         };
         for span in &spans {
