@@ -128,7 +128,7 @@ impl Slip {
     /// obstacles are left as they are.
     fn rewrite(&self, recording: &mut Recording) {
         let original = recording.poses.clone();
-        let pose_of = |frame: u32| original.iter().find(|row| row.frame == frame).and_then(|row| row.pose);
+        let row_of = |frame: u32| original.iter().find(|row| row.frame == frame);
         for n in 1..original.len() {
             // A recording without odometry has no wheels to slip.
             let (Some(previous), Some(first), Some(second)) = (recording.poses[n - 1].pose, original[n - 1].pose, original[n].pose) else {
@@ -139,16 +139,15 @@ impl Slip {
             // Standing, the wheels make the step they would have made; else
             // they follow the images.
             let (from, to) = if from == to { (before, after) } else { (from, to) };
-            let step = match (pose_of(from), pose_of(to)) {
+            let step = match (row_of(from).and_then(|row| row.pose), row_of(to).and_then(|row| row.pose)) {
                 (Some(from), Some(to)) => Motion::between(&from, &to),
                 _ => Motion::between(&first, &second),
             };
             recording.poses[n].pose = Some(moved(&previous, &step));
         }
         // The IMU is on the body, which stands where its images show.
-        let attitude_of = |frame: u32| original.iter().find(|row| row.frame == frame).and_then(|row| row.attitude);
         for row in recording.poses.iter_mut().filter(|row| row.attitude.is_some()) {
-            row.attitude = attitude_of(self.source(row.frame));
+            row.attitude = row_of(self.source(row.frame)).and_then(|source| source.attitude);
         }
         if let Some(truth) = recording.truth.as_mut() {
             let pairs = std::mem::take(&mut truth.pair);
