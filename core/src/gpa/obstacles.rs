@@ -251,8 +251,8 @@ fn parallax_group(
         };
         // Above, every cell of a vertical face points at the same footprint:
         // the lower quartile is robust to the odd cell whose height is off,
-        // and so that it is in the small groups too (3-5 cells, where the
-        // quartile is the nearest cell), never the nearest one alone.
+        // and so that it is in the small groups too (3 and 4 cells, where
+        // the quartile is the nearest cell), never the nearest one alone.
         // Below, a cell straddling the edge mostly sees the floor, so every
         // column's nearest drop cell starts up to a cell past the edge: the
         // nearest column is the edge.
