@@ -5,7 +5,7 @@
 
 use super::config::GpaConfig;
 use super::kernels;
-use super::warp::{RowWarp, FRAC};
+use super::warp::{RowWarp, BEND_FRAC, FRAC};
 use crate::grid::KgGrid;
 use crate::motion::Motion;
 use core::ops::Range;
@@ -165,13 +165,18 @@ impl<'b> Keyframe<'b> {
         }
         // A yawed or bent line: the position steps in Q16 (the same sums as
         // `line.at(c)`) and the 2x2 neighbourhood is read from one offset
-        // without slicing. Each coordinate is linear in c: when it stays in
-        // i32 at both ends nothing wraps, the columns inside are one interval,
-        // found from its ends, and no pixel in it needs a test.
+        // without slicing. Each coordinate is linear (or, bent, quadratic)
+        // in c: when it stays in i32 at both ends nothing wraps, and unless
+        // a bent coordinate turns outside the grid between the columns
+        // found inside from both ends, they are one interval and no pixel
+        // in it needs a test.
         let (i_limit, j_limit) = (self.columns_limit(), self.rows_limit());
         let exact = |c: usize| {
-            let along = |start: i32, step: i32| i64::from(start) + c as i64 * i64::from(step);
-            (along(line.i_start, line.i_step), along(line.j_start, line.j_step))
+            let along = |start: i32, step: i32, bend: i32| {
+                let c = c as i64;
+                i64::from(start) + c * i64::from(step) + ((c * c * i64::from(bend)) >> (BEND_FRAC - FRAC))
+            };
+            (along(line.i_start, line.i_step, line.i_bend), along(line.j_start, line.j_step, line.j_bend))
         };
         let fits = |(i, j): (i64, i64)| i32::try_from(i).is_ok() && i32::try_from(j).is_ok();
         if !(fits(exact(columns.start)) && fits(exact(columns.end - 1))) {
@@ -186,18 +191,30 @@ impl<'b> Keyframe<'b> {
             return columns.start..columns.start;
         };
         let end = (first + 1..columns.end).rev().find(|&c| inside(c)).map_or(first + 1, |c| c + 1);
+        if line.is_bent() {
+            // A quadratic's turning point, -step / (2 bend), is where it could leave the grid.
+            let turning = |step: i32, bend: i32| {
+                (bend != 0).then(|| -(f64::from(step) * (1u64 << (BEND_FRAC - FRAC)) as f64) / (2.0 * f64::from(bend)))
+            };
+            let leaves = |turn: Option<f64>| {
+                turn.is_some_and(|t| t > first as f64 && t < (end - 1) as f64 && [t as usize, t as usize + 1].iter().any(|&c| !inside(c)))
+            };
+            if leaves(turning(line.i_step, line.i_bend)) || leaves(turning(line.j_step, line.j_bend)) {
+                return self.sample_line_checked(line, columns, out);
+            }
+        }
         out[columns.start..first].fill(0);
         out[end..columns.end].fill(0);
         let image: &[u8] = &self.images[self.key_half][..self.height * self.width];
         let width = self.width;
-        let (mut i, mut j) = line.at(first);
-        for slot in &mut out[first..end] {
+        let read = |(i, j): (i32, i32)| {
             let index = (j >> FRAC) as usize * width + (i >> FRAC) as usize;
             // SAFETY: every position from `first` to `end` lies in
-            // 0..(width - 1) << 16 by 0..(height - 1) << 16 (both ends do and
-            // the line is linear without wrapping), so the row index is at
-            // most height - 2, the column at most width - 2, and
-            // index + width + 1 < height * width = image.len().
+            // 0..(width - 1) << 16 by 0..(height - 1) << 16 (both ends do,
+            // a linear line does not wrap and a bent one does not turn
+            // outside), so the row index is at most height - 2, the column
+            // at most width - 2, and index + width + 1 < height * width =
+            // image.len().
             let (p00, p01, p10, p11) = unsafe {
                 (
                     *image.get_unchecked(index),
@@ -206,9 +223,19 @@ impl<'b> Keyframe<'b> {
                     *image.get_unchecked(index + width + 1),
                 )
             };
-            *slot = blend(p00, p01, p10, p11, i, j);
-            i = i.wrapping_add(line.i_step);
-            j = j.wrapping_add(line.j_step);
+            blend(p00, p01, p10, p11, i, j)
+        };
+        if line.is_bent() {
+            for (c, slot) in (first..end).zip(&mut out[first..end]) {
+                *slot = read(line.at(c));
+            }
+        } else {
+            let (mut i, mut j) = line.at(first);
+            for slot in &mut out[first..end] {
+                *slot = read((i, j));
+                i = i.wrapping_add(line.i_step);
+                j = j.wrapping_add(line.j_step);
+            }
         }
         first..end
     }

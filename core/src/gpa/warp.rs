@@ -16,29 +16,47 @@ pub(super) fn to_q16(value: f64) -> i32 {
     libm::round(value * 65536.0).clamp(-1.0e9, 1.0e9) as i32
 }
 
-/// One row's warp: keyframe position of current column 0 and its
-/// per-column step, Q16.16.
+/// Fraction bits of a row's bend, per column squared: Q16.16 positions
+/// with 16 more bits (a 1 degree roll bends by ~1/4000 px per column squared).
+pub(super) const BEND_FRAC: u32 = 32;
+
+/// One row's warp: keyframe position of current column 0, its per-column
+/// step, Q16.16, and its bend per column squared, Q32.
+///
+/// Under a roll a row still maps onto a line, but a projective one: its
+/// columns land unevenly spaced (by r x^2 / H in ground mm), by 1.3 px in
+/// the middle of a row for a 1 degree roll. A quadratic through the row's
+/// ends and middle leaves under 1/16 px.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub(super) struct RowWarp {
     pub(super) i_start: i32,
     pub(super) i_step: i32,
+    pub(super) i_bend: i32,
     pub(super) j_start: i32,
     pub(super) j_step: i32,
+    pub(super) j_bend: i32,
 }
 
 impl RowWarp {
     /// No yaw: the row maps onto one keyframe row, columns a pixel apart.
     #[inline(always)]
     pub(super) fn is_translation(&self) -> bool {
-        self.i_step == 1 << FRAC && self.j_step == 0
+        self.i_step == 1 << FRAC && self.j_step == 0 && !self.is_bent()
+    }
+
+    /// Columns unevenly spaced (an attitude change with roll).
+    #[inline(always)]
+    pub(super) fn is_bent(&self) -> bool {
+        self.i_bend != 0 || self.j_bend != 0
     }
 
     /// Keyframe position (i, j) of current column `c`.
     #[inline(always)]
     pub(super) fn at(&self, c: usize) -> (i32, i32) {
+        let bend = |bend: i32| ((c as i64 * c as i64 * i64::from(bend)) >> (BEND_FRAC - FRAC)) as i32;
         (
-            self.i_start.wrapping_add((c as i32).wrapping_mul(self.i_step)),
-            self.j_start.wrapping_add((c as i32).wrapping_mul(self.j_step)),
+            self.i_start.wrapping_add((c as i32).wrapping_mul(self.i_step)).wrapping_add(bend(self.i_bend)),
+            self.j_start.wrapping_add((c as i32).wrapping_mul(self.j_step)).wrapping_add(bend(self.j_bend)),
         )
     }
 
@@ -63,6 +81,9 @@ pub(super) struct Warp {
     column: (f64, f64),
     row: (f64, f64),
 }
+
+/// One pixel per column squared in [`RowWarp`]'s bend units.
+const BEND_SCALE: f64 = (1u64 << BEND_FRAC) as f64;
 
 /// Below this attitude change (degrees) a row's line is the affine one:
 /// the bend moves no column by 1/64 px on any grid we build.
@@ -105,13 +126,20 @@ impl Warp {
                 let (x, z) = self.grid.pixel_to_ground(i, jf);
                 bent.to_keyframe(x, z).map(|(xk, zk)| self.grid.ground_to_pixel(xk, zk))
             };
-            if let (Some(first), Some(end)) = (at(0.0), at(last)) {
-                return RowWarp {
-                    i_start: to_q16(first.0),
-                    i_step: to_q16((end.0 - first.0) / last),
-                    j_start: to_q16(first.1),
-                    j_step: to_q16((end.1 - first.1) / last),
+            let middle = libm::round(0.5 * last);
+            if let (Some(first), Some(centre), Some(end)) = (at(0.0), at(middle), at(last)) {
+                // The quadratic through the three: p(c) = first + step c + bend c^2.
+                let line = |first: f64, centre: f64, end: f64| {
+                    let to_end = (end - first) / last;
+                    let bend = if middle > 0.0 && last > middle { (to_end - (centre - first) / middle) / (last - middle) } else { 0.0 };
+                    // Below 1/64 px off the chord it stays a line.
+                    let bend = if libm::fabs(bend) * middle * (last - middle) < 1.0 / 64.0 { 0.0 } else { bend };
+                    let step = to_end - bend * last;
+                    (to_q16(first), to_q16(step), libm::round(bend * BEND_SCALE).clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32)
                 };
+                let (i_start, i_step, i_bend) = line(first.0, centre.0, end.0);
+                let (j_start, j_step, j_bend) = line(first.1, centre.1, end.1);
+                return RowWarp { i_start, i_step, i_bend, j_start, j_step, j_bend };
             }
         }
         RowWarp {
@@ -119,6 +147,7 @@ impl Warp {
             i_step: to_q16(self.column.0),
             j_start: to_q16(self.origin.1 + self.row.1 * jf),
             j_step: to_q16(self.column.1),
+            ..RowWarp::default()
         }
     }
 }
@@ -225,6 +254,38 @@ impl Coverage {
                 }
                 _ => {}
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::motion::{Attitude, Motion};
+
+    /// Every column of every row lands where the exact map puts it: a roll
+    /// bends the rows (projective spacing), which the quadratic follows.
+    #[test]
+    fn rows_follow_the_exact_map_under_pitch_and_roll() {
+        let grid = KgGrid { mm_per_px: 5.75, x_left_mm: -402.5, z_far_mm: 1850.0, width: 141, height: 255 };
+        for (pitch_deg, roll_deg) in [(0.0, 1.1), (0.0, -1.1), (0.5, 0.8), (-1.5, 2.0), (1.0, 0.0)] {
+            let motion = GroundMotion { planar: Motion { tx_mm: 20.0, tz_mm: 110.0, dyaw_deg: 1.5 }, attitude: Attitude { pitch_deg, roll_deg } };
+            let warp = Warp::new(&grid, &motion, 400.0);
+            let exact = GroundMap::new(&motion, 400.0);
+            let mut worst: f64 = 0.0;
+            for j in (0..grid.height()).step_by(7) {
+                let row = warp.row(j);
+                for c in 0..grid.width() {
+                    let (x, z) = grid.pixel_to_ground(c as f64, j as f64);
+                    let (xk, zk) = exact.to_keyframe(x, z).unwrap();
+                    let (i_want, j_want) = grid.ground_to_pixel(xk, zk);
+                    let (i, jj) = row.at(c);
+                    let scale = f64::from(1u32 << FRAC);
+                    worst = worst.max(libm::fabs(f64::from(i) / scale - i_want)).max(libm::fabs(f64::from(jj) / scale - j_want));
+                }
+            }
+            // A chord through the row's ends was off by 3 px at pitch -1.5, roll 2.
+            assert!(worst < 1.0 / 16.0, "pitch {pitch_deg} roll {roll_deg}: {worst} px off");
         }
     }
 }
