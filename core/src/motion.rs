@@ -65,32 +65,31 @@ impl GroundMotion {
     }
 }
 
-/// [`GroundMotion::to_keyframe`] with its sines worked out once, for the
-/// many points of one motion. The body turns about the robot origin on the
-/// ground, attitude = Rz(roll) Rx(pitch): the ray through the point is
-/// turned with it and met with the ground again, then moved back by the
-/// planar motion.
+/// How a body at one attitude sees the ground through the fixed remap
+/// (which assumes the nominal attitude): the body turned about the robot
+/// origin on the ground, attitude = Rz(roll) Rx(pitch).
 #[derive(Clone, Copy, Debug)]
-pub struct GroundMap {
+struct Tilt {
     /// The turned camera centre and the turn of a body vector (rows).
     centre: [f64; 3],
     turn: [[f64; 3]; 3],
     height_mm: f64,
-    planar: Motion,
-    heading: Rotation<f64>,
 }
 
-impl GroundMap {
-    pub fn new(motion: &GroundMotion, height_mm: f64) -> GroundMap {
-        let (sp, cp) = (sin(motion.attitude.pitch_deg.to_radians()), cos(motion.attitude.pitch_deg.to_radians()));
-        let (sr, cr) = (sin(motion.attitude.roll_deg.to_radians()), cos(motion.attitude.roll_deg.to_radians()));
+impl Tilt {
+    fn new(attitude: &Attitude, height_mm: f64) -> Tilt {
+        let (sp, cp) = (sin(attitude.pitch_deg.to_radians()), cos(attitude.pitch_deg.to_radians()));
+        let (sr, cr) = (sin(attitude.roll_deg.to_radians()), cos(attitude.roll_deg.to_radians()));
         // Rz(roll) Rx(pitch) of a body vector (x right, y up, z forward).
         let turn = [[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [0.0, sp, cp]];
         let centre = [turn[0][1] * height_mm, turn[1][1] * height_mm, turn[2][1] * height_mm];
-        GroundMap { centre, turn, height_mm, planar: motion.planar, heading: motion.planar.turn() }
+        Tilt { centre, turn, height_mm }
     }
 
-    pub fn to_keyframe(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+    /// The ground point (robot frame, level) that the remap shows at
+    /// (`x_mm`, `z_mm`): the ray through it turned with the body and met
+    /// with the ground. None when the turned ray misses the ground.
+    fn to_ground(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
         let v = [x_mm, -self.height_mm, z_mm];
         let ray = |row: &[f64; 3]| row[0] * v[0] + row[1] * v[1] + row[2] * v[2];
         let (rx, ry, rz) = (ray(&self.turn[0]), ray(&self.turn[1]), ray(&self.turn[2]));
@@ -98,17 +97,14 @@ impl GroundMap {
             return None;
         }
         let t = -self.centre[1] / ry;
-        let [x, z] = self.heading.place([self.planar.tx_mm, self.planar.tz_mm], [self.centre[0] + t * rx, self.centre[2] + t * rz]);
-        Some((x, z))
+        Some((self.centre[0] + t * rx, self.centre[2] + t * rz))
     }
 
-    /// The inverse of [`GroundMap::to_keyframe`]: where the fixed remap
-    /// shows now the keyframe's ground point (`x_mm`, `z_mm`). None when the
-    /// point lies behind the turned camera's horizon.
-    pub fn from_keyframe(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
-        let [x, z] = self.heading.to_robot([x_mm - self.planar.tx_mm, z_mm - self.planar.tz_mm]);
+    /// The inverse of [`Tilt::to_ground`]: where the remap shows the ground
+    /// point (`x_mm`, `z_mm`). None behind the turned camera's horizon.
+    fn from_ground(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
         // The ray from the turned centre to the point, turned back to the body.
-        let p = [x - self.centre[0], -self.centre[1], z - self.centre[2]];
+        let p = [x_mm - self.centre[0], -self.centre[1], z_mm - self.centre[2]];
         let back = |k: usize| self.turn[0][k] * p[0] + self.turn[1][k] * p[1] + self.turn[2][k] * p[2];
         let (bx, by, bz) = (back(0), back(1), back(2));
         if by >= -1e-9 {
@@ -116,6 +112,66 @@ impl GroundMap {
         }
         let t = -self.height_mm / by;
         Some((t * bx, t * bz))
+    }
+}
+
+/// [`GroundMotion::to_keyframe`] with its sines worked out once, for the
+/// many points of one motion: the current frame's KG point to the ground
+/// under the body's attitude now, moved back by the planar motion, and
+/// into the keyframe's KG image under the body's attitude then.
+///
+/// Both attitudes matter, not only their change: a body that stays pitched
+/// while it moves sees the same ground shifted by a projective map, not a
+/// translation (by about a T z / H: 2 px at 1.4 m after 120 mm at 1.5
+/// degrees).
+#[derive(Clone, Copy, Debug)]
+pub struct GroundMap {
+    now: Tilt,
+    /// None: the keyframe's body was at the nominal attitude.
+    then: Option<Tilt>,
+    planar: Motion,
+    heading: Rotation<f64>,
+}
+
+impl GroundMap {
+    /// The map of `motion` from a keyframe taken at the nominal attitude.
+    pub fn new(motion: &GroundMotion, height_mm: f64) -> GroundMap {
+        GroundMap::from_tilted_keyframe(motion, &Attitude::default(), height_mm)
+    }
+
+    /// The map of `motion` from a keyframe whose body stood at `keyframe`
+    /// (relative to the nominal attitude); the body now stands at
+    /// `keyframe` plus `motion.attitude`.
+    pub fn from_tilted_keyframe(motion: &GroundMotion, keyframe: &Attitude, height_mm: f64) -> GroundMap {
+        let now = keyframe.then(&motion.attitude);
+        let level = *keyframe == Attitude::default();
+        GroundMap {
+            now: Tilt::new(&now, height_mm),
+            then: (!level).then(|| Tilt::new(keyframe, height_mm)),
+            planar: motion.planar,
+            heading: motion.planar.turn(),
+        }
+    }
+
+    pub fn to_keyframe(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+        let (x, z) = self.now.to_ground(x_mm, z_mm)?;
+        let [x, z] = self.heading.place([self.planar.tx_mm, self.planar.tz_mm], [x, z]);
+        match &self.then {
+            Some(then) => then.from_ground(x, z),
+            None => Some((x, z)),
+        }
+    }
+
+    /// The inverse of [`GroundMap::to_keyframe`]: where the fixed remap
+    /// shows now the keyframe's ground point (`x_mm`, `z_mm`). None when the
+    /// point lies behind the turned camera's horizon.
+    pub fn from_keyframe(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+        let (x_mm, z_mm) = match &self.then {
+            Some(then) => then.to_ground(x_mm, z_mm)?,
+            None => (x_mm, z_mm),
+        };
+        let [x, z] = self.heading.to_robot([x_mm - self.planar.tx_mm, z_mm - self.planar.tz_mm]);
+        self.now.from_ground(x, z)
     }
 }
 

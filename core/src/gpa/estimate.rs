@@ -96,12 +96,15 @@ pub(super) struct Scene<'a> {
     pub(super) grid: &'a KgGrid,
     pub(super) coverage: &'a Coverage,
     pub(super) height_mm: f64,
+    /// The keyframe body's attitude (pitch, roll, degrees; see
+    /// [`crate::motion::GroundMap`]): the motion's attitude is the change since.
+    pub(super) keyframe_attitude: [f32; 2],
 }
 
 impl Scene<'_> {
     /// The map of the motion `p`.
     fn map(&self, p: &Params) -> PixelMap {
-        PixelMap::new(p, self.height_mm as f32, self.grid)
+        PixelMap::new(p, self.keyframe_attitude, self.height_mm as f32, self.grid)
     }
 
     /// Whether pixel (i, j) of either image is in the camera's view.
@@ -329,7 +332,7 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start) -> 
 /// The model of a lower level past `edge_row` `depth_mm` below the ground
 /// moved by `p`.
 fn two_levels(scene: &Scene, p: &Params, edge_row: f32, depth_mm: f32) -> Surfaces {
-    Surfaces::two_levels(scene.map(p), p, scene.grid, scene.height_mm as f32, edge_row, depth_mm)
+    Surfaces::two_levels(scene.map(p), p, scene.keyframe_attitude, scene.grid, scene.height_mm as f32, edge_row, depth_mm)
 }
 
 /// A lower level past `edge_row` fitted with the ground: the ground's
@@ -407,7 +410,7 @@ mod tests {
     fn estimate_between(keyframe: &[u8], current: &[u8], prior: &Prior) -> GroundMotion {
         let grid = grid();
         let coverage = Coverage::full(&grid);
-        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0 };
+        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: [0.0, 0.0] };
         let mut estimator = std::boxed::Box::new(Estimator::EMPTY);
         estimator.estimate(&scene, prior).expect("a textured floor is measured")
     }

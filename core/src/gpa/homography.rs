@@ -5,9 +5,10 @@
 //! per point on the M4's FPU instead of software `f64`.
 //!
 //! The chain (each step linear in homogeneous coordinates): pixel -> the
-//! ray to the ground point (x, -H, z) -> turned by the attitude change ->
-//! met with the ground again from the turned camera centre -> moved back by
-//! the planar motion -> keyframe pixel.
+//! ray to the ground point (x, -H, z) -> turned by the body's attitude now
+//! -> met with the ground again from the turned camera centre -> moved back
+//! by the planar motion -> seen by the body at the keyframe's attitude ->
+//! keyframe pixel.
 
 use crate::grid::KgGrid;
 
@@ -28,27 +29,57 @@ pub(super) struct PixelMap {
     h: Matrix,
 }
 
+/// The ground seen through the fixed remap by a body at `pitch`, `roll`
+/// (degrees): the remap's point (x, z, 1) -> the level ground point,
+/// homogeneous (as [`crate::motion::GroundMap`]'s tilt).
+fn tilt(pitch: f32, roll: f32, height_mm: f32) -> Matrix {
+    let (sp, cp) = libm::sincosf(pitch.to_radians());
+    let (sr, cr) = libm::sincosf(roll.to_radians());
+    // Rz(roll) Rx(pitch) of a body vector (x right, y up, z forward), as GroundMap.
+    let turn = [[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [0.0, sp, cp]];
+    let centre = [turn[0][1] * height_mm, turn[1][1] * height_mm, turn[2][1] * height_mm];
+    // The point -> its vector from the camera (x, -H, z).
+    let to_ray = [[1.0, 0.0, 0.0], [0.0, 0.0, -height_mm], [0.0, 1.0, 0.0]];
+    // Turned ray r -> the ground point where it meets the ground, times r_y.
+    let meet = [[-centre[1], centre[0], 0.0], [0.0, centre[2], -centre[1]], [0.0, 1.0, 0.0]];
+    product(&meet, &product(&turn, &to_ray))
+}
+
+/// The inverse of a homography, up to scale (its adjugate).
+fn adjugate(m: &Matrix) -> Matrix {
+    let cofactor = |r: usize, c: usize| {
+        let (r0, r1) = ((r + 1) % 3, (r + 2) % 3);
+        let (c0, c1) = ((c + 1) % 3, (c + 2) % 3);
+        m[r0][c0] * m[r1][c1] - m[r0][c1] * m[r1][c0]
+    };
+    core::array::from_fn(|r| core::array::from_fn(|c| cofactor(c, r)))
+}
+
 impl PixelMap {
-    pub(super) fn new(p: &Params, height_mm: f32, grid: &KgGrid) -> PixelMap {
-        let (sp, cp) = libm::sincosf(p[3].to_radians());
-        let (sr, cr) = libm::sincosf(p[4].to_radians());
-        let (sy, cy) = libm::sincosf(p[2].to_radians());
-        // Rz(roll) Rx(pitch) of a body vector (x right, y up, z forward), as GroundMap.
-        let turn = [[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [0.0, sp, cp]];
-        let centre = [turn[0][1] * height_mm, turn[1][1] * height_mm, turn[2][1] * height_mm];
+    /// The map of motion `p` (the attitude change in `p[3]`, `p[4]`) from a
+    /// keyframe whose body stood at `keyframe` (pitch, roll, degrees).
+    pub(super) fn new(p: &Params, keyframe: [f32; 2], height_mm: f32, grid: &KgGrid) -> PixelMap {
         let (m, left, far) = (grid.mm_per_px as f32, grid.x_left_mm as f32, grid.z_far_mm as f32);
-        // Pixel -> the ground point's vector from the camera (x, -H, z).
-        let to_ray = [[m, 0.0, left], [0.0, 0.0, -height_mm], [0.0, -m, far]];
-        // Turned ray r -> the ground point where it meets the ground, times r_y.
-        let meet = [[-centre[1], centre[0], 0.0], [0.0, centre[2], -centre[1]], [0.0, 1.0, 0.0]];
+        let to_ground_mm = [[m, 0.0, left], [0.0, -m, far], [0.0, 0.0, 1.0]];
+        let now = tilt(keyframe[0] + p[3], keyframe[1] + p[4], height_mm);
         // The planar motion: keyframe ground = tx,tz + yaw-turned point.
+        let (sy, cy) = libm::sincosf(p[2].to_radians());
         let planar = [[cy, -sy, p[0]], [sy, cy, p[1]], [0.0, 0.0, 1.0]];
-        let to_pixel = [[1.0 / m, 0.0, -left / m], [0.0, -1.0 / m, far / m], [0.0, 0.0, 1.0]];
-        let mut h = product(&to_pixel, &product(&planar, &product(&meet, &product(&turn, &to_ray))));
-        // r_y < 0 where the ray meets the ground: flip and scale by the grid centre's.
         let (ci, cj) = (0.5 * grid.width() as f32, 0.5 * grid.height() as f32);
-        let w = h[2][0] * ci + h[2][1] * cj + h[2][2];
-        let scale = if w < 0.0 { 1.0 / w } else { -1.0 };
+        let w_at_centre = |h: &Matrix| h[2][0] * ci + h[2][1] * cj + h[2][2];
+        let to_pixel = [[1.0 / m, 0.0, -left / m], [0.0, -1.0 / m, far / m], [0.0, 0.0, 1.0]];
+        let to_ground = product(&planar, &product(&now, &to_ground_mm));
+        // w = r_y < 0 where the turned ray meets the ground.
+        let meets = w_at_centre(&to_ground) < 0.0;
+        let mut h = if keyframe == [0.0, 0.0] {
+            product(&to_pixel, &to_ground)
+        } else {
+            product(&to_pixel, &product(&adjugate(&tilt(keyframe[0], keyframe[1], height_mm)), &to_ground))
+        };
+        // Scaled so that w is 1 at the grid centre where the ray meets the
+        // ground there, and negative (nothing maps) where it does not.
+        let w = w_at_centre(&h);
+        let scale = if meets { 1.0 / w } else { -1.0 / w };
         for row in h.iter_mut() {
             for value in row.iter_mut() {
                 *value *= scale;
@@ -85,7 +116,7 @@ mod tests {
             attitude: Attitude { pitch_deg: 0.6, roll_deg: -0.4 },
         };
         let p = [12.0, 90.0, 2.0, 0.6, -0.4];
-        let map = PixelMap::new(&p, 400.0, &grid);
+        let map = PixelMap::new(&p, [0.0, 0.0], 400.0, &grid);
         let exact = GroundMap::new(&motion, 400.0);
         for (i, j) in [(0.0, 0.0), (70.5, 127.0), (140.0, 254.0), (3.25, 200.5)] {
             let (x, z) = grid.pixel_to_ground(i, j);

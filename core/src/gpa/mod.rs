@@ -159,6 +159,10 @@ pub struct Gpa<'b> {
     imu: Option<Attitude>,
     /// The IMU's attitude when the keyframe was taken.
     keyframe_imu: Option<Attitude>,
+    /// The keyframe body's attitude relative to the nominal one: the
+    /// measured changes chained from the first keyframe of a run (taken as
+    /// nominal; a keyframe that follows no comparison is too).
+    keyframe_attitude: Attitude,
     /// This frame's motion from the keyframe, as measured (or predicted).
     measured: GroundMotion,
     /// Whether this frame's odometry disagreed with the ground.
@@ -212,6 +216,7 @@ impl<'b> Gpa<'b> {
         odometry: None,
         imu: None,
         keyframe_imu: None,
+        keyframe_attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
         measured: GroundMotion {
             planar: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
             attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
@@ -394,6 +399,10 @@ impl<'b> Gpa<'b> {
         let new_keyframe = self.keyframe.finish(self.frame);
         if new_keyframe {
             self.keyframe_imu = self.imu;
+            self.keyframe_attitude = match report {
+                Some(_) => self.keyframe_attitude.then(&self.measured.attitude),
+                None => Attitude::default(),
+            };
         }
         self.prediction.finish(self.frame, new_keyframe);
         report
@@ -427,6 +436,7 @@ impl<'b> Gpa<'b> {
             grid: &self.layout.grid,
             coverage: &self.coverage,
             height_mm: self.layout.camera_height_mm,
+            keyframe_attitude: [self.keyframe_attitude.pitch_deg as f32, self.keyframe_attitude.roll_deg as f32],
         };
         let start = self.profiler.now();
         let estimate = self.estimator.estimate(&scene, &prior);
@@ -466,7 +476,7 @@ impl<'b> Gpa<'b> {
     /// the shift search's part of the row step, on every AOI row.
     fn search_prediction(&mut self, store: &Keyframe, predicted: &GroundMotion, exposure: Option<&[u8; 256]>) {
         let s = self.config.search_radius;
-        let warp = Warp::new(&self.layout.grid, predicted, self.layout.camera_height_mm);
+        let warp = Warp::new(&self.layout.grid, predicted, &self.keyframe_attitude, self.layout.camera_height_mm);
         let (grid, aoi) = (&self.layout.grid, &self.layout.aoi);
         self.seed.clear();
         self.band.forget();
@@ -495,7 +505,7 @@ impl<'b> Gpa<'b> {
         self.prediction.step = step;
         let grid = &self.layout.grid;
         self.parallax.hypotheses = Hypotheses::plan(&planar, &step, grid, &self.config, self.layout.camera_height_mm);
-        self.warp = Warp::new(grid, &measured, self.layout.camera_height_mm);
+        self.warp = Warp::new(grid, &measured, &self.keyframe_attitude, self.layout.camera_height_mm);
         self.search.clear();
         self.residue.clear();
         self.parallax.clear();

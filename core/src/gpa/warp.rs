@@ -4,7 +4,7 @@
 //! can be compared at all.
 
 use crate::grid::{KgGrid, MAX_GRID_SIDE};
-use crate::motion::{GroundMap, GroundMotion};
+use crate::motion::{Attitude, GroundMap, GroundMotion};
 use crate::remap::RemapTable;
 use core::ops::Range;
 
@@ -98,7 +98,8 @@ impl Warp {
         row: (0.0, 0.0),
     };
 
-    pub(super) fn new(grid: &KgGrid, motion: &GroundMotion, height_mm: f64) -> Warp {
+    /// The warp of `motion` from a keyframe whose body stood at `keyframe`.
+    pub(super) fn new(grid: &KgGrid, motion: &GroundMotion, keyframe: &Attitude, height_mm: f64) -> Warp {
         let warp = |i: f64, j: f64| {
             let (x, z) = grid.pixel_to_ground(i, j);
             let (xk, zk) = motion.planar.to_earlier_frame(x, z);
@@ -107,9 +108,9 @@ impl Warp {
         let origin = warp(0.0, 0.0);
         let along = warp(1.0, 0.0);
         let down = warp(0.0, 1.0);
-        let level = libm::fabs(motion.attitude.pitch_deg) < LEVEL_DEG && libm::fabs(motion.attitude.roll_deg) < LEVEL_DEG;
+        let level = [motion.attitude, *keyframe].iter().all(|a| libm::fabs(a.pitch_deg) < LEVEL_DEG && libm::fabs(a.roll_deg) < LEVEL_DEG);
         Warp {
-            bent: (!level).then(|| GroundMap::new(motion, height_mm)),
+            bent: (!level).then(|| GroundMap::from_tilted_keyframe(motion, keyframe, height_mm)),
             grid: *grid,
             origin,
             column: (along.0 - origin.0, along.1 - origin.1),
@@ -261,7 +262,7 @@ impl Coverage {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::motion::{Attitude, Motion};
+    use crate::motion::Motion;
 
     /// Every column of every row lands where the exact map puts it: a roll
     /// bends the rows (projective spacing), which the quadratic follows.
@@ -270,7 +271,7 @@ mod tests {
         let grid = KgGrid { mm_per_px: 5.75, x_left_mm: -402.5, z_far_mm: 1850.0, width: 141, height: 255 };
         for (pitch_deg, roll_deg) in [(0.0, 1.1), (0.0, -1.1), (0.5, 0.8), (-1.5, 2.0), (1.0, 0.0)] {
             let motion = GroundMotion { planar: Motion { tx_mm: 20.0, tz_mm: 110.0, dyaw_deg: 1.5 }, attitude: Attitude { pitch_deg, roll_deg } };
-            let warp = Warp::new(&grid, &motion, 400.0);
+            let warp = Warp::new(&grid, &motion, &Attitude::default(), 400.0);
             let exact = GroundMap::new(&motion, 400.0);
             let mut worst: f64 = 0.0;
             for j in (0..grid.height()).step_by(7) {
