@@ -66,6 +66,18 @@ fn motion(p: &Params) -> GroundMotion {
     }
 }
 
+/// The estimate: the motion keyframe -> now, and the keyframe body's
+/// attitude it was measured against (relative to the nominal one).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Estimate {
+    pub(super) motion: GroundMotion,
+    pub(super) keyframe_attitude: Attitude,
+}
+
+/// The keyframe's attitude as chained is good to about this (degrees,
+/// one sigma): the estimate's own noise, added up over a few keyframes.
+const KEYFRAME_ATTITUDE_SIGMA_DEG: f32 = 0.3;
+
 /// What the estimate starts from: a motion and how far off it may be
 /// (one sigma per parameter: mm, mm, deg, deg, deg).
 #[derive(Clone, Copy, Debug)]
@@ -147,13 +159,20 @@ impl Estimator {
     /// enough texture in both images to measure it. `prior.sigma` sets the
     /// coarse search's reach (3 sigma); a reach of more than a few cells is
     /// searched on cells twice as large first.
-    pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior) -> Option<GroundMotion> {
+    pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior) -> Option<Estimate> {
         let prior = Start { p: params(&prior.motion), sigma: prior.sigma.map(|s| s as f32) };
         let start = self.coarse_start(scene, &prior);
         // A coarse start on an alias of the texture leaves too few blocks
         // agreeing; the prior's own motion is the other start.
         let fitted = self.refine(scene, &prior, start, 0).or_else(|| self.refine(scene, &prior, prior.p, 0))?;
-        Some(motion(&self.nearest_surface(scene, &prior, fitted)))
+        let (chosen, lower_level) = self.nearest_surface(scene, &prior, fitted);
+        let [pitch_deg, roll_deg] = scene.keyframe_attitude;
+        let chained = Estimate { motion: motion(&chosen), keyframe_attitude: Attitude { pitch_deg: f64::from(pitch_deg), roll_deg: f64::from(roll_deg) } };
+        // Step 6 (not over a lower level, which would bend it).
+        if lower_level {
+            return Some(chained);
+        }
+        Some(fit_keyframe_attitude(scene, &self.matches, &chosen, &prior).unwrap_or(chained))
     }
 
     /// Steps 1: where the blocks start from.
@@ -210,7 +229,8 @@ impl Estimator {
     /// whole view, or bends its fit. The blocks nearest the robot fitted
     /// on their own (from the prior, then from the whole view's fit)
     /// replace it when that fit explains clearly more of them.
-    fn nearest_surface(&mut self, scene: &Scene, prior: &Start, fitted: Fit) -> Params {
+    /// Also says whether a lower level was taken (step 5).
+    fn nearest_surface(&mut self, scene: &Scene, prior: &Start, fitted: Fit) -> (Params, bool) {
         let near_row = near_row(scene);
         let near = self.refine(scene, prior, prior.p, near_row).or_else(|| self.refine(scene, prior, fitted.p, near_row));
         let chosen = match near {
@@ -229,9 +249,9 @@ impl Estimator {
         match self.lower_level(scene, prior, &chosen) {
             Some(ground) => {
                 self.match_blocks(scene, &ground, 0);
-                ground
+                (ground, true)
             }
-            None => chosen,
+            None => (chosen, false),
         }
     }
 
@@ -335,6 +355,26 @@ fn two_levels(scene: &Scene, p: &Params, edge_row: f32, depth_mm: f32) -> Surfac
     Surfaces::two_levels(scene.map(p), p, scene.keyframe_attitude, scene.grid, scene.height_mm as f32, edge_row, depth_mm)
 }
 
+/// Step 6: the keyframe body's attitude as two more unknowns, the chained
+/// value its prior. It shows only through how the motion moves tilted
+/// ground (about a T z / H per radian: 1 px at 1.4 m for 0.2 degree after
+/// 100 mm), so a short baseline leaves it to the prior.
+fn fit_keyframe_attitude(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start) -> Option<Estimate> {
+    let five = |p: &[f32; 7]| -> Params { [p[0], p[1], p[2], p[3], p[4]] };
+    let surfaces = |p: &[f32; 7]| Surfaces::ground(PixelMap::new(&five(p), [p[5], p[6]], scene.height_mm as f32, scene.grid));
+    let seven = |p: &Params, keyframe: [f32; 2]| -> [f32; 7] { [p[0], p[1], p[2], p[3], p[4], keyframe[0], keyframe[1]] };
+    let sigma = KEYFRAME_ATTITUDE_SIGMA_DEG;
+    let problem = Problem {
+        surfaces: &surfaces,
+        step: seven(&STEP, [STEP[3], STEP[4]]),
+        prior: seven(&prior.p, scene.keyframe_attitude),
+        sigma: seven(&prior.sigma, [sigma, sigma]),
+        min_inliers: MIN_INLIERS,
+    };
+    let (p, _) = robust_fit(matches, seven(start, scene.keyframe_attitude), &problem)?;
+    Some(Estimate { motion: motion(&five(&p)), keyframe_attitude: Attitude { pitch_deg: f64::from(p[5]), roll_deg: f64::from(p[6]) } })
+}
+
 /// A lower level past `edge_row` fitted with the ground: the ground's
 /// motion and residual scale, and the level's depth below the ground (mm).
 fn fit_two_levels(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start, edge_row: f32) -> Option<(Fit, f32)> {
@@ -412,7 +452,7 @@ mod tests {
         let coverage = Coverage::full(&grid);
         let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: [0.0, 0.0] };
         let mut estimator = std::boxed::Box::new(Estimator::EMPTY);
-        estimator.estimate(&scene, prior).expect("a textured floor is measured")
+        estimator.estimate(&scene, prior).expect("a textured floor is measured").motion
     }
 
     fn assert_close(found: &GroundMotion, truth: &GroundMotion) {

@@ -441,8 +441,11 @@ impl<'b> Gpa<'b> {
         let start = self.profiler.now();
         let estimate = self.estimator.estimate(&scene, &prior);
         self.profiler.charge(start, |p| &mut p.estimate);
+        if let Some(estimate) = &estimate {
+            self.keyframe_attitude = estimate.keyframe_attitude;
+        }
         let measured = match (estimate, self.odometry) {
-            (Some(estimate), _) => estimate,
+            (Some(estimate), _) => estimate.motion,
             (None, Some(_)) => prior.motion,
             (None, None) => {
                 self.keyframe.restart();
