@@ -19,7 +19,7 @@
 use crate::geometry::Rig;
 use crate::grid::KgGrid;
 use crate::gti::{Gti, GtiConfig, GtiError, RegionMm};
-use crate::motion::Motion;
+use crate::motion::{Attitude, Motion};
 use crate::report::FrameReport;
 use core::ops::Range;
 use libm::roundf;
@@ -89,17 +89,18 @@ impl GtiStage {
     /// None after a gap (the first frame, a missing frame or pose, time going
     /// backwards): then the tracks cannot be continued and GTI starts over
     /// from this frame.
-    pub fn end_frame(&mut self, odometry: Option<Motion>) {
+    /// `attitude` is the body's attitude relative to the nominal one.
+    pub fn end_frame(&mut self, odometry: Option<Motion>, attitude: Attitude) {
         if core::mem::take(&mut self.row_fault) {
             self.gti.abort_frame();
             self.gti.restart();
             return;
         }
         match odometry {
-            Some(motion) => self.gti.end_frame(&motion),
+            Some(motion) => self.gti.end_frame(&motion, &attitude),
             None => {
                 self.gti.restart();
-                self.gti.end_frame(&Motion::default());
+                self.gti.end_frame(&Motion::default(), &attitude);
             }
         }
     }

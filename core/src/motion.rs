@@ -69,7 +69,7 @@ impl GroundMotion {
 /// (which assumes the nominal attitude): the body turned about the robot
 /// origin on the ground, attitude = Rz(roll) Rx(pitch).
 #[derive(Clone, Copy, Debug)]
-struct Tilt {
+pub struct Tilt {
     /// The turned camera centre and the turn of a body vector (rows).
     centre: [f64; 3],
     turn: [[f64; 3]; 3],
@@ -77,7 +77,7 @@ struct Tilt {
 }
 
 impl Tilt {
-    fn new(attitude: &Attitude, height_mm: f64) -> Tilt {
+    pub fn new(attitude: &Attitude, height_mm: f64) -> Tilt {
         let (sp, cp) = (sin(attitude.pitch_deg.to_radians()), cos(attitude.pitch_deg.to_radians()));
         let (sr, cr) = (sin(attitude.roll_deg.to_radians()), cos(attitude.roll_deg.to_radians()));
         // Rz(roll) Rx(pitch) of a body vector (x right, y up, z forward).
@@ -89,7 +89,7 @@ impl Tilt {
     /// The ground point (robot frame, level) that the remap shows at
     /// (`x_mm`, `z_mm`): the ray through it turned with the body and met
     /// with the ground. None when the turned ray misses the ground.
-    fn to_ground(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+    pub fn to_ground(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
         let v = [x_mm, -self.height_mm, z_mm];
         let ray = |row: &[f64; 3]| row[0] * v[0] + row[1] * v[1] + row[2] * v[2];
         let (rx, ry, rz) = (ray(&self.turn[0]), ray(&self.turn[1]), ray(&self.turn[2]));
@@ -102,7 +102,7 @@ impl Tilt {
 
     /// The inverse of [`Tilt::to_ground`]: where the remap shows the ground
     /// point (`x_mm`, `z_mm`). None behind the turned camera's horizon.
-    fn from_ground(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+    pub fn from_ground(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
         // The ray from the turned centre to the point, turned back to the body.
         let p = [x_mm - self.centre[0], -self.centre[1], z_mm - self.centre[2]];
         let back = |k: usize| self.turn[0][k] * p[0] + self.turn[1][k] * p[1] + self.turn[2][k] * p[2];

@@ -263,7 +263,7 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         let gti_start = self.now();
         if let Some(gti) = self.gti.as_deref_mut() {
             // Without odometry GTI follows the ground's motion as GPA measured it.
-            gti.end_frame(current.motion.or_else(|| self.gpa.measured_step()));
+            gti.end_frame(current.motion.or_else(|| self.gpa.measured_step()), self.gpa.body_attitude());
             if let Some(report) = report.as_mut() {
                 gti.enrich(report);
             }

@@ -163,6 +163,9 @@ pub struct Gpa<'b> {
     /// measured changes chained from the first keyframe of a run (taken as
     /// nominal; a keyframe that follows no comparison is too).
     keyframe_attitude: Attitude,
+    /// This frame's body attitude relative to the nominal one, as measured
+    /// (the keyframe's and the change since); nominal when not compared.
+    body_attitude: Attitude,
     /// This frame's motion from the keyframe, as measured (or predicted).
     measured: GroundMotion,
     /// Whether this frame's odometry disagreed with the ground.
@@ -217,6 +220,7 @@ impl<'b> Gpa<'b> {
         imu: None,
         keyframe_imu: None,
         keyframe_attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
+        body_attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
         measured: GroundMotion {
             planar: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
             attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
@@ -382,6 +386,7 @@ impl<'b> Gpa<'b> {
     /// Returns None for a frame that only (re)started the keyframe.
     pub fn end_frame(&mut self) -> Option<FrameReport> {
         self.last_step = None;
+        self.body_attitude = Attitude::default();
         if !self.frame_active {
             return None;
         }
@@ -453,6 +458,7 @@ impl<'b> Gpa<'b> {
                 return None;
             }
         };
+        self.body_attitude = self.keyframe_attitude.then(&measured.attitude);
         // An exposure step between the frames: the current rows are
         // brought to the keyframe's brightness, or every textured pixel
         // would differ. (Within 1 % a gain is left alone: noise.)
@@ -671,6 +677,12 @@ impl<'b> Gpa<'b> {
     /// compared (it started a keyframe, or was dropped).
     pub fn measured_step(&self) -> Option<Motion> {
         self.last_step
+    }
+
+    /// The last frame's body attitude relative to the nominal one, as
+    /// measured; nominal when it was not compared.
+    pub fn body_attitude(&self) -> Attitude {
+        self.body_attitude
     }
 }
 

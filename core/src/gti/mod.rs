@@ -59,7 +59,7 @@ pub use lines::GtLine;
 use crate::geometry::Rig;
 use crate::grid::KgGrid;
 use crate::limits::{MAX_LINES, MAX_LINE_SAMPLES, MAX_LINE_WIDTH_PX, MAX_MAP_POINTS, MAX_OBSERVATIONS, MAX_TRACKS};
-use crate::motion::Motion;
+use crate::motion::{Attitude, Motion, Tilt};
 use core::ops::Range;
 use edges::LineEdges;
 use fits::{support_tolerance, top_supported_height, MIN_SUPPORT};
@@ -232,6 +232,9 @@ pub struct Gti {
     map: Deque<MapPoint, MAX_MAP_POINTS>,
     next_id: u32,
     travel: Travel,
+    /// This frame's body tilt from the nominal attitude (None: nominal):
+    /// tracks live on the level ground, the KG shows it tilted.
+    tilt: Option<Tilt>,
 }
 
 impl Gti {
@@ -270,6 +273,7 @@ impl Gti {
             map: Deque::new(),
             next_id: 0,
             travel: Travel::START,
+            tilt: None,
         }
     };
 
@@ -334,7 +338,9 @@ impl Gti {
 
     /// Ends the frame: `motion` is the odometry from the previous frame to
     /// this one (in the previous robot frame; zero for the first frame).
-    pub fn end_frame(&mut self, motion: &Motion) {
+    /// `attitude` is the body's attitude now, relative to the nominal one.
+    pub fn end_frame(&mut self, motion: &Motion, attitude: &Attitude) {
+        self.tilt = (*attitude != Attitude::default()).then(|| Tilt::new(attitude, f64::from(self.mount_height_mm)));
         self.lines.end_frame(self.config.lines);
         // One line's edges at a time (found for the travel correction, then
         // again for the association): every line's at once would add ~10 KB
@@ -355,6 +361,25 @@ impl Gti {
             let limit = self.config.max_line_angle_deg.to_radians();
             self.lines.turn_next_frame(atan2f(motion.tx_mm as f32, motion.tz_mm as f32).clamp(-limit, limit));
         }
+    }
+
+    /// The level ground point that `line` shows at `row` this frame.
+    fn level_point(&self, line: &GtLine, row: f32) -> [f32; 2] {
+        let p = line.point_at_row(&self.grid, row);
+        match self.tilt.and_then(|tilt| tilt.to_ground(f64::from(p[0]), f64::from(p[1]))) {
+            Some((x, z)) => [x as f32, z as f32],
+            None => p,
+        }
+    }
+
+    /// Where on `line` this frame shows the level ground point `point`: its
+    /// row and its distance from the line (mm).
+    fn row_of_level(&self, line: &GtLine, point: [f32; 2]) -> (f32, f32) {
+        let p = match self.tilt.and_then(|tilt| tilt.from_ground(f64::from(point[0]), f64::from(point[1]))) {
+            Some((x, z)) => [x as f32, z as f32],
+            None => point,
+        };
+        line.row_of(&self.grid, p)
     }
 
     /// Every point seen so far (live tracks and the map) with at least

@@ -240,12 +240,13 @@ impl Gti {
                 }
                 None => None,
             };
+            let point = matched.map(|edge| self.level_point(&line, edge.row));
             let Some(track) = self.tracks.get_mut(index).and_then(|t| t.as_mut()) else { continue };
-            match matched {
-                Some(edge) => {
+            match matched.zip(point) {
+                Some((edge, point)) => {
                     claim(&edges.strong, &mut taken, edge.row);
                     claim(&edges.weak, &mut weak_taken, edge.row);
-                    track.observe(&self.travel, line.point_at_row(&self.grid, edge.row), &edge);
+                    track.observe(&self.travel, point, &edge);
                 }
                 None => track.misses = track.misses.saturating_add(1),
             }
@@ -263,7 +264,7 @@ impl Gti {
         match fit {
             Some(fit) if track.observations.len() >= 3 => {
                 let p = track.predict_apparent(&self.travel, -fit.slope, Some(&fit))?;
-                let (row, lateral) = line.row_of(grid, p);
+                let (row, lateral) = self.row_of_level(line, p);
                 if off_line(lateral, mm_per_px) {
                     return None;
                 }
@@ -279,7 +280,7 @@ impl Gti {
                 };
                 let a = track.predict_apparent(&self.travel, low, None)?;
                 let b = track.predict_apparent(&self.travel, high, None)?;
-                let ((ra, la), (rb, lb)) = (line.row_of(grid, a), line.row_of(grid, b));
+                let ((ra, la), (rb, lb)) = (self.row_of_level(line, a), self.row_of_level(line, b));
                 if off_line(fabsf(la).min(fabsf(lb)), mm_per_px) {
                     return None;
                 }
@@ -317,7 +318,7 @@ impl Gti {
                 }
             };
             let Some(slot) = slot else { continue };
-            let point = line.point_at_row(&self.grid, edge.row);
+            let point = self.level_point(line, edge.row);
             let track = Track::start(self.next_id, l, line, point, edge, &self.travel);
             self.next_id = self.next_id.wrapping_add(1);
             if let Some(s) = self.tracks.get_mut(slot) {

@@ -172,7 +172,7 @@ impl Gti {
         }
         // Where it is with slope 1 and the odometry step.
         let predicted = track.predict_apparent(&self.travel, 1.0, None)?;
-        let (row, lateral) = line.row_of(&self.grid, predicted);
+        let (row, lateral) = self.row_of_level(line, predicted);
         if off_line(lateral, mm_per_px) {
             return None;
         }
@@ -190,8 +190,8 @@ impl Gti {
         let (observed_row, _) = best?;
         let rotation = self.travel.rotation().to_f32();
         let y_of = |p: [f32; 2]| along_across(rotation.to_world(p), track.axis).0;
-        let y_predicted = y_of(line.point_at_row(&self.grid, row));
-        let y_observed = y_of(line.point_at_row(&self.grid, observed_row));
+        let y_predicted = y_of(self.level_point(line, row));
+        let y_observed = y_of(self.level_point(line, observed_row));
         Some((y_predicted - y_observed) / along)
     }
 }
