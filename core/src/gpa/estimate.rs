@@ -66,17 +66,46 @@ fn motion(p: &Params) -> GroundMotion {
     }
 }
 
-/// The estimate: the motion keyframe -> now, and the keyframe body's
-/// attitude it was measured against (relative to the nominal one).
+/// The estimate: the motion keyframe -> now, and what is known of the
+/// keyframe body's attitude after it.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Estimate {
     pub(super) motion: GroundMotion,
-    pub(super) keyframe_attitude: Attitude,
+    pub(super) keyframe_attitude: KeyframeAttitude,
+    /// One sigma of the motion's attitude change (pitch, roll, degrees).
+    pub(super) change_sigma: [f32; 2],
 }
 
-/// The keyframe's attitude as chained is good to about this (degrees,
-/// one sigma): the estimate's own noise, added up over a few keyframes.
-const KEYFRAME_ATTITUDE_SIGMA_DEG: f32 = 0.3;
+/// The keyframe body's attitude relative to the nominal one (pitch, roll,
+/// degrees; see [`crate::motion::GroundMap`]) and how well it is known
+/// (one sigma each). The keyframe's attitude does not change while it is
+/// the keyframe, so each comparison with it adds to what is known.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct KeyframeAttitude {
+    pub(super) deg: [f32; 2],
+    pub(super) sigma_deg: [f32; 2],
+}
+
+impl KeyframeAttitude {
+    /// A run's first keyframe: the nominal attitude, with room for a body
+    /// that sits a little off it (the fit pulls it the rest of the way
+    /// over the comparisons with the keyframe).
+    pub(super) const NOMINAL: KeyframeAttitude = KeyframeAttitude { deg: [0.0, 0.0], sigma_deg: [0.3, 0.3] };
+
+    pub(super) fn attitude(&self) -> Attitude {
+        Attitude { pitch_deg: f64::from(self.deg[0]), roll_deg: f64::from(self.deg[1]) }
+    }
+
+    /// The next keyframe's: this one's and the change measured to it (its
+    /// uncertainty added).
+    pub(super) fn then(&self, change: &Attitude, change_sigma: [f32; 2]) -> KeyframeAttitude {
+        let next = self.attitude().then(change);
+        KeyframeAttitude {
+            deg: [next.pitch_deg as f32, next.roll_deg as f32],
+            sigma_deg: core::array::from_fn(|k| libm::hypotf(self.sigma_deg[k], change_sigma[k])),
+        }
+    }
+}
 
 /// What the estimate starts from: a motion and how far off it may be
 /// (one sigma per parameter: mm, mm, deg, deg, deg).
@@ -108,15 +137,14 @@ pub(super) struct Scene<'a> {
     pub(super) grid: &'a KgGrid,
     pub(super) coverage: &'a Coverage,
     pub(super) height_mm: f64,
-    /// The keyframe body's attitude (pitch, roll, degrees; see
-    /// [`crate::motion::GroundMap`]): the motion's attitude is the change since.
-    pub(super) keyframe_attitude: [f32; 2],
+    /// The keyframe body's attitude: the motion's attitude is the change since.
+    pub(super) keyframe_attitude: KeyframeAttitude,
 }
 
 impl Scene<'_> {
     /// The map of the motion `p`.
     fn map(&self, p: &Params) -> PixelMap {
-        PixelMap::new(p, self.keyframe_attitude, self.height_mm as f32, self.grid)
+        PixelMap::new(p, self.keyframe_attitude.deg, self.height_mm as f32, self.grid)
     }
 
     /// Whether pixel (i, j) of either image is in the camera's view.
@@ -166,8 +194,7 @@ impl Estimator {
         // agreeing; the prior's own motion is the other start.
         let fitted = self.refine(scene, &prior, start, 0).or_else(|| self.refine(scene, &prior, prior.p, 0))?;
         let (chosen, lower_level) = self.nearest_surface(scene, &prior, fitted);
-        let [pitch_deg, roll_deg] = scene.keyframe_attitude;
-        let chained = Estimate { motion: motion(&chosen), keyframe_attitude: Attitude { pitch_deg: f64::from(pitch_deg), roll_deg: f64::from(roll_deg) } };
+        let chained = Estimate { motion: motion(&chosen), keyframe_attitude: scene.keyframe_attitude, change_sigma: [prior.sigma[3], prior.sigma[4]] };
         // Step 6 (not over a lower level, which would bend it).
         if lower_level {
             return Some(chained);
@@ -345,34 +372,39 @@ fn near_row(scene: &Scene) -> usize {
 fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start) -> Option<Fit> {
     let surfaces = |p: &Params| Surfaces::ground(scene.map(p));
     let problem = Problem { surfaces: &surfaces, step: STEP, prior: prior.p, sigma: prior.sigma, min_inliers: MIN_INLIERS };
-    let (p, scale) = robust_fit(matches, *start, &problem)?;
-    Some(Fit { p, scale })
+    let solution = robust_fit(matches, *start, &problem)?;
+    Some(Fit { p: solution.p, scale: solution.scale })
 }
 
 /// The model of a lower level past `edge_row` `depth_mm` below the ground
 /// moved by `p`.
 fn two_levels(scene: &Scene, p: &Params, edge_row: f32, depth_mm: f32) -> Surfaces {
-    Surfaces::two_levels(scene.map(p), p, scene.keyframe_attitude, scene.grid, scene.height_mm as f32, edge_row, depth_mm)
+    Surfaces::two_levels(scene.map(p), p, scene.keyframe_attitude.deg, scene.grid, scene.height_mm as f32, edge_row, depth_mm)
 }
 
-/// Step 6: the keyframe body's attitude as two more unknowns, the chained
-/// value its prior. It shows only through how the motion moves tilted
+/// Step 6: the keyframe body's attitude as two more unknowns, what was
+/// known of it before its prior. It shows only through how the motion moves tilted
 /// ground (about a T z / H per radian: 1 px at 1.4 m for 0.2 degree after
 /// 100 mm), so a short baseline leaves it to the prior.
 fn fit_keyframe_attitude(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start) -> Option<Estimate> {
     let five = |p: &[f32; 7]| -> Params { [p[0], p[1], p[2], p[3], p[4]] };
     let surfaces = |p: &[f32; 7]| Surfaces::ground(PixelMap::new(&five(p), [p[5], p[6]], scene.height_mm as f32, scene.grid));
     let seven = |p: &Params, keyframe: [f32; 2]| -> [f32; 7] { [p[0], p[1], p[2], p[3], p[4], keyframe[0], keyframe[1]] };
-    let sigma = KEYFRAME_ATTITUDE_SIGMA_DEG;
+    let keyframe = scene.keyframe_attitude;
     let problem = Problem {
         surfaces: &surfaces,
         step: seven(&STEP, [STEP[3], STEP[4]]),
-        prior: seven(&prior.p, scene.keyframe_attitude),
-        sigma: seven(&prior.sigma, [sigma, sigma]),
+        prior: seven(&prior.p, keyframe.deg),
+        sigma: seven(&prior.sigma, keyframe.sigma_deg),
         min_inliers: MIN_INLIERS,
     };
-    let (p, _) = robust_fit(matches, seven(start, scene.keyframe_attitude), &problem)?;
-    Some(Estimate { motion: motion(&five(&p)), keyframe_attitude: Attitude { pitch_deg: f64::from(p[5]), roll_deg: f64::from(p[6]) } })
+    let fit = robust_fit(matches, seven(start, keyframe.deg), &problem)?;
+    let (p, sigma) = (fit.p, fit.variance.map(libm::sqrtf));
+    Some(Estimate {
+        motion: motion(&five(&p)),
+        keyframe_attitude: KeyframeAttitude { deg: [p[5], p[6]], sigma_deg: [sigma[5], sigma[6]] },
+        change_sigma: [sigma[3], sigma[4]],
+    })
 }
 
 /// A lower level past `edge_row` fitted with the ground: the ground's
@@ -388,8 +420,8 @@ fn fit_two_levels(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: 
         sigma: six(&prior.sigma, LOWER_LEVEL_DEPTH_SIGMA_MM),
         min_inliers: MIN_INLIERS,
     };
-    let (p, scale) = robust_fit(matches, six(start, 0.0), &problem)?;
-    Some((Fit { p: ground(&p), scale }, p[5]))
+    let fit = robust_fit(matches, six(start, 0.0), &problem)?;
+    Some((Fit { p: ground(&fit.p), scale: fit.scale }, fit.p[5]))
 }
 
 #[cfg(test)]
@@ -450,7 +482,7 @@ mod tests {
     fn estimate_between(keyframe: &[u8], current: &[u8], prior: &Prior) -> GroundMotion {
         let grid = grid();
         let coverage = Coverage::full(&grid);
-        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: [0.0, 0.0] };
+        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: KeyframeAttitude::NOMINAL };
         let mut estimator = std::boxed::Box::new(Estimator::EMPTY);
         estimator.estimate(&scene, prior).expect("a textured floor is measured").motion
     }
@@ -542,5 +574,43 @@ mod tests {
         // Measured with the f64 estimate: 0.018 deg; its ground-only fit took 0.109 deg.
         assert!(libm::fabs(found.attitude.pitch_deg) < 0.03, "{found:?}");
         assert_close(&found, &GroundMotion { planar: step, attitude: Attitude::default() });
+    }
+
+    /// A body that sits pitched and rolled for a while: each comparison
+    /// with its keyframe (the last one's result the next one's prior, as
+    /// Gpa chains them) brings the keyframe's attitude closer, and surer.
+    #[test]
+    fn comparisons_with_a_tilted_keyframe_find_its_attitude() {
+        let sitting = Attitude { pitch_deg: 0.8, roll_deg: -0.5 };
+        let grid = grid();
+        let coverage = Coverage::full(&grid);
+        let keyframe = render(&GroundMotion { planar: Motion::default(), attitude: sitting }, |_, _| false);
+        let mut known = KeyframeAttitude::NOMINAL;
+        let mut estimator = std::boxed::Box::new(Estimator::EMPTY);
+        for tz_mm in [40.0, 80.0, 120.0, 160.0] {
+            let change = Attitude { pitch_deg: 0.1, roll_deg: 0.05 };
+            let current = render(&GroundMotion { planar: Motion { tx_mm: 5.0, tz_mm, dyaw_deg: 0.5 }, attitude: sitting.then(&change) }, |_, _| false);
+            let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: known };
+            let prior = Prior { motion: GroundMotion { planar: Motion { tx_mm: 0.0, tz_mm, dyaw_deg: 0.0 }, attitude: Attitude::default() }, sigma: [12.0, 12.0, 1.0, 1.0, 1.0] };
+            let estimate = estimator.estimate(&scene, &prior).expect("a textured floor is measured");
+            let found = estimate.keyframe_attitude;
+            assert!(found.sigma_deg[0] < known.sigma_deg[0] && found.sigma_deg[1] < known.sigma_deg[1], "{found:?} after {known:?}");
+            known = found;
+        }
+        // Within two of its own sigmas, and most of the way from nominal
+        // (measured: 0.70, -0.37 with sigmas 0.09, 0.14).
+        let truth = [sitting.pitch_deg as f32, sitting.roll_deg as f32];
+        for k in 0..2 {
+            let error = libm::fabsf(known.deg[k] - truth[k]);
+            assert!(error < 2.0 * known.sigma_deg[k] && error < libm::fabsf(truth[k]) / 3.0, "{known:?}");
+        }
+    }
+
+    #[test]
+    fn a_new_keyframe_is_as_sure_as_the_last_and_the_change_to_it() {
+        let last = KeyframeAttitude { deg: [0.5, -0.2], sigma_deg: [0.03, 0.04] };
+        let next = last.then(&Attitude { pitch_deg: 0.25, roll_deg: 0.1 }, [0.04, 0.03]);
+        assert!((next.deg[0] - 0.75).abs() < 1e-3 && (next.deg[1] + 0.1).abs() < 1e-3, "{next:?}");
+        assert!((next.sigma_deg[0] - 0.05).abs() < 1e-6 && (next.sigma_deg[1] - 0.05).abs() < 1e-6, "{next:?}");
     }
 }

@@ -92,10 +92,21 @@ pub(super) struct Problem<'a, const N: usize> {
     pub(super) min_inliers: usize,
 }
 
+/// A fit's result.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Solution<const N: usize> {
+    pub(super) p: [f32; N],
+    /// The robust scale of the residuals (KG px).
+    pub(super) scale: f32,
+    /// Each parameter's variance after the fit (prior and blocks, the
+    /// blocks' errors taken as independent at `scale`).
+    pub(super) variance: [f32; N],
+}
+
 /// The parameters from `start` and the robust scale of the residuals
 /// (MAD, floored: sub-pixel matches are not better than ~0.1 px); None
 /// when too few blocks agree with the result.
-pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N], problem: &Problem<N>) -> Option<([f32; N], f32)> {
+pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N], problem: &Problem<N>) -> Option<Solution<N>> {
     if matches.len() < problem.min_inliers {
         return None;
     }
@@ -103,6 +114,7 @@ pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N]
     let mut p = start;
     let mut scale = 1.0f32;
     let mut residuals = [0f32; MAX_BLOCK_MATCHES];
+    let mut normal = [[0f32; N]; N];
     for iteration in 0..8 {
         let surfaces = (problem.surfaces)(&p);
         let moved: [Surfaces; N] = core::array::from_fn(|k| {
@@ -134,7 +146,7 @@ pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N]
                 }
             }
         };
-        let mut normal = [[0f32; N]; N];
+        normal = [[0f32; N]; N];
         let mut gradient = [0f32; N];
         for (m, &r) in matches.iter().zip(residuals.iter()) {
             let w = weight(r) / (scale * scale);
@@ -178,7 +190,13 @@ pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N]
     if inliers < problem.min_inliers || 3 * inliers < matches.len() {
         return None;
     }
-    Some((p, scale))
+    // The diagonal of the normal matrix's inverse, one column at a time.
+    let mut variance = [0f32; N];
+    for (k, v) in variance.iter_mut().enumerate() {
+        let unit: [f32; N] = core::array::from_fn(|i| if i == k { 1.0 } else { 0.0 });
+        *v = solve(normal, unit)?[k];
+    }
+    Some(Solution { p, scale, variance })
 }
 
 /// How much worse `surfaces` explains `matches` than a model whose

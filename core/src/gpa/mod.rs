@@ -65,7 +65,7 @@ use crate::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE, SHIFT_SCALE};
 use crate::scan::{Scan, ScanLayout, View};
 use band::Band;
 use decision::{Alarm, Noise};
-use estimate::{Estimator, Prior, Scene};
+use estimate::{Estimator, KeyframeAttitude, Prior, Scene};
 use keyframe::Keyframe;
 use layout::Layout;
 use parallax::{Hypotheses, Parallax};
@@ -161,10 +161,16 @@ pub struct Gpa<'b> {
     keyframe_imu: Option<Attitude>,
     /// The keyframe body's attitude relative to the nominal one: the
     /// measured changes chained from the first keyframe of a run (taken as
-    /// nominal; a keyframe that follows no comparison is too).
-    keyframe_attitude: Attitude,
-    /// This frame's body attitude relative to the nominal one, as measured
-    /// (the keyframe's and the change since); nominal when not compared.
+    /// nominal; a keyframe that follows no comparison is too), refined by
+    /// each comparison with it.
+    keyframe_attitude: KeyframeAttitude,
+    /// One sigma of this frame's measured attitude change (degrees).
+    change_sigma: [f32; 2],
+    /// The keyframe body's attitude as the measured changes alone chain it
+    /// (no absolute fit): smooth from frame to frame, for GTI's tracks.
+    keyframe_chain: Attitude,
+    /// This frame's body attitude relative to the run's first keyframe,
+    /// as the measured changes chain it; nominal when not compared.
     body_attitude: Attitude,
     /// This frame's motion from the keyframe, as measured (or predicted).
     measured: GroundMotion,
@@ -219,7 +225,9 @@ impl<'b> Gpa<'b> {
         odometry: None,
         imu: None,
         keyframe_imu: None,
-        keyframe_attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
+        keyframe_attitude: KeyframeAttitude::NOMINAL,
+        change_sigma: [0.0, 0.0],
+        keyframe_chain: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
         body_attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
         measured: GroundMotion {
             planar: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 },
@@ -405,7 +413,11 @@ impl<'b> Gpa<'b> {
         if new_keyframe {
             self.keyframe_imu = self.imu;
             self.keyframe_attitude = match report {
-                Some(_) => self.keyframe_attitude.then(&self.measured.attitude),
+                Some(_) => self.keyframe_attitude.then(&self.measured.attitude, self.change_sigma),
+                None => KeyframeAttitude::NOMINAL,
+            };
+            self.keyframe_chain = match report {
+                Some(_) => self.keyframe_chain.then(&self.measured.attitude),
                 None => Attitude::default(),
             };
         }
@@ -441,13 +453,15 @@ impl<'b> Gpa<'b> {
             grid: &self.layout.grid,
             coverage: &self.coverage,
             height_mm: self.layout.camera_height_mm,
-            keyframe_attitude: [self.keyframe_attitude.pitch_deg as f32, self.keyframe_attitude.roll_deg as f32],
+            keyframe_attitude: self.keyframe_attitude,
         };
         let start = self.profiler.now();
         let estimate = self.estimator.estimate(&scene, &prior);
         self.profiler.charge(start, |p| &mut p.estimate);
+        self.change_sigma = [prior.sigma[3] as f32, prior.sigma[4] as f32];
         if let Some(estimate) = &estimate {
             self.keyframe_attitude = estimate.keyframe_attitude;
+            self.change_sigma = estimate.change_sigma;
         }
         let measured = match (estimate, self.odometry) {
             (Some(estimate), _) => estimate.motion,
@@ -458,7 +472,7 @@ impl<'b> Gpa<'b> {
                 return None;
             }
         };
-        self.body_attitude = self.keyframe_attitude.then(&measured.attitude);
+        self.body_attitude = self.keyframe_chain.then(&measured.attitude);
         // An exposure step between the frames: the current rows are
         // brought to the keyframe's brightness, or every textured pixel
         // would differ. (Within 1 % a gain is left alone: noise.)
@@ -485,7 +499,7 @@ impl<'b> Gpa<'b> {
     /// the shift search's part of the row step, on every AOI row.
     fn search_prediction(&mut self, store: &Keyframe, predicted: &GroundMotion, exposure: Option<&[u8; 256]>) {
         let s = self.config.search_radius;
-        let warp = Warp::new(&self.layout.grid, predicted, &self.keyframe_attitude, self.layout.camera_height_mm);
+        let warp = Warp::new(&self.layout.grid, predicted, &self.keyframe_attitude.attitude(), self.layout.camera_height_mm);
         let (grid, aoi) = (&self.layout.grid, &self.layout.aoi);
         self.seed.clear();
         self.band.forget();
@@ -514,7 +528,7 @@ impl<'b> Gpa<'b> {
         self.prediction.step = step;
         let grid = &self.layout.grid;
         self.parallax.hypotheses = Hypotheses::plan(&planar, &step, grid, &self.config, self.layout.camera_height_mm);
-        self.warp = Warp::new(grid, &measured, &self.keyframe_attitude, self.layout.camera_height_mm);
+        self.warp = Warp::new(grid, &measured, &self.keyframe_attitude.attitude(), self.layout.camera_height_mm);
         self.search.clear();
         self.residue.clear();
         self.parallax.clear();
