@@ -322,18 +322,26 @@ fn trial(name: &str, spec: &str) -> Trial {
     trial
 }
 
-/// Zero errors outside grace frames.
-fn holds(name: &str, spec: &str) {
+/// No errors outside grace frames but the `known` ones: issue 13's open
+/// cases as measured, a regression bound until they are mended (the goal
+/// stays zero; a known frame that comes right is printed, to be struck).
+fn holds(name: &str, spec: &str, known: &[u32]) {
     let trial = trial(name, spec);
-    assert!(trial.wrong.is_empty(), "{name} under {spec}: wrong frames {:?} ({:?})", trial.wrong, trial.confusion);
+    let new: Vec<u32> = trial.wrong.iter().copied().filter(|frame| !known.contains(frame)).collect();
+    let mended: Vec<u32> = known.iter().copied().filter(|frame| !trial.wrong.contains(frame)).collect();
+    if !mended.is_empty() {
+        println!("{name} under {spec}: known wrong frames {mended:?} are right now: strike them");
+    }
+    assert!(new.is_empty(), "{name} under {spec}: wrong frames {new:?} beyond the known {known:?} ({:?})", trial.confusion);
 }
 
-/// One test per perturbation and recording, so that each can be marked on
-/// its own; `CASES` lists them for the check that every recording is tried.
+/// One test per perturbation and recording; `except [frames]` lists a
+/// case's known wrong frames. `CASES` lists them for the check that every
+/// recording is tried.
 macro_rules! zero_errors {
-    ($($perturbation:ident: $spec:expr => [$($(#[$attribute:meta])* $recording:ident),* $(,)?];)*) => {
+    ($($perturbation:ident: $spec:expr => [$($recording:ident $(except [$($frame:literal),*])?),* $(,)?];)*) => {
         $(mod $perturbation {
-            $(#[test] $(#[$attribute])* fn $recording() { super::holds(stringify!($recording), $spec) })*
+            $(#[test] fn $recording() { super::holds(stringify!($recording), $spec, &[$($($frame),*)?]) })*
         })*
         const CASES: &[(&str, &[&str])] = &[$((stringify!($perturbation), &[$(stringify!($recording)),*])),*];
     };
@@ -347,7 +355,7 @@ zero_errors! {
         diagonal,
         exposure_rolling,
         flat_marks,
-        #[ignore = "issue 13, measured: misses 10, 11, 14, 15"] ledge,
+        ledge except [10, 11, 14, 15],
         noisy_approach,
         noisy_marks,
         qvga_curb,
@@ -356,27 +364,29 @@ zero_errors! {
         turn,
     ];
     // Braking nose down, the remap's rows show level ground nearer than
-    // the grid says (126 mm at 1.33 m for 1.5 deg): the analysed band ends
-    // short of the AOI's far edge, and what enters there is seen late.
+    // the grid says (126 mm at 1.33 m for 1.5 deg): what enters past the
+    // AOI's far edge is seen late (the box's face, the drop).
     sustained_attitude: super::SUSTAINED => [
-        #[ignore = "issue 13, measured: misses 15-19 (the box entering past the band's far edge)"] approach_box,
+        approach_box except [15, 16, 17, 18, 19],
         bumpy_approach,
         bumpy_marks,
         diagonal,
         exposure_rolling,
         flat_marks,
-        #[ignore = "issue 13, measured: misses 10, 11 (the drop past the band's far edge; main's alarms there were at 922-978 mm, not the drop at 1330)"] ledge,
-        #[ignore = "issue 13, measured: misses 17-19 (as approach_box)"] noisy_approach,
+        ledge except [10, 11],
+        noisy_approach except [15, 16, 17, 18, 19],
         noisy_marks,
-        #[ignore = "issue 13, measured: miss 9"] qvga_curb,
-        #[ignore = "issue 13, measured: miss 15"] slip,
+        qvga_curb except [9],
+        slip except [15],
         stool_bags,
         turn,
     ];
     exposure_steps: super::EXPOSURE => [approach_box, bumpy_approach, bumpy_marks, diagonal, exposure_rolling, flat_marks, ledge, noisy_approach, noisy_marks, qvga_curb, slip, stool_bags, turn];
     vignetting: super::VIGNETTE => [
         approach_box,
-        #[ignore = "issue 13, measured: FA 9 at 1396 mm (the box's far face at 1452, AOI far edge 1400: one camera row is 27 mm of ground there)"] bumpy_approach,
+        // The box's far face at 1452 mm, the AOI's far edge at 1400: one
+        // camera row there spans 27 mm of ground; reported at 1396.
+        bumpy_approach except [9],
         bumpy_marks,
         diagonal,
         exposure_rolling,
@@ -395,10 +405,10 @@ zero_errors! {
         bumpy_marks,
         diagonal,
         exposure_rolling,
-        #[ignore = "issue 13, measured: FA 3-6"] flat_marks,
+        flat_marks,
         ledge,
         noisy_approach,
-        #[ignore = "issue 13, measured: FA 3-6"] noisy_marks,
+        noisy_marks,
         qvga_curb,
         slip,
         stool_bags,

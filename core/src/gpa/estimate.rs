@@ -191,8 +191,13 @@ impl Estimator {
         let prior = Start { p: params(&prior.motion), sigma: prior.sigma.map(|s| s as f32) };
         let start = self.coarse_start(scene, &prior);
         // A coarse start on an alias of the texture leaves too few blocks
-        // agreeing; the prior's own motion is the other start.
-        let fitted = self.refine(scene, &prior, start, 0).or_else(|| self.refine(scene, &prior, prior.p, 0))?;
+        // agreeing; the prior's own motion is the other start, and standing
+        // still the last (wheels that slip turn while the robot stands,
+        // beyond the coarse search's reach around the odometry).
+        let fitted = self
+            .refine(scene, &prior, start, 0)
+            .or_else(|| self.refine(scene, &prior, prior.p, 0))
+            .or_else(|| self.refine(scene, &prior, [0.0; 5], 0))?;
         let (chosen, lower_level) = self.nearest_surface(scene, &prior, fitted);
         let chained = Estimate { motion: motion(&chosen), keyframe_attitude: scene.keyframe_attitude, change_sigma: [prior.sigma[3], prior.sigma[4]] };
         // Step 6 (not over a lower level, which would bend it).
@@ -574,6 +579,17 @@ mod tests {
         // Measured with the f64 estimate: 0.018 deg; its ground-only fit took 0.109 deg.
         assert!(libm::fabs(found.attitude.pitch_deg) < 0.03, "{found:?}");
         assert_close(&found, &GroundMotion { planar: step, attitude: Attitude::default() });
+    }
+
+    /// Wheels that slip: the odometry says 100 mm (sigma 15, as GpaConfig
+    /// gives it), the images stand. The coarse search's reach (3 sigma)
+    /// stops 55 mm short of standing still; the fit's last start is there.
+    #[test]
+    fn wheels_that_slip_do_not_move_the_ground() {
+        let image = render(&GroundMotion::default(), |_, _| false);
+        let odometry = GroundMotion { planar: Motion { tx_mm: 0.0, tz_mm: 100.0, dyaw_deg: 0.0 }, attitude: Attitude::default() };
+        let prior = Prior { motion: odometry, sigma: [15.0, 15.0, 0.5, 1.0, 1.0] };
+        assert_close(&estimate_between(&image, &image, &prior), &GroundMotion::default());
     }
 
     /// A body that sits pitched and rolled for a while: each comparison
