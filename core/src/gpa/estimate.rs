@@ -388,9 +388,9 @@ fn two_levels(scene: &Scene, p: &Params, edge_row: f32, depth_mm: f32) -> Surfac
 }
 
 /// Step 6: the keyframe body's attitude as two more unknowns, what was
-/// known of it before its prior. It shows only through how the motion moves tilted
-/// ground (about a T z / H per radian: 1 px at 1.4 m for 0.2 degree after
-/// 100 mm), so a short baseline leaves it to the prior.
+/// known of it before as their prior. It shows only through how the motion
+/// moves tilted ground (about a T z / H per radian: 1 px at 1.4 m for 0.2
+/// degree after 100 mm), so a short baseline leaves it to the prior.
 fn fit_keyframe_attitude(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start) -> Option<Estimate> {
     let five = |p: &[f32; 7]| -> Params { [p[0], p[1], p[2], p[3], p[4]] };
     let surfaces = |p: &[f32; 7]| Surfaces::ground(PixelMap::new(&five(p), [p[5], p[6]], scene.height_mm as f32, scene.grid));
