@@ -404,7 +404,7 @@ fn fit_keyframe_attitude(scene: &Scene, matches: &[BlockMatch], start: &Params, 
         min_inliers: MIN_INLIERS,
     };
     let fit = robust_fit(matches, seven(start, keyframe.deg), &problem)?;
-    let (p, sigma) = (fit.p, fit.variance.map(libm::sqrtf));
+    let (p, sigma) = (fit.p, fit.variance()?.map(libm::sqrtf));
     Some(Estimate {
         motion: motion(&five(&p)),
         keyframe_attitude: KeyframeAttitude { deg: [p[5], p[6]], sigma_deg: [sigma[5], sigma[6]] },

@@ -98,9 +98,24 @@ pub(super) struct Solution<const N: usize> {
     pub(super) p: [f32; N],
     /// The robust scale of the residuals (KG px).
     pub(super) scale: f32,
+    /// The last step's normal matrix (prior included), for the variances.
+    normal: [[f32; N]; N],
+}
+
+impl<const N: usize> Solution<N> {
     /// Each parameter's variance after the fit (prior and blocks, the
-    /// blocks' errors taken as independent at `scale`).
-    pub(super) variance: [f32; N],
+    /// blocks' errors taken as independent at `scale`): the diagonal of
+    /// the normal matrix's inverse, one column at a time. Asked for only
+    /// where it is used: most fits are not.
+    pub(super) fn variance(&self) -> Option<[f32; N]> {
+        let factor = cholesky(self.normal)?;
+        let mut variance = [0f32; N];
+        for (k, v) in variance.iter_mut().enumerate() {
+            let unit: [f32; N] = core::array::from_fn(|i| if i == k { 1.0 } else { 0.0 });
+            *v = substitute(&factor, unit)[k];
+        }
+        Some(variance)
+    }
 }
 
 /// The parameters from `start` and the robust scale of the residuals
@@ -190,13 +205,7 @@ pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N]
     if inliers < problem.min_inliers || 3 * inliers < matches.len() {
         return None;
     }
-    // The diagonal of the normal matrix's inverse, one column at a time.
-    let mut variance = [0f32; N];
-    for (k, v) in variance.iter_mut().enumerate() {
-        let unit: [f32; N] = core::array::from_fn(|i| if i == k { 1.0 } else { 0.0 });
-        *v = solve(normal, unit)?[k];
-    }
-    Some(Solution { p, scale, variance })
+    Some(Solution { p, scale, normal })
 }
 
 /// How much worse `surfaces` explains `matches` than a model whose
@@ -208,10 +217,15 @@ pub(super) fn capped_chi2(matches: &[BlockMatch], surfaces: &Surfaces, scale: f3
 }
 
 /// Solves the NxN symmetric positive definite system (Cholesky); None if singular.
+fn solve<const N: usize>(a: [[f32; N]; N], b: [f32; N]) -> Option<[f32; N]> {
+    Some(substitute(&cholesky(a)?, b))
+}
+
+/// The lower triangle L of a = L L^T; None if `a` is not positive definite.
 // Indexed loops on purpose: the factorisation is written as in the textbook.
 #[allow(clippy::needless_range_loop)]
 #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(sum > 0.0)` also refuses NaN
-fn solve<const N: usize>(a: [[f32; N]; N], b: [f32; N]) -> Option<[f32; N]> {
+fn cholesky<const N: usize>(a: [[f32; N]; N]) -> Option<[[f32; N]; N]> {
     let mut l = [[0f32; N]; N];
     for i in 0..N {
         for j in 0..=i {
@@ -229,6 +243,12 @@ fn solve<const N: usize>(a: [[f32; N]; N], b: [f32; N]) -> Option<[f32; N]> {
             }
         }
     }
+    Some(l)
+}
+
+/// x with L L^T x = b, L from [`cholesky`].
+#[allow(clippy::needless_range_loop)]
+fn substitute<const N: usize>(l: &[[f32; N]; N], b: [f32; N]) -> [f32; N] {
     let mut y = [0f32; N];
     for i in 0..N {
         let mut sum = b[i];
@@ -245,5 +265,5 @@ fn solve<const N: usize>(a: [[f32; N]; N], b: [f32; N]) -> Option<[f32; N]> {
         }
         x[i] = sum / l[i][i];
     }
-    Some(x)
+    x
 }

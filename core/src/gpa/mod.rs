@@ -413,13 +413,12 @@ impl<'b> Gpa<'b> {
         let new_keyframe = self.keyframe.finish(self.frame);
         if new_keyframe {
             self.keyframe_imu = self.imu;
-            self.keyframe_attitude = match report {
-                Some(_) => self.keyframe_attitude.then(&self.measured.attitude, self.change_sigma),
-                None => KeyframeAttitude::NOMINAL,
-            };
-            self.keyframe_chain = match report {
-                Some(_) => chain_keyframe(&self.keyframe_chain, &self.measured.attitude),
-                None => Attitude::default(),
+            (self.keyframe_attitude, self.keyframe_chain) = match report {
+                Some(_) => (
+                    self.keyframe_attitude.then(&self.measured.attitude, self.change_sigma),
+                    chain_keyframe(&self.keyframe_chain, &self.measured.attitude),
+                ),
+                None => (KeyframeAttitude::NOMINAL, Attitude::default()),
             };
         }
         self.prediction.finish(self.frame, new_keyframe);
