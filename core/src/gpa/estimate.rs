@@ -38,6 +38,7 @@ use super::warp::Coverage;
 use crate::grid::KgGrid;
 use crate::limits::MAX_BLOCK_MATCHES;
 use crate::motion::{Attitude, GroundMotion, Motion};
+use super::Profiler;
 
 /// Fewest inlier blocks that measure all five parameters.
 const MIN_INLIERS: usize = 8;
@@ -161,12 +162,15 @@ impl Scene<'_> {
 pub(super) struct Estimator {
     coarse: CoarseSearch,
     matches: heapless::Vec<BlockMatch, MAX_BLOCK_MATCHES>,
+    /// Its parts' ticks (the `estimate_*` fields).
+    pub(super) profiler: Profiler,
 }
 
 impl Estimator {
     pub(super) const EMPTY: Estimator = Estimator {
         coarse: CoarseSearch::EMPTY,
         matches: heapless::Vec::new(),
+        profiler: Profiler::OFF,
     };
 
     /// The brightness of the current frame over the keyframe's (auto
@@ -189,7 +193,9 @@ impl Estimator {
     /// searched on cells twice as large first.
     pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior) -> Option<Estimate> {
         let prior = Start { p: params(&prior.motion), sigma: prior.sigma.map(|s| s as f32) };
+        let since = self.profiler.now();
         let start = self.coarse_start(scene, &prior);
+        self.profiler.charge(since, |p| &mut p.estimate_coarse);
         // A coarse start on an alias of the texture leaves too few blocks
         // agreeing; the prior's own motion is the other start, and standing
         // still the last (wheels that slip turn while the robot stands,
@@ -278,7 +284,10 @@ impl Estimator {
         };
         // Every block again, around the choice: the gain is their median.
         self.match_blocks(scene, &chosen, 0);
-        match self.lower_level(scene, prior, &chosen) {
+        let since = self.profiler.now();
+        let lower_level = self.lower_level(scene, prior, &chosen);
+        self.profiler.charge(since, |p| &mut p.estimate_lower_level);
+        match lower_level {
             Some(ground) => {
                 self.match_blocks(scene, &ground, 0);
                 (ground, true)
@@ -323,6 +332,12 @@ impl Estimator {
     /// lies from `from_row` on, matched in the keyframe around where `p`
     /// puts it.
     fn match_blocks(&mut self, scene: &Scene, p: &Params, from_row: usize) {
+        let since = self.profiler.now();
+        self.match_blocks_from(scene, p, from_row);
+        self.profiler.charge(since, |p| &mut p.estimate_blocks);
+    }
+
+    fn match_blocks_from(&mut self, scene: &Scene, p: &Params, from_row: usize) {
         self.matches.clear();
         let map = scene.map(p);
         let images = scene.images();

@@ -111,8 +111,15 @@ pub struct GpaProfile {
     pub shift_search: u32,
     /// Copying the row into the new keyframe.
     pub keyframe_update: u32,
-    /// The motion estimate (coarse search, block matches, fits).
+    /// The motion estimate (coarse search, block matches, fits), and the
+    /// parts of it below.
     pub estimate: u32,
+    /// Its coarse search (step 1).
+    pub estimate_coarse: u32,
+    /// Its block matches (step 2, every time the blocks are matched).
+    pub estimate_blocks: u32,
+    /// Its search for a lower level (step 5, the two-level fits).
+    pub estimate_lower_level: u32,
     /// The seed's search around the prediction, when the estimate differs from it.
     pub seed_search: u32,
 }
@@ -125,6 +132,11 @@ struct Profiler {
 }
 
 impl Profiler {
+    const OFF: Profiler = Profiler {
+        clock: None,
+        profile: GpaProfile { warp: 0, residue: 0, parallax: 0, shift_search: 0, keyframe_update: 0, estimate: 0, estimate_coarse: 0, estimate_blocks: 0, estimate_lower_level: 0, seed_search: 0 },
+    };
+
     #[inline(always)]
     fn now(&self) -> u32 {
         match self.clock {
@@ -248,7 +260,7 @@ impl<'b> Gpa<'b> {
         frame: 0,
         frame_active: false,
         rows_seen: 0,
-        profiler: Profiler { clock: None, profile: GpaProfile { warp: 0, residue: 0, parallax: 0, shift_search: 0, keyframe_update: 0, estimate: 0, seed_search: 0 } },
+        profiler: Profiler::OFF,
         #[cfg(test)]
         reference: false,
     };
@@ -320,6 +332,7 @@ impl<'b> Gpa<'b> {
     /// the firmware gives TIM2's instruction count). None turns it off.
     pub fn set_clock(&mut self, clock: Option<fn() -> u32>) {
         self.profiler.clock = clock;
+        self.estimator.profiler.clock = clock;
     }
 
     /// Per-stage ticks of the current (or last) frame; see [`GpaProfile`].
@@ -456,8 +469,12 @@ impl<'b> Gpa<'b> {
             keyframe_attitude: self.keyframe_attitude,
         };
         let start = self.profiler.now();
+        self.estimator.profiler.profile = GpaProfile::default();
         let estimate = self.estimator.estimate(&scene, &prior);
         self.profiler.charge(start, |p| &mut p.estimate);
+        let parts = self.estimator.profiler.profile;
+        let profile = &mut self.profiler.profile;
+        (profile.estimate_coarse, profile.estimate_blocks, profile.estimate_lower_level) = (parts.estimate_coarse, parts.estimate_blocks, parts.estimate_lower_level);
         self.change_sigma = [prior.sigma[3] as f32, prior.sigma[4] as f32];
         if let Some(estimate) = &estimate {
             self.keyframe_attitude = estimate.keyframe_attitude;
@@ -541,7 +558,7 @@ impl<'b> Gpa<'b> {
                 self.compare_row_reference(store, j, row);
                 continue;
             }
-            self.compare_row(store, j, row);
+            self.compare_row(store, j, row, exposure);
         }
         keyframe::is_due(&planar, &step, &self.config)
     }

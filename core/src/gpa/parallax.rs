@@ -227,6 +227,9 @@ impl CellRowSums {
     }
 }
 
+/// Runs of grid columns, whole cells, that the hypotheses are tried in.
+pub(super) type CellSpans = heapless::Vec<Range<usize>, { MAX_CELLS_SIDE / 2 + 1 }>;
+
 /// Parallax evidence of the current frame.
 pub(super) struct Parallax {
     pub(super) hypotheses: Hypotheses,
@@ -283,6 +286,36 @@ impl Parallax {
                     let sum: u32 = samples[columns].iter().map(|&d| u32::from(d)).sum();
                     self.sums.sad[k][cell_column] += sum as u16;
                 });
+            }
+        }
+    }
+
+    /// The runs of columns of the current cell row's cells in which a
+    /// height could beat the ground: a height wins only by at least
+    /// `min_gain` per pixel over the ground's SAD, which is at most the
+    /// tolerant residue (hypothesis 0, summed by the residue stage), so a
+    /// cell whose residue is below that, or that saw too little, keeps
+    /// height 0 whatever the hypotheses sum. `min_gain` is
+    /// [`Self::finish_cell_row`]'s.
+    pub(super) fn spans_to_try(&self, cells: &Cells, min_gain: f64, spans: &mut CellSpans) {
+        spans.clear();
+        if self.hypotheses.usable == 0 {
+            return;
+        }
+        let min_pixels = (cells.px * cells.px / 2) as u16;
+        for column in 0..cells.wide {
+            let pixels = u16::from(self.sums.pixels[0][column]);
+            let residue = f64::from(self.sums.sad[0][column]);
+            if pixels < min_pixels || residue < min_gain * f64::from(pixels) {
+                continue;
+            }
+            let columns = column * cells.px..(column + 1) * cells.px;
+            match spans.last_mut() {
+                Some(last) if last.end == columns.start => last.end = columns.end,
+                _ => {
+                    // At most one span per two cells: never full.
+                    let _ = spans.push(columns);
+                }
             }
         }
     }

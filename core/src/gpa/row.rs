@@ -11,11 +11,11 @@ impl Gpa<'_> {
     /// as whole-line passes: keyframe rows looked up once per line, constant
     /// bilinear weights on translation rows, per-cell sums over column
     /// segments, and the shift search as block kernels.
-    pub(super) fn compare_row(&mut self, keyframe: &Keyframe, j: usize, row: &[u8]) {
+    pub(super) fn compare_row(&mut self, keyframe: &Keyframe, j: usize, row: &[u8], exposure: Option<&[u8; 256]>) {
         let s = self.config.search_radius;
         let warp = self.warp.row(j);
         let Some(seen) = self.coverage.seen(j) else {
-            self.close_cell_row(j);
+            self.end_row(keyframe, j, exposure);
             return;
         };
         let (grid, cells, aoi) = (&self.layout.grid, &self.layout.cells, &self.layout.aoi);
@@ -35,17 +35,47 @@ impl Gpa<'_> {
         }
         lap = self.profiler.charge(lap, |p| &mut p.residue);
 
-        if in_cells {
-            self.parallax.add_row(keyframe, warp, seen, &runs, row, cells);
-        }
-        lap = self.profiler.charge(lap, |p| &mut p.parallax);
-
         if j >= aoi.top && j < aoi.bottom {
             self.search.add_row(row, &band, s, &runs, aoi, self.layout.in_far_half(j));
         }
         lap = self.profiler.charge(lap, |p| &mut p.shift_search);
-        self.close_cell_row(j);
+        self.end_row(keyframe, j, exposure);
         self.profiler.charge(lap, |p| &mut p.parallax);
+    }
+
+    /// After row `j`: if it was its cell row's last, the height hypotheses
+    /// of that cell row, then its decision. The hypotheses run only in the
+    /// cells whose ground residue leaves room for a height to beat it by
+    /// the least gain ([`super::parallax::Parallax::spans_to_try`]); in
+    /// the others no height can win, so the heights are the same as when
+    /// every cell is tried, at a fraction of the cost on open ground.
+    fn end_row(&mut self, keyframe: &Keyframe, j: usize, exposure: Option<&[u8; 256]>) {
+        let cells = self.layout.cells;
+        let last = (j + 1).is_multiple_of(cells.px) || j + 1 == self.layout.analysis_rows;
+        let cell_row = j / cells.px;
+        if last && cell_row < cells.high {
+            let min_gain = self.config.parallax_min_gain.max(self.noise.level());
+            let mut spans = super::parallax::CellSpans::new();
+            self.parallax.spans_to_try(&cells, min_gain, &mut spans);
+            if !spans.is_empty() {
+                let grid = &self.layout.grid;
+                let mut runs = Runs::new();
+                let mut adjusted = [0u8; crate::grid::MAX_GRID_SIDE];
+                for row_j in cell_row * cells.px..=j {
+                    let Some(seen) = self.coverage.seen(row_j) else { continue };
+                    let warp = self.warp.row(row_j);
+                    self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
+                    let row = super::exposed(keyframe.current_row(row_j), exposure, &mut adjusted);
+                    for span in &spans {
+                        let columns = seen.start.max(span.start)..seen.end.min(span.end);
+                        if !columns.is_empty() {
+                            self.parallax.add_row(keyframe, warp, columns, &runs, row, &cells);
+                        }
+                    }
+                }
+            }
+        }
+        self.close_cell_row(j);
     }
 
     /// After row `j`: decides its cell row if `j` was that row's last.
