@@ -22,27 +22,38 @@ pub(super) struct Band {
     /// The ring: band row dg is `ring[(first + dg) % (2S+1)]`.
     ring: [[u8; BAND_WIDTH]; MAX_WINDOW],
     first: usize,
-    /// Row, warp and columns the band was last sampled for (this frame).
+    /// Row, warp and columns the band was last sampled for (this frame),
+    /// when all its 2S+1 rows were (a band to roll on).
     source: Option<(usize, RowWarp, Range<usize>)>,
+    /// The band rows (dg) and columns the last sampling filled.
+    filled: Range<usize>,
+    columns: Range<usize>,
 }
 
 impl Band {
-    pub(super) const EMPTY: Band = Band { ring: [[0; BAND_WIDTH]; MAX_WINDOW], first: 0, source: None };
+    pub(super) const EMPTY: Band = Band { ring: [[0; BAND_WIDTH]; MAX_WINDOW], first: 0, source: None, filled: 0..0, columns: 0..0 };
 
     pub(super) fn clear(&mut self) {
         self.ring = [[0; BAND_WIDTH]; MAX_WINDOW];
         self.first = 0;
         self.source = None;
+        self.filled = 0..0;
+        self.columns = 0..0;
     }
 
     /// A new frame: nothing sampled to roll on from.
     pub(super) fn forget(&mut self) {
         self.source = None;
+        self.filled = 0..0;
+        self.columns = 0..0;
     }
 
     /// Samples the band of current row `j` (warp `warp`) over the `seen`
-    /// columns widened by S each side; nothing reads outside them.
-    pub(super) fn sample(&mut self, keyframe: &Keyframe, j: usize, warp: RowWarp, seen: Range<usize>, s: usize, width: usize) {
+    /// columns widened by S each side; nothing reads outside them. Only
+    /// the rows within `reach` of the prediction are needed (the residue
+    /// reads one either side, the shift search all S): a row that cannot
+    /// roll on from the last samples no more.
+    pub(super) fn sample(&mut self, keyframe: &Keyframe, j: usize, warp: RowWarp, seen: Range<usize>, s: usize, width: usize, reach: usize) {
         let columns = seen.start.saturating_sub(s)..(seen.end + s).min(width);
         // On translation rows the next row's warp is usually this one moved down
         // exactly one keyframe row: then its band row dg is this row's dg + 1
@@ -55,18 +66,27 @@ impl Band {
                 && previous.moved(0, 1 << FRAC) == warp
                 && sampled.start <= columns.start
                 && columns.end <= sampled.end);
-        let first_sampled = if rolls {
+        let reach = reach.min(s);
+        let to_sample = if rolls {
             self.first = (self.first + 1) % window;
-            2 * s
+            2 * s..2 * s + 1
         } else {
-            0
+            s - reach..s + reach + 1
         };
-        for dg in first_sampled..=2 * s {
+        for dg in to_sample.clone() {
             let line = warp.moved(0, (dg as i32 - s as i32) << FRAC);
             let slot = (self.first + dg) % window;
             keyframe.sample_line(line, columns.clone(), &mut self.ring[slot][MAX_SEARCH_RADIUS..]);
         }
-        self.source = Some((j, warp, columns));
+        self.filled = if rolls { 0..window } else { to_sample };
+        self.columns = columns.clone();
+        self.source = (self.filled.len() == window).then_some((j, warp, columns));
+    }
+
+    /// The band rows (dg) the last sampling left filled for its row.
+    #[cfg(test)]
+    pub(super) fn filled(&self) -> Range<usize> {
+        self.filled.clone()
     }
 
     /// The band's rows in order, for search radius `s`.
@@ -82,7 +102,7 @@ impl Band {
     /// Columns of the last sampled band (the tests compare them).
     #[cfg(test)]
     pub(super) fn columns(&self) -> Range<usize> {
-        self.source.as_ref().map_or(0..0, |(_, _, columns)| columns.clone())
+        self.columns.clone()
     }
 
     /// The ring unrolled (band row dg is `ring[dg]`), for the per-pixel reference.
