@@ -513,10 +513,13 @@ impl<'b> Gpa<'b> {
     }
 
     /// Fills the seed's search (`self.seed`) around the `predicted` motion:
-    /// the shift search's part of the row step, on every AOI row.
+    /// the shift search's part of the row step, on every AOI row. As the
+    /// seed sees it: its rig is level and it knows the planar motion only,
+    /// so its rows are straight (a translation rolls the band on).
     fn search_prediction(&mut self, store: &Keyframe, predicted: &GroundMotion, exposure: Option<&[u8; 256]>) {
         let s = self.config.search_radius;
-        let warp = Warp::new(&self.layout.grid, predicted, &self.keyframe_attitude.attitude(), self.layout.camera_height_mm);
+        let level = GroundMotion { planar: predicted.planar, attitude: Attitude::default() };
+        let warp = Warp::new(&self.layout.grid, &level, &Attitude::default(), self.layout.camera_height_mm);
         let (grid, aoi) = (&self.layout.grid, &self.layout.aoi);
         self.seed.clear();
         self.band.forget();
