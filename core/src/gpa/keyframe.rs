@@ -226,14 +226,9 @@ impl<'b> Keyframe<'b> {
             blend(p00, p01, p10, p11, i, j)
         };
         if line.is_bent() {
-            // `line.at(c)` by differences: c^2 bend grows by (2c + 1) bend,
-            // exactly, in i64 (no multiply per pixel on the M4).
-            let mut along_i = BentCoordinate::new(line.i_start, line.i_step, line.i_bend, first);
-            let mut along_j = BentCoordinate::new(line.j_start, line.j_step, line.j_bend, first);
+            let mut positions = line.positions(first);
             for slot in &mut out[first..end] {
-                *slot = read((along_i.value(), along_j.value()));
-                along_i.advance();
-                along_j.advance();
+                *slot = read(positions.take());
             }
         } else {
             let (mut i, mut j) = line.at(first);
@@ -277,43 +272,6 @@ impl<'b> Keyframe<'b> {
     #[inline(always)]
     fn rows_limit(&self) -> i32 {
         (self.height as i32 - 1) << FRAC
-    }
-}
-
-/// One coordinate of a bent [`RowWarp`] stepped column by column: the
-/// same Q16 value as `RowWarp::at` (a linear part that wraps as its i32
-/// sums do, and the quadratic part from the exact i64 c^2 bend).
-struct BentCoordinate {
-    linear: i32,
-    step: i32,
-    squared_bend: i64,
-    increment: i64,
-    bend_step: i64,
-}
-
-impl BentCoordinate {
-    #[inline(always)]
-    fn new(start: i32, step: i32, bend: i32, c: usize) -> BentCoordinate {
-        let (c, bend) = (c as i64, i64::from(bend));
-        BentCoordinate {
-            linear: start.wrapping_add((c as i32).wrapping_mul(step)),
-            step,
-            squared_bend: c * c * bend,
-            increment: (2 * c + 1) * bend,
-            bend_step: 2 * bend,
-        }
-    }
-
-    #[inline(always)]
-    fn value(&self) -> i32 {
-        self.linear.wrapping_add((self.squared_bend >> (BEND_FRAC - FRAC)) as i32)
-    }
-
-    #[inline(always)]
-    fn advance(&mut self) {
-        self.linear = self.linear.wrapping_add(self.step);
-        self.squared_bend += self.increment;
-        self.increment += self.bend_step;
     }
 }
 

@@ -60,6 +60,16 @@ impl RowWarp {
         )
     }
 
+    /// [`Self::at`] of the columns `first`, `first + 1`, ... in turn, by
+    /// exact differences: no multiply per column on the M4.
+    #[inline(always)]
+    pub(super) fn positions(&self, first: usize) -> Positions {
+        Positions {
+            i: Coordinate::new(self.i_start, self.i_step, self.i_bend, first),
+            j: Coordinate::new(self.j_start, self.j_step, self.j_bend, first),
+        }
+    }
+
     /// The same line moved by (`di`, `dj`), Q16.16.
     #[inline(always)]
     pub(super) fn moved(&self, di: i32, dj: i32) -> RowWarp {
@@ -153,6 +163,60 @@ impl Warp {
     }
 }
 
+/// One coordinate of a [`RowWarp`] stepped column by column: the same
+/// Q16 value as [`RowWarp::at`] (a linear part that wraps as its i32
+/// sums do, and the quadratic part from the exact i64 c^2 bend).
+struct Coordinate {
+    linear: i32,
+    step: i32,
+    squared_bend: i64,
+    increment: i64,
+    bend_step: i64,
+}
+
+impl Coordinate {
+    #[inline(always)]
+    fn new(start: i32, step: i32, bend: i32, c: usize) -> Coordinate {
+        let (c, bend) = (c as i64, i64::from(bend));
+        Coordinate {
+            linear: start.wrapping_add((c as i32).wrapping_mul(step)),
+            step,
+            squared_bend: c * c * bend,
+            increment: (2 * c + 1) * bend,
+            bend_step: 2 * bend,
+        }
+    }
+
+    #[inline(always)]
+    fn value(&self) -> i32 {
+        self.linear.wrapping_add((self.squared_bend >> (BEND_FRAC - FRAC)) as i32)
+    }
+
+    #[inline(always)]
+    fn advance(&mut self) {
+        self.linear = self.linear.wrapping_add(self.step);
+        self.squared_bend += self.increment;
+        self.increment += self.bend_step;
+    }
+}
+
+/// A row's keyframe positions, column by column ([`RowWarp::positions`]).
+pub(super) struct Positions {
+    i: Coordinate,
+    j: Coordinate,
+}
+
+impl Positions {
+    /// This column's position; then on to the next column.
+    #[inline(always)]
+    pub(super) fn take(&mut self) -> (i32, i32) {
+        let position = (self.i.value(), self.j.value());
+        self.i.advance();
+        self.j.advance();
+        position
+    }
+}
+
 /// Usable columns of a row as runs `[start, end)`: a translation row has
 /// one, a yawed row may have several (runs are a column apart at least).
 pub(super) type Runs = heapless::Vec<(u16, u16), { MAX_GRID_SIDE / 2 + 1 }>;
@@ -215,10 +279,15 @@ impl Coverage {
 
     /// Whether current column `c` under `warp` has its whole search
     /// neighbourhood in the keyframe's view.
-    #[inline(always)]
+    #[cfg(test)]
     pub(super) fn usable(&self, warp: RowWarp, c: usize, grid: &KgGrid) -> bool {
+        self.usable_at(warp.at(c), grid)
+    }
+
+    /// [`Self::usable`] of the column `warp` puts at (`i_ref`, `j_ref`).
+    #[inline(always)]
+    fn usable_at(&self, (i_ref, j_ref): (i32, i32), grid: &KgGrid) -> bool {
         let rows_limit = (grid.height() as i32 - 1) << FRAC;
-        let (i_ref, j_ref) = warp.at(c);
         let (i0, j0) = (i_ref >> FRAC, j_ref >> FRAC);
         j_ref >= 0 && j_ref < rows_limit && i0 >= 0 && (i0 as usize) < grid.width() && {
             let (lo, hi) = self.reference[j0 as usize];
@@ -246,7 +315,7 @@ impl Coverage {
         }
         let mut open: Option<usize> = None;
         for c in seen.start..=seen.end {
-            let usable = c < seen.end && self.usable(warp, c, grid);
+            let usable = c < seen.end && self.usable_at(warp.at(c), grid);
             match (usable, open) {
                 (true, None) => open = Some(c),
                 (false, Some(first)) => {
