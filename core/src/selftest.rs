@@ -60,6 +60,7 @@ checks! {
         pinhole_rows_equal_bilinear,
         copy_row_copies,
         dot_shifts_equal_plain,
+        seen_difference_equals_plain,
     ],
     health: [
         alarm_is_asserted_until_a_frame_is_judged_clear,

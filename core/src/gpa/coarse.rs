@@ -11,6 +11,7 @@
 use super::estimate::Scene;
 use super::homography::Params;
 use crate::grid::KgGrid;
+use crate::kernels;
 use crate::limits::MAX_COARSE_CELLS;
 
 /// Ground side of a coarse cell, mm: coarse enough that the widest search
@@ -30,8 +31,8 @@ const MAX_YAW_STEPS: i32 = 40;
 const MAX_SHIFT_STEPS: i32 = 8;
 /// Fractional bits of the turned image's gray levels.
 const TURNED_FRAC: u32 = 4;
-/// A turned cell the current image does not cover.
-const UNSEEN: u16 = u16::MAX;
+/// A cell the image does not cover.
+const UNSEEN: u16 = kernels::UNSEEN_Q4;
 
 /// The yaw step that moves the grid's farthest corner by half a cell.
 pub(super) fn yaw_step(grid: &KgGrid, cell_mm: f32) -> f32 {
@@ -39,17 +40,26 @@ pub(super) fn yaw_step(grid: &KgGrid, cell_mm: f32) -> f32 {
     (0.5 * cell_mm / far_mm).to_degrees()
 }
 
-/// A box-averaged image: `side` px cells, valid where the camera saw all of it.
+/// A box-averaged image: `side` px cells in Q4 gray levels (whole levels:
+/// the low four bits are 0), [`UNSEEN`] where the camera did not see all
+/// of the cell. One array, so that the turned image's differences read a
+/// cell and its validity with one load.
 struct Coarse {
-    cells: [u8; MAX_COARSE_CELLS],
-    valid: [bool; MAX_COARSE_CELLS],
+    cells: [u16; MAX_COARSE_CELLS],
     wide: usize,
     high: usize,
     side: usize,
 }
 
 impl Coarse {
-    const EMPTY: Coarse = Coarse { cells: [0; MAX_COARSE_CELLS], valid: [false; MAX_COARSE_CELLS], wide: 0, high: 0, side: 1 };
+    const EMPTY: Coarse = Coarse { cells: [UNSEEN; MAX_COARSE_CELLS], wide: 0, high: 0, side: 1 };
+
+    /// Cell `k`'s gray level, if seen.
+    #[inline(always)]
+    fn value(&self, k: usize) -> Option<u8> {
+        let cell = self.cells[k];
+        (cell != UNSEEN).then_some((cell >> TURNED_FRAC) as u8)
+    }
 
     /// Averages `image` over cells of `side` px (more if the grid would need too many).
     fn build(&mut self, image: &[u8], scene: &Scene, side: usize) {
@@ -71,8 +81,8 @@ impl Coarse {
                     sum += row[ci * side..(ci + 1) * side].iter().map(|&v| u32::from(v)).sum::<u32>();
                 }
                 let k = cj * self.wide + ci;
-                self.cells[k] = (sum / (side * side) as u32) as u8;
-                self.valid[k] = valid;
+                let level = (sum / (side * side) as u32) as u8;
+                self.cells[k] = if valid { u16::from(level) << TURNED_FRAC } else { UNSEEN };
             }
         }
     }
@@ -80,8 +90,8 @@ impl Coarse {
     fn mean(&self) -> f32 {
         let (mut sum, mut count) = (0u32, 0u32);
         for k in 0..self.wide * self.high {
-            if self.valid[k] {
-                sum += u32::from(self.cells[k]);
+            if let Some(value) = self.value(k) {
+                sum += u32::from(value);
                 count += 1;
             }
         }
@@ -103,11 +113,11 @@ impl Coarse {
         }
         let k = v0 * self.wide + u0;
         let corners = [k, k + 1, k + self.wide, k + self.wide + 1];
-        if !corners.iter().all(|&c| self.valid[c]) {
+        if corners.iter().any(|&c| self.cells[c] == UNSEEN) {
             return None;
         }
         let (fu, fv) = (u - u0 as f32, v - v0 as f32);
-        let c = |i: usize| f32::from(self.cells[corners[i]]);
+        let c = |i: usize| f32::from(self.cells[corners[i]] >> TURNED_FRAC);
         Some((c(0) * (1.0 - fu) + c(1) * fu) * (1.0 - fv) + (c(2) * (1.0 - fu) + c(3) * fu) * fv)
     }
 }
@@ -153,14 +163,9 @@ impl Turned {
             let key_at = (kj * wide + columns.start) as usize;
             let turned_at = ((kj - dj) * wide + columns.start - di) as usize;
             let len = columns.len();
-            let keys = &keyframe.cells[key_at..][..len];
-            let valid = &keyframe.valid[key_at..][..len];
-            let turned = &self.cells[turned_at..][..len];
-            for ((&k, &seen), &t) in keys.iter().zip(valid).zip(turned) {
-                let both = seen && t != UNSEEN;
-                sum += if both { u32::from(t).abs_diff(u32::from(k) << TURNED_FRAC) } else { 0 };
-                count += u32::from(both);
-            }
+            let (row_sum, row_count) = kernels::seen_difference(&keyframe.cells[key_at..][..len], &self.cells[turned_at..][..len]);
+            sum += row_sum;
+            count += row_count;
         }
         (sum, count)
     }
@@ -242,14 +247,14 @@ impl Candidates {
         for cj in 0..current.high {
             for ci in 0..current.wide {
                 let k = cj * current.wide + ci;
-                if !current.valid[k] {
+                let Some(level) = current.value(k) else {
                     continue;
-                }
+                };
                 let (u, v) = (ci as f32, cj as f32);
                 let Some(value) = keyframe.at(au * u + bu * v + ou, -(av * u + bv * v) + ov) else {
                     continue;
                 };
-                sum += libm::fabsf(f32::from(current.cells[k]) - self.gain * value);
+                sum += libm::fabsf(f32::from(level) - self.gain * value);
                 count += 1;
             }
         }
@@ -346,7 +351,7 @@ impl CoarseSearch {
         let (reach_x, reach_z) = (reach_cells(sigma[0]), reach_cells(sigma[1]));
         let yaw_step = yaw_step(grid, cell_mm);
         let yaw_reach = (libm::ceilf(3.0 * sigma[2] / yaw_step) as i32).clamp(0, MAX_YAW_STEPS);
-        let counted = (0..self.current.wide * self.current.high).filter(|&k| self.current.valid[k]).count() as u32;
+        let counted = (0..self.current.wide * self.current.high).filter(|&k| self.current.value(k).is_some()).count() as u32;
         let cell_centre = 0.5 * (self.current.side as f32 - 1.0) / self.current.side as f32;
         let origin = (grid.x_left_mm as f32 / cell_mm + cell_centre, grid.z_far_mm as f32 / cell_mm - cell_centre);
         let candidates = Candidates { start: p, sigma: *sigma, cell_mm, yaw_step, origin, gain, counted };
@@ -371,8 +376,13 @@ impl CoarseSearch {
         let mut best = (f32::MAX, 0i32, 0i32, 0i32);
         // The next best, the other start a wider search hands on.
         let mut second = best;
+        // The shortlist's exact scores, for the sub-cell steps below (the
+        // best's neighbours are mostly on it).
+        let mut scored: heapless::Vec<([i32; 3], f32), SHORTLIST> = heapless::Vec::new();
         for [dyaw, dz, dx] in shortlist.in_search_order() {
             let score = exact(dyaw, dx, dz);
+            // Never full: the shortlist holds SHORTLIST candidates.
+            let _ = scored.push(([dyaw, dz, dx], score));
             if score == f32::MAX {
                 continue;
             }
@@ -390,6 +400,10 @@ impl CoarseSearch {
         }
         let runner_up = (second.0 < f32::MAX).then(|| candidates.moved(second.1 as f32, second.2 as f32, second.3 as f32));
         // Sub-cell: a parabola along each axis through the best.
+        let exact = |dyaw: i32, dx: i32, dz: i32| match scored.iter().find(|(steps, _)| *steps == [dyaw, dz, dx]) {
+            Some(&(_, score)) => score,
+            None => exact(dyaw, dx, dz),
+        };
         let centre = exact(by, bx, bz);
         let offset = |minus: f32, plus: f32| {
             if minus == f32::MAX || plus == f32::MAX {
@@ -428,8 +442,7 @@ mod tests {
         (image.wide, image.high, image.side) = (wide, high, 5);
         for j in 0..high {
             for i in 0..wide {
-                image.cells[j * wide + i] = value(i, j);
-                image.valid[j * wide + i] = true;
+                image.cells[j * wide + i] = u16::from(value(i, j)) << TURNED_FRAC;
             }
         }
         image

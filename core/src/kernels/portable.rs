@@ -99,3 +99,15 @@ pub fn dot_shifts(pairs: &[u32], patch: &[u16], sums: &mut [u32]) {
         *sum = products.fold(*sum, u32::wrapping_add);
     }
 }
+
+#[inline]
+pub fn seen_difference(a: &[u16], b: &[u16]) -> (u32, u32) {
+    let (mut sum, mut count) = (0u32, 0u32);
+    for (&x, &y) in a.iter().zip(b) {
+        // Seen values are below 2^15: both are seen unless one is UNSEEN.
+        let both = x.max(y) != super::UNSEEN_Q4;
+        sum += if both { u32::from(x.abs_diff(y)) } else { 0 };
+        count += u32::from(both);
+    }
+    (sum, count)
+}

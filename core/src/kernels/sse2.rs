@@ -207,4 +207,4 @@ pub unsafe fn pinhole_horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]
 }
 
 /// No faster row copy than `copy_from_slice` (memcpy) here.
-pub use super::portable::{copy_row, dot_shifts};
+pub use super::portable::{copy_row, dot_shifts, seen_difference};
