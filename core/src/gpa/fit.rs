@@ -141,10 +141,9 @@ pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N]
         for (m, r) in matches.iter().zip(residuals.iter_mut()) {
             *r = surfaces.residual(m).unwrap_or(f32::MAX);
         }
-        let mut sorted = residuals;
-        let sorted = &mut sorted[..count];
-        sorted.sort_unstable_by(|a, b| a.total_cmp(b));
-        let median = sorted[count / 2];
+        // The median: the element a full sort would put in the middle.
+        let mut ordered = residuals;
+        let (_, &mut median, _) = ordered[..count].select_nth_unstable_by(count / 2, |a, b| a.total_cmp(b));
         scale = (1.4826 * median).max(0.15);
         // Huber first (wide basin), Tukey after (rejects obstacles).
         let weight = |r: f32| -> f32 {
