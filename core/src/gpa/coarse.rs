@@ -240,11 +240,22 @@ impl Candidates {
     /// The mean |current - gain * keyframe| over the current cells, the
     /// keyframe sampled bilinearly where `placement` puts each.
     fn exact_score(&self, keyframe: &Coarse, current: &Coarse, placement: &Placement) -> f32 {
+        self.exact_score_unless(keyframe, current, placement, |_| false).unwrap_or(f32::MAX)
+    }
+
+    /// [`Self::exact_score`], or None as soon as `hopeless` holds for a
+    /// lower bound of it: the sum so far over every seen current cell
+    /// (the sum only grows, and at most that many cells count).
+    fn exact_score_unless(&self, keyframe: &Coarse, current: &Coarse, placement: &Placement, hopeless: impl Fn(f32) -> bool) -> Option<f32> {
         let Placement { sin, cos, offset: (ou, ov) } = *placement;
         // The heading's turn of the cell axes (+u, and -z for +v).
         let (au, av, bu, bv) = (cos, sin, sin, -cos);
         let (mut sum, mut count) = (0f32, 0u32);
+        let most = self.counted.max(1) as f32;
         for cj in 0..current.high {
+            if hopeless(sum / most) {
+                return None;
+            }
             for ci in 0..current.wide {
                 let k = cj * current.wide + ci;
                 let Some(level) = current.value(k) else {
@@ -258,7 +269,7 @@ impl Candidates {
                 count += 1;
             }
         }
-        self.mean(sum, count)
+        Some(self.mean(sum, count))
     }
 
     /// The same score from the current image turned by the candidate's
@@ -380,7 +391,11 @@ impl CoarseSearch {
         // best's neighbours are mostly on it).
         let mut scored: heapless::Vec<([i32; 3], f32), SHORTLIST> = heapless::Vec::new();
         for [dyaw, dz, dx] in shortlist.in_search_order() {
-            let score = exact(dyaw, dx, dz);
+            // A candidate that cannot cost less than the second best so
+            // far changes nothing: it is given up as soon as that shows.
+            let placement = candidates.placement(dyaw, dx, dz);
+            let hopeless = |bound: f32| second.0 < f32::MAX && candidates.cost(bound, dyaw, dx, dz) >= second.0;
+            let Some(score) = candidates.exact_score_unless(&self.keyframe, &self.current, &placement, hopeless) else { continue };
             // Never full: the shortlist holds SHORTLIST candidates.
             let _ = scored.push(([dyaw, dz, dx], score));
             if score == f32::MAX {
