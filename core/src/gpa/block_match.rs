@@ -135,7 +135,7 @@ fn sample_patch(images: &Images, origin: (f32, f32), du: (f32, f32), dv: (f32, f
     // Each row's start in Q16, and the bounding box of all samples (a
     // row's samples lie on a line, so its ends bound it).
     let mut starts = [(0i32, 0i32); PATCH];
-    let (mut i_min, mut i_max, mut j_min, mut j_max) = (i32::MAX, i32::MIN, i32::MAX, i32::MIN);
+    let (mut i_min, mut i_max, mut j_min, mut j_max) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
     for (v, start) in starts.iter_mut().enumerate() {
         let b = first + v as f32;
         let (i, j) = (origin.0 + first * du.0 + b * dv.0, origin.1 + first * du.1 + b * dv.1);
@@ -144,15 +144,18 @@ fn sample_patch(images: &Images, origin: (f32, f32), du: (f32, f32), dv: (f32, f
             return None;
         }
         *start = ((i * ONE) as i32 + HALF_WEIGHT_STEP, (j * ONE) as i32 + HALF_WEIGHT_STEP);
-        for (ie, je) in [*start, (start.0 + last * step_i, start.1 + last * step_j)] {
+        // The ends in i64: a step no map of a sane motion gives cannot
+        // wrap the box (the samples between stay between the ends).
+        let end = |start: i32, step: i32| i64::from(start) + i64::from(last) * i64::from(step);
+        for (ie, je) in [(i64::from(start.0), i64::from(start.1)), (end(start.0, step_i), end(start.1, step_j))] {
             i_min = i_min.min(ie >> FRAC);
             i_max = i_max.max(ie >> FRAC);
             j_min = j_min.min(je >> FRAC);
             j_max = j_max.max(je >> FRAC);
         }
     }
-    let (w, h) = (images.grid.width() as i32, images.grid.height() as i32);
-    if i_min < 0 || j_min < 0 || i_max + 1 >= w || j_max + 1 >= h {
+    let (w, h) = (images.grid.width() as i64, images.grid.height() as i64);
+    if i_min < 0 || j_min < 0 || i_max + 1 >= w || j_max + 1 >= h || images.keyframe.len() < (w * h) as usize {
         return None;
     }
     let (i_min, i_max) = (i_min as usize, i_max as usize + 1);
@@ -166,12 +169,23 @@ fn sample_patch(images: &Images, origin: (f32, f32), du: (f32, f32), dv: (f32, f
     let mut patch = [[0u16; PATCH]; PATCH];
     for (row, &(mut i, mut j)) in patch.iter_mut().zip(&starts) {
         for value in row.iter_mut() {
-            let (i0, j0) = ((i >> FRAC) as usize, (j >> FRAC) as usize);
-            let (fx, fy) = (((i >> 8) & 0xFF) as u32, ((j >> 8) & 0xFF) as u32);
-            let at = j0 * w + i0;
-            let top = u32::from(keyframe[at]) * (256 - fx) + u32::from(keyframe[at + 1]) * fx;
-            let bottom = u32::from(keyframe[at + w]) * (256 - fx) + u32::from(keyframe[at + w + 1]) * fx;
-            *value = ((top * (256 - fy) + bottom * fy + (1 << (15 - PATCH_FRAC))) >> (16 - PATCH_FRAC)) as u16;
+            let at = (j >> FRAC) as usize * w + (i >> FRAC) as usize;
+            let (fx, fy) = ((i >> 8) & 0xFF, (j >> 8) & 0xFF);
+            // SAFETY: every sample's (i >> 16, j >> 16) lies in the box
+            // checked above, 0..w - 1 by 0..h - 1, so at + w + 1 <= h w - 1
+            // and the keyframe holds h w bytes.
+            let (p00, p01, p10, p11) = unsafe {
+                (
+                    i32::from(*keyframe.get_unchecked(at)),
+                    i32::from(*keyframe.get_unchecked(at + 1)),
+                    i32::from(*keyframe.get_unchecked(at + w)),
+                    i32::from(*keyframe.get_unchecked(at + w + 1)),
+                )
+            };
+            // a (256 - f) + b f = 256 a + (b - a) f, exactly: a multiply less.
+            let top = (p00 << 8) + (p01 - p00) * fx;
+            let bottom = (p10 << 8) + (p11 - p10) * fx;
+            *value = (((top << 8) + (bottom - top) * fy + (1 << (15 - PATCH_FRAC))) >> (16 - PATCH_FRAC)) as u16;
             i += step_i;
             j += step_j;
         }
