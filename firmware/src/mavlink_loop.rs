@@ -1,8 +1,8 @@
 //! The frame loop speaking MAVLink 2 (feature `mavlink`): the same stages
 //! and pipeline as [`crate::frame_loop`], talking to an autopilot.
 //!
-//! - Out: `HEARTBEAT` (component `MAV_COMP_ID_OBSTACLE_AVOIDANCE`) at start
-//!   and then at most once a second, between frames; `OBSTACLE_DISTANCE` per
+//! - Out: `HEARTBEAT` (component `MAV_COMP_ID_OBSTACLE_AVOIDANCE`) at start,
+//!   on every change of its status, and at most once a second between frames; `OBSTACLE_DISTANCE` per
 //!   frame (the scan, `core::mavlink::obstacle_distance`; every element
 //!   unknown for a frame that only (re)started the keyframe, since nothing
 //!   was compared); `STATUSTEXT` on the rig and on every fault, and the
@@ -140,15 +140,15 @@ impl<S: Read + ReadReady + Write> Port<S> {
         self.send(&status_text(severity, text));
     }
 
-    /// The status follows the monitor's health; a new fault is announced
-    /// at once, other changes with the next regular heartbeat.
+    /// The status follows the monitor's health, and every change is
+    /// announced at once (README: a heartbeat at start, on every change of
+    /// `system_status`, and at most once a second between frames). A run
+    /// shorter than a second still tells the autopilot it went active.
     fn follow(&mut self, monitor: &Monitor, now_us: u32) {
         let status = Status::from(monitor.health());
         if status != self.status {
             self.status = status;
-            if status == Status::Fault {
-                self.heartbeat(now_us);
-            }
+            self.heartbeat(now_us);
         }
     }
 
