@@ -22,30 +22,27 @@ pub(super) struct Band {
     /// The ring: band row dg is `ring[(first + dg) % (2S+1)]`.
     ring: [[u8; BAND_WIDTH]; MAX_WINDOW],
     first: usize,
-    /// Row, warp and columns the band was last sampled for (this frame),
-    /// when all its 2S+1 rows were (a band to roll on).
+    /// Row, warp and columns the band was last sampled for (this frame).
     source: Option<(usize, RowWarp, Range<usize>)>,
-    /// The band rows (dg) and columns the last sampling filled.
+    /// The band rows (dg) that sampling left filled for its row: all
+    /// 2S+1 make a band the next row can roll on.
     filled: Range<usize>,
-    columns: Range<usize>,
 }
 
 impl Band {
-    pub(super) const EMPTY: Band = Band { ring: [[0; BAND_WIDTH]; MAX_WINDOW], first: 0, source: None, filled: 0..0, columns: 0..0 };
+    pub(super) const EMPTY: Band = Band { ring: [[0; BAND_WIDTH]; MAX_WINDOW], first: 0, source: None, filled: 0..0 };
 
     pub(super) fn clear(&mut self) {
         self.ring = [[0; BAND_WIDTH]; MAX_WINDOW];
         self.first = 0;
         self.source = None;
         self.filled = 0..0;
-        self.columns = 0..0;
     }
 
     /// A new frame: nothing sampled to roll on from.
     pub(super) fn forget(&mut self) {
         self.source = None;
         self.filled = 0..0;
-        self.columns = 0..0;
     }
 
     /// Samples the band of current row `j` (warp `warp`) over the `seen`
@@ -61,7 +58,8 @@ impl Band {
         // rolls up (the ring's first row moves on, no bytes are copied) and
         // only the last row is sampled.
         let window = 2 * s + 1;
-        let rolls = matches!(&self.source, Some((previous_j, previous, sampled))
+        let rolls = self.filled.len() == window
+            && matches!(&self.source, Some((previous_j, previous, sampled))
             if *previous_j + 1 == j
                 && previous.moved(0, 1 << FRAC) == warp
                 && sampled.start <= columns.start
@@ -79,8 +77,7 @@ impl Band {
             keyframe.sample_line(line, columns.clone(), &mut self.ring[slot][MAX_SEARCH_RADIUS..]);
         }
         self.filled = if rolls { 0..window } else { to_sample };
-        self.columns = columns.clone();
-        self.source = (self.filled.len() == window).then_some((j, warp, columns));
+        self.source = Some((j, warp, columns));
     }
 
     /// The band rows (dg) the last sampling left filled for its row.
@@ -102,7 +99,7 @@ impl Band {
     /// Columns of the last sampled band (the tests compare them).
     #[cfg(test)]
     pub(super) fn columns(&self) -> Range<usize> {
-        self.columns.clone()
+        self.source.as_ref().map_or(0..0, |(_, _, columns)| columns.clone())
     }
 
     /// The ring unrolled (band row dg is `ring[dg]`), for the per-pixel reference.

@@ -52,13 +52,15 @@ impl Gpa<'_> {
     /// every cell is tried, at a fraction of the cost on open ground.
     fn end_row(&mut self, keyframe: &Keyframe, j: usize, exposure: Option<&[u8; 256]>) {
         let cells = self.layout.cells;
-        let last = (j + 1).is_multiple_of(cells.px) || j + 1 == self.layout.analysis_rows;
         let cell_row = j / cells.px;
-        if last && cell_row < cells.high {
+        if self.ends_cell_row(j) && cell_row < cells.high {
             let min_gain = self.config.parallax_min_gain.max(self.noise.level());
             let mut spans = super::parallax::CellSpans::new();
             self.parallax.spans_to_try(&cells, min_gain, &mut spans);
             if !spans.is_empty() {
+                // The rows' usable runs and exposure-adjusted values are
+                // made again here: keeping a cell row's would cost ~8 KB
+                // of RAM, and on open ground few cell rows get this far.
                 let grid = &self.layout.grid;
                 let mut runs = Runs::new();
                 let mut adjusted = [0u8; crate::grid::MAX_GRID_SIDE];
@@ -81,10 +83,15 @@ impl Gpa<'_> {
 
     /// After row `j`: decides its cell row if `j` was that row's last.
     fn close_cell_row(&mut self, j: usize) {
-        let cells = self.layout.cells;
-        if (j + 1).is_multiple_of(cells.px) || j + 1 == self.layout.analysis_rows {
+        if self.ends_cell_row(j) {
+            let cells = self.layout.cells;
             self.parallax.finish_cell_row(j / cells.px, &cells, self.layout.camera_height_mm, &self.noise, &self.config);
         }
+    }
+
+    /// Whether row `j` is its cell row's last one analysed.
+    fn ends_cell_row(&self, j: usize) -> bool {
+        (j + 1).is_multiple_of(self.layout.cells.px) || j + 1 == self.layout.analysis_rows
     }
 
     /// The plain per-pixel form of [`Self::compare_row`], kept as its
