@@ -50,8 +50,8 @@ impl Band {
     /// the rows within `reach` of the prediction are needed (the residue
     /// reads one either side, the shift search all S): a row that cannot
     /// roll on from the last samples no more.
-    pub(super) fn sample(&mut self, keyframe: &Keyframe, j: usize, warp: RowWarp, seen: Range<usize>, s: usize, width: usize, reach: usize) {
-        let columns = seen.start.saturating_sub(s)..(seen.end + s).min(width);
+    pub(super) fn sample(&mut self, keyframe: &Keyframe, j: usize, warp: RowWarp, seen: Range<usize>, s: usize, reach: usize) {
+        let columns = seen.start.saturating_sub(s)..(seen.end + s).min(keyframe.width());
         // On translation rows the next row's warp is usually this one moved down
         // exactly one keyframe row: then its band row dg is this row's dg + 1
         // (a sample depends only on the line and the column), so the band

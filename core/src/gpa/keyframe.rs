@@ -77,6 +77,11 @@ impl<'b> Keyframe<'b> {
         self.images[1 - self.key_half][j * width..][..width].copy_from_slice(row);
     }
 
+    /// Pixels a row (the grid's width).
+    pub(super) fn width(&self) -> usize {
+        self.width
+    }
+
     /// Row `j` of the current frame.
     pub(super) fn current_row(&self, j: usize) -> &[u8] {
         &self.current_image()[j * self.width..][..self.width]

@@ -529,7 +529,7 @@ impl<'b> Gpa<'b> {
             let Some(seen) = self.coverage.seen(j) else { continue };
             let row_warp = warp.row(j);
             self.coverage.usable_runs(row_warp, seen.clone(), grid, &mut runs);
-            self.band.sample(store, j, row_warp, seen, s, grid.width(), s);
+            self.band.sample(store, j, row_warp, seen, s, s);
             let row = exposed(store.current_row(j), exposure, &mut adjusted);
             self.seed.add_row(row, &self.band.rows(s), s, &runs, aoi, self.layout.in_far_half(j));
         }

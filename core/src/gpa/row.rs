@@ -24,7 +24,7 @@ impl Gpa<'_> {
         let mut runs = Runs::new();
         self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
         let in_aoi = j >= aoi.top && j < aoi.bottom;
-        self.band.sample(keyframe, j, warp, seen.clone(), s, grid.width(), if in_aoi { s } else { 1 });
+        self.band.sample(keyframe, j, warp, seen.clone(), s, if in_aoi { s } else { 1 });
         let band = self.band.rows(s);
         lap = self.profiler.charge(lap, |p| &mut p.warp);
 

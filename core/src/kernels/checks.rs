@@ -293,7 +293,7 @@ pub fn seen_difference_equals_plain() -> Outcome {
         let top = [4081u32, 32768, 4081, 2][round];
         for value in a.iter_mut().chain(b.iter_mut()) {
             let random = xorshift32(&mut state);
-            *value = if random % 5 == 0 { super::UNSEEN_Q4 } else { ((random >> 8) % top) as u16 };
+            *value = if random.is_multiple_of(5) { super::UNSEEN_Q4 } else { ((random >> 8) % top) as u16 };
         }
         for start in 0..3 {
             for len in 0..=40 {
