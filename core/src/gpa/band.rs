@@ -71,11 +71,14 @@ impl Band {
         } else {
             s - reach..s + reach + 1
         };
-        for dg in to_sample.clone() {
-            let line = warp.moved(0, (dg as i32 - s as i32) << FRAC);
-            let slot = (self.first + dg) % window;
-            keyframe.sample_line(line, columns.clone(), &mut self.ring[slot][MAX_SEARCH_RADIUS..]);
+        // The ring's rows in dg order: from `first` to its end, then its start.
+        let (wrapped, in_order) = self.ring[..window].split_at_mut(self.first);
+        let mut lines = heapless::Vec::<&mut [u8], MAX_WINDOW>::new();
+        for row in in_order.iter_mut().chain(wrapped.iter_mut()).skip(to_sample.start).take(to_sample.len()) {
+            let _ = lines.push(&mut row[MAX_SEARCH_RADIUS..]);
         }
+        let first_line = warp.moved(0, (to_sample.start as i32 - s as i32) << FRAC);
+        keyframe.sample_lines(first_line, columns.clone(), &mut lines);
         self.filled = if rolls { 0..window } else { to_sample };
         self.source = Some((j, warp, columns));
     }

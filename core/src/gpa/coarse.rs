@@ -112,12 +112,21 @@ impl Coarse {
             return None;
         }
         let k = v0 * self.wide + u0;
-        let corners = [k, k + 1, k + self.wide, k + self.wide + 1];
-        if corners.iter().any(|&c| self.cells[c] == UNSEEN) {
+        // SAFETY: u0 + 1 < wide and v0 + 1 < high, so every corner is below
+        // wide * high, which `build` keeps within MAX_COARSE_CELLS.
+        let corners = unsafe {
+            [
+                *self.cells.get_unchecked(k),
+                *self.cells.get_unchecked(k + 1),
+                *self.cells.get_unchecked(k + self.wide),
+                *self.cells.get_unchecked(k + self.wide + 1),
+            ]
+        };
+        if corners.contains(&UNSEEN) {
             return None;
         }
         let (fu, fv) = (u - u0 as f32, v - v0 as f32);
-        let c = |i: usize| f32::from(self.cells[corners[i]] >> TURNED_FRAC);
+        let c = |i: usize| f32::from(corners[i] >> TURNED_FRAC);
         Some((c(0) * (1.0 - fu) + c(1) * fu) * (1.0 - fv) + (c(2) * (1.0 - fu) + c(3) * fu) * fv)
     }
 }
@@ -307,19 +316,26 @@ impl Shortlist {
         self.entries[k] = (cost, steps);
     }
 
-    /// The steps kept, in the order the search visits them (so that ties
-    /// go as they would over the whole search).
-    fn in_search_order(&self) -> impl Iterator<Item = [i32; 3]> {
-        let mut steps = [[0i32; 3]; SHORTLIST];
-        let mut count = 0;
-        for (slot, &(cost, entry)) in steps.iter_mut().zip(&self.entries) {
-            if cost < f32::MAX {
-                *slot = entry;
-                count += 1;
-            }
-        }
-        steps[..count].sort_unstable();
-        steps.into_iter().take(count)
+    /// The steps kept, lowest cost first.
+    fn best_first(&self) -> impl Iterator<Item = [i32; 3]> + '_ {
+        self.entries.iter().take_while(|(cost, _)| *cost < f32::MAX).map(|&(_, steps)| steps)
+    }
+}
+
+/// A candidate's exact cost and its steps (yaw, z, x); the steps break a
+/// tie, smaller first, so that the choice is the one a search over all
+/// candidates in step order would make, whatever order they are scored in.
+#[derive(Clone, Copy)]
+struct Ranked {
+    cost: f32,
+    steps: [i32; 3],
+}
+
+impl Ranked {
+    const NONE: Ranked = Ranked { cost: f32::MAX, steps: [0; 3] };
+
+    fn beats(&self, other: &Ranked) -> bool {
+        self.cost < other.cost || (self.cost == other.cost && self.steps < other.steps)
     }
 }
 
@@ -384,36 +400,37 @@ impl CoarseSearch {
         // for ranking but rounded differently cell by cell, and the fine
         // steps start from what is chosen here.
         let exact = |dyaw: i32, dx: i32, dz: i32| candidates.exact_score(&self.keyframe, &self.current, &candidates.placement(dyaw, dx, dz));
-        let mut best = (f32::MAX, 0i32, 0i32, 0i32);
-        // The next best, the other start a wider search hands on.
-        let mut second = best;
+        let (mut best, mut second) = (Ranked::NONE, Ranked::NONE);
         // The shortlist's exact scores, for the sub-cell steps below (the
         // best's neighbours are mostly on it).
         let mut scored: heapless::Vec<([i32; 3], f32), SHORTLIST> = heapless::Vec::new();
-        for [dyaw, dz, dx] in shortlist.in_search_order() {
-            // A candidate that cannot cost less than the second best so
-            // far changes nothing: it is given up as soon as that shows.
+        // Best first, so that the second best is known early and the
+        // candidates that cannot beat it are given up soon.
+        for steps in shortlist.best_first() {
+            let [dyaw, dz, dx] = steps;
+            // A candidate that cannot beat the second best so far changes
+            // nothing: it is given up as soon as a lower bound shows that.
             let placement = candidates.placement(dyaw, dx, dz);
-            let hopeless = |bound: f32| second.0 < f32::MAX && candidates.cost(bound, dyaw, dx, dz) >= second.0;
+            let hopeless = |bound: f32| second.cost < f32::MAX && !(Ranked { cost: candidates.cost(bound, dyaw, dx, dz), steps }).beats(&second);
             let Some(score) = candidates.exact_score_unless(&self.keyframe, &self.current, &placement, hopeless) else { continue };
             // Never full: the shortlist holds SHORTLIST candidates.
-            let _ = scored.push(([dyaw, dz, dx], score));
+            let _ = scored.push((steps, score));
             if score == f32::MAX {
                 continue;
             }
-            let cost = candidates.cost(score, dyaw, dx, dz);
-            if cost < best.0 {
+            let candidate = Ranked { cost: candidates.cost(score, dyaw, dx, dz), steps };
+            if candidate.beats(&best) {
                 second = best;
-                best = (cost, dyaw, dx, dz);
-            } else if cost < second.0 {
-                second = (cost, dyaw, dx, dz);
+                best = candidate;
+            } else if candidate.beats(&second) {
+                second = candidate;
             }
         }
-        let (cost, by, bx, bz) = best;
-        if cost == f32::MAX {
+        if best.cost == f32::MAX {
             return unmeasured;
         }
-        let runner_up = (second.0 < f32::MAX).then(|| candidates.moved(second.1 as f32, second.2 as f32, second.3 as f32));
+        let [by, bz, bx] = best.steps;
+        let runner_up = (second.cost < f32::MAX).then(|| candidates.moved(second.steps[0] as f32, second.steps[2] as f32, second.steps[1] as f32));
         // Sub-cell: a parabola along each axis through the best.
         let exact = |dyaw: i32, dx: i32, dz: i32| match scored.iter().find(|(steps, _)| *steps == [dyaw, dz, dx]) {
             Some(&(_, score)) => score,
@@ -439,15 +456,20 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_shortlist_keeps_the_lowest_costs_in_search_order() {
+    fn the_shortlist_keeps_the_lowest_costs_best_first() {
         let mut shortlist = Shortlist::EMPTY;
         // Costs falling then rising along the search: the lowest are the middle ones.
         for k in 0..100i32 {
             shortlist.offer((k - 50).abs() as f32, [k / 10, k % 10, 0]);
         }
-        let kept: std::vec::Vec<_> = shortlist.in_search_order().collect();
+        let kept: std::vec::Vec<_> = shortlist.best_first().collect();
         assert_eq!(kept.len(), SHORTLIST);
-        let expected: std::vec::Vec<_> = (34..=65).map(|k| [k / 10, k % 10, 0]).collect();
+        // Cost 0 first, then each cost's two candidates in the order offered.
+        let mut expected = std::vec![[5, 0, 0]];
+        for d in 1..=16 {
+            expected.extend([[(50 - d) / 10, (50 - d) % 10, 0], [(50 + d) / 10, (50 + d) % 10, 0]]);
+        }
+        expected.truncate(SHORTLIST);
         assert_eq!(kept, expected);
     }
 

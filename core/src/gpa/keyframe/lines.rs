@@ -1,0 +1,302 @@
+//! The keyframe read along warped lines: bilinear samples, one line at a
+//! time or a stack of lines a keyframe row apart (a search band).
+
+use super::Keyframe;
+use crate::gpa::kernels;
+use crate::gpa::warp::{RowWarp, BEND_FRAC, FRAC};
+use core::ops::Range;
+
+impl Keyframe<'_> {
+    /// Whether the 2x2 neighbourhood of (i, j) Q16.16 lies in the grid
+    /// (the per-pixel reference's test and the wrapping lines').
+    #[inline(always)]
+    pub(in crate::gpa) fn inside(&self, i: i32, j: i32) -> bool {
+        let rows_limit = (self.height as i32 - 1) << FRAC;
+        i >= 0 && (i >> FRAC) + 1 < self.width as i32 && j >= 0 && j < rows_limit
+    }
+
+    /// Bilinear sample at (i, j) Q16.16; the caller checked [`Self::inside`].
+    /// The definition every line path reproduces.
+    #[inline(always)]
+    pub(in crate::gpa) fn sample(&self, i: i32, j: i32) -> u8 {
+        let (i0, j0) = ((i >> FRAC) as usize, (j >> FRAC) as usize);
+        let wx = ((i >> 8) & 0xFF) as u32;
+        let wy = ((j >> 8) & 0xFF) as u32;
+        let upper = self.row(j0);
+        let lower = self.row(j0 + 1);
+        let top = u32::from(upper[i0]) * (256 - wx) + u32::from(upper[i0 + 1]) * wx;
+        let bottom = u32::from(lower[i0]) * (256 - wx) + u32::from(lower[i0 + 1]) * wx;
+        ((top * (256 - wy) + bottom * wy + (1 << 15)) >> 16) as u8
+    }
+
+    /// Samples the keyframe along `line` at `columns` into `out[c]`, bilinear
+    /// exactly as [`Self::sample`]; returns the columns whose 2x2
+    /// neighbourhood is inside the grid, and writes 0 at the others.
+    /// Insideness is linear in c (a warp step is a rotation, |step| <= 1 px,
+    /// so nothing wraps), hence one interval.
+    pub(in crate::gpa) fn sample_line(&self, line: RowWarp, columns: Range<usize>, out: &mut [u8]) -> Range<usize> {
+        if columns.is_empty() {
+            return columns;
+        }
+        if line.is_translation() {
+            // Pure translation (no yaw, the common case): one pair of
+            // keyframe rows and constant weights along the whole line.
+            let rows_limit = (self.height as i32 - 1) << FRAC;
+            let i0 = i64::from(line.i_start >> FRAC);
+            let (lo, hi) = if line.j_start >= 0 && line.j_start < rows_limit {
+                let lo = (columns.start as i64).max(-i0);
+                let hi = (columns.end as i64).min(self.width as i64 - 1 - i0);
+                (lo, hi.max(lo))
+            } else {
+                (columns.start as i64, columns.start as i64)
+            };
+            let (lo, hi) = (lo as usize, hi as usize);
+            out[columns.start..lo].fill(0);
+            out[hi..columns.end].fill(0);
+            if hi > lo {
+                let j0 = (line.j_start >> FRAC) as usize;
+                let start = (i0 + lo as i64) as usize;
+                let wx = ((line.i_start >> 8) & 0xFF) as u32;
+                let wy = ((line.j_start >> 8) & 0xFF) as u32;
+                let upper = &self.row(j0)[start..=start + (hi - lo)];
+                let lower = &self.row(j0 + 1)[start..=start + (hi - lo)];
+                kernels::bilinear_line(upper, lower, wx, wy, &mut out[lo..hi]);
+            }
+            return lo..hi;
+        }
+        match self.inside_span(line, columns.clone()) {
+            Span::Wraps => self.sample_line_checked(line, columns, out),
+            Span::Inside(span) => {
+                out[columns.start..span.start].fill(0);
+                out[span.end..columns.end].fill(0);
+                self.sample_span(line, span.clone(), out);
+                span
+            }
+        }
+    }
+
+    /// Samples the `count` lines `line`, `line` one keyframe row down, ...
+    /// into `outs[0..count]` at `columns`: each exactly as
+    /// [`Self::sample_line`]. The lines share their columns' positions and
+    /// weights, and line k's lower pixels are line k + 1's upper ones, so
+    /// where all of them lie inside the grid one position and one horizontal
+    /// blend per keyframe row serve the whole stack (a search band's rows).
+    pub(in crate::gpa) fn sample_lines(&self, line: RowWarp, columns: Range<usize>, outs: &mut [&mut [u8]]) {
+        let one_row_down = |k: usize| line.moved(0, (k as i32) << FRAC);
+        let mut spans: [Range<usize>; MAX_STACK] = Default::default();
+        let mut common = columns.clone();
+        let stackable = !line.is_translation()
+            && !columns.is_empty()
+            && outs.len() <= MAX_STACK
+            && outs.iter().all(|out| out.len() >= columns.end)
+            && outs.iter().enumerate().all(|(k, _)| match self.inside_span(one_row_down(k), columns.clone()) {
+                Span::Inside(span) => {
+                    common = common.start.max(span.start)..common.end.min(span.end);
+                    spans[k] = span;
+                    true
+                }
+                Span::Wraps => false,
+            });
+        if !stackable || common.is_empty() {
+            for (k, out) in outs.iter_mut().enumerate() {
+                self.sample_line(one_row_down(k), columns.clone(), out);
+            }
+            return;
+        }
+        for (k, out) in outs.iter_mut().enumerate() {
+            let span = &spans[k];
+            out[columns.start..span.start].fill(0);
+            out[span.end..columns.end].fill(0);
+            self.sample_span(one_row_down(k), span.start..common.start, out);
+            self.sample_span(one_row_down(k), common.end..span.end, out);
+        }
+        match outs {
+            [a, b, c] => self.sample_stack(line, common, [a, b, c]),
+            [a, b, c, d, e] => self.sample_stack(line, common, [a, b, c, d, e]),
+            [a, b, c, d, e, f, g] => self.sample_stack(line, common, [a, b, c, d, e, f, g]),
+            _ => {
+                for (k, out) in outs.iter_mut().enumerate() {
+                    self.sample_span(one_row_down(k), common.clone(), out);
+                }
+            }
+        }
+    }
+
+    /// The columns of a yawed or bent `line` whose 2x2 neighbourhood lies
+    /// inside the grid, as one interval; or `Wraps`. Each coordinate is
+    /// linear (or, bent, quadratic) in c: when it stays in i32 at both ends
+    /// nothing wraps, and unless a bent coordinate turns outside the grid
+    /// between the columns found inside from both ends, they are one
+    /// interval and no pixel in it needs a test.
+    fn inside_span(&self, line: RowWarp, columns: Range<usize>) -> Span {
+        let (i_limit, j_limit) = (self.columns_limit(), self.rows_limit());
+        let exact = |c: usize| {
+            let along = |start: i32, step: i32, bend: i32| {
+                let c = c as i64;
+                i64::from(start) + c * i64::from(step) + ((c * c * i64::from(bend)) >> (BEND_FRAC - FRAC))
+            };
+            (along(line.i_start, line.i_step, line.i_bend), along(line.j_start, line.j_step, line.j_bend))
+        };
+        let fits = |(i, j): (i64, i64)| i32::try_from(i).is_ok() && i32::try_from(j).is_ok();
+        if !(fits(exact(columns.start)) && fits(exact(columns.end - 1))) {
+            return Span::Wraps;
+        }
+        let inside = |c: usize| {
+            let (i, j) = exact(c);
+            (0..i64::from(i_limit)).contains(&i) && (0..i64::from(j_limit)).contains(&j)
+        };
+        let Some(first) = columns.clone().find(|&c| inside(c)) else {
+            return Span::Inside(columns.start..columns.start);
+        };
+        let end = (first + 1..columns.end).rev().find(|&c| inside(c)).map_or(first + 1, |c| c + 1);
+        if line.is_bent() {
+            // A quadratic's turning point, -step / (2 bend), is where it could leave the grid.
+            let turning = |step: i32, bend: i32| {
+                (bend != 0).then(|| -(f64::from(step) * (1u64 << (BEND_FRAC - FRAC)) as f64) / (2.0 * f64::from(bend)))
+            };
+            let leaves = |turn: Option<f64>| {
+                turn.is_some_and(|t| t > first as f64 && t < (end - 1) as f64 && [t as usize, t as usize + 1].iter().any(|&c| !inside(c)))
+            };
+            if leaves(turning(line.i_step, line.i_bend)) || leaves(turning(line.j_step, line.j_bend)) {
+                return Span::Wraps;
+            }
+        }
+        Span::Inside(first..end)
+    }
+
+    /// Calls `visit(t, position)` for the columns `span.start + t` of
+    /// `span` in turn, the positions stepped by the same sums as `line.at(c)`.
+    #[inline(always)]
+    fn for_positions(line: RowWarp, span: Range<usize>, mut visit: impl FnMut(usize, (i32, i32))) {
+        if line.is_bent() {
+            let mut positions = line.positions(span.start);
+            for t in 0..span.len() {
+                visit(t, positions.take());
+            }
+        } else {
+            let (mut i, mut j) = line.at(span.start);
+            for t in 0..span.len() {
+                visit(t, (i, j));
+                i = i.wrapping_add(line.i_step);
+                j = j.wrapping_add(line.j_step);
+            }
+        }
+    }
+
+    /// Samples `line` at the columns of `span`, which [`Self::inside_span`]
+    /// found inside the grid, into `out[c]`.
+    fn sample_span(&self, line: RowWarp, span: Range<usize>, out: &mut [u8]) {
+        let image: &[u8] = &self.images[self.key_half][..self.height * self.width];
+        let width = self.width;
+        let out = &mut out[span.clone()];
+        Self::for_positions(line, span, |t, (i, j)| {
+            let index = (j >> FRAC) as usize * width + (i >> FRAC) as usize;
+            // SAFETY: every position of the span lies in 0..(width - 1) << 16
+            // by 0..(height - 1) << 16 (both ends do, a linear line does not
+            // wrap and a bent one does not turn outside), so the row index
+            // is at most height - 2, the column at most width - 2, and
+            // index + width + 1 < height * width = image.len().
+            let (p00, p01, p10, p11) = unsafe {
+                (
+                    *image.get_unchecked(index),
+                    *image.get_unchecked(index + 1),
+                    *image.get_unchecked(index + width),
+                    *image.get_unchecked(index + width + 1),
+                )
+            };
+            // SAFETY: `out` holds the span's columns, and t < span.len().
+            unsafe { *out.get_unchecked_mut(t) = blend(p00, p01, p10, p11, i, j) };
+        });
+    }
+
+    /// [`Self::sample_span`] of the `N` lines `line`, `line` one row down,
+    /// ... at once over `span`, where all of them lie inside the grid.
+    #[inline(always)]
+    fn sample_stack<const N: usize>(&self, line: RowWarp, span: Range<usize>, outs: [&mut &mut [u8]; N]) {
+        let image: &[u8] = &self.images[self.key_half][..self.height * self.width];
+        let width = self.width;
+        let mut outs = outs.map(|out| &mut out[span.clone()]);
+        Self::for_positions(line, span, |t, (i, j)| {
+            let index = (j >> FRAC) as usize * width + (i >> FRAC) as usize;
+            let (wx, wy) = ((i >> 8) & 0xFF, (j >> 8) & 0xFF);
+            // SAFETY: line N - 1 at this column lies inside the grid (see
+            // `sample_span`): its row index j0 + N - 1 is at most height - 2,
+            // so index + N * width + 1 < image.len().
+            let across = |index: usize| {
+                let (left, right) = unsafe { (*image.get_unchecked(index), *image.get_unchecked(index + 1)) };
+                (i32::from(left) << 8) + (i32::from(right) - i32::from(left)) * wx
+            };
+            let mut top = across(index);
+            for (k, out) in outs.iter_mut().enumerate() {
+                let bottom = across(index + (k + 1) * width);
+                // SAFETY: each out holds the span's columns, and t < span.len().
+                unsafe { *out.get_unchecked_mut(t) = between(top, bottom, wy) };
+                top = bottom;
+            }
+        });
+    }
+
+    /// [`Self::sample_line`] pixel by pixel, for lines whose positions
+    /// leave i32 and wrap (far beyond the grid: a degenerate warp).
+    fn sample_line_checked(&self, line: RowWarp, columns: Range<usize>, out: &mut [u8]) -> Range<usize> {
+        let (mut first, mut end) = (usize::MAX, 0);
+        for c in columns.clone() {
+            let (i, j) = line.at(c);
+            out[c] = if self.inside(i, j) {
+                first = first.min(c);
+                end = c + 1;
+                self.sample(i, j)
+            } else {
+                0
+            };
+        }
+        if first == usize::MAX {
+            columns.start..columns.start
+        } else {
+            first..end
+        }
+    }
+
+    /// Q16 column positions below this have their right neighbour in the grid.
+    #[inline(always)]
+    fn columns_limit(&self) -> i32 {
+        (self.width as i32 - 1) << FRAC
+    }
+
+    /// Q16 row positions below this have their lower neighbour in the grid.
+    #[inline(always)]
+    fn rows_limit(&self) -> i32 {
+        (self.height as i32 - 1) << FRAC
+    }
+}
+
+/// The bilinear sample of [`Keyframe::sample`] from its four pixels at
+/// (i, j) Q16.16: the same integer, with the weights' complements folded
+/// (`a (256 - w) + b w = 256 a + (b - a) w` exactly), a multiply less.
+#[inline(always)]
+fn blend(p00: u8, p01: u8, p10: u8, p11: u8, i: i32, j: i32) -> u8 {
+    let wx = (i >> 8) & 0xFF;
+    let wy = (j >> 8) & 0xFF;
+    let top = (i32::from(p00) << 8) + (i32::from(p01) - i32::from(p00)) * wx;
+    let bottom = (i32::from(p10) << 8) + (i32::from(p11) - i32::from(p10)) * wx;
+    between(top, bottom, wy)
+}
+
+/// The vertical step of [`blend`]: rows `top` and `bottom` (Q8, already
+/// blended across) at weight `wy`.
+#[inline(always)]
+fn between(top: i32, bottom: i32, wy: i32) -> u8 {
+    (((top << 8) + (bottom - top) * wy + (1 << 15)) >> 16) as u8
+}
+
+/// Lines [`Keyframe::sample_lines`] samples as one stack: a search band at
+/// the largest radius.
+const MAX_STACK: usize = crate::gpa::band::MAX_WINDOW;
+
+/// Where a line lies inside the grid ([`Keyframe::inside_span`]).
+enum Span {
+    /// These columns, and no others.
+    Inside(Range<usize>),
+    /// Its positions leave i32 (a degenerate warp): test pixel by pixel.
+    Wraps,
+}
