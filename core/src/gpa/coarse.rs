@@ -253,15 +253,16 @@ impl Candidates {
     }
 
     /// [`Self::exact_score`], or None as soon as `hopeless` holds for a
-    /// lower bound of it: the sum so far over every seen current cell
-    /// (the sum only grows, and at most that many cells count).
+    /// lower bound of it: the sum so far over the cells counted so far and
+    /// every seen current cell still to come (the sum only grows, and at
+    /// most that many cells count).
     fn exact_score_unless(&self, keyframe: &Coarse, current: &Coarse, placement: &Placement, hopeless: impl Fn(f32) -> bool) -> Option<f32> {
         let Placement { sin, cos, offset: (ou, ov) } = *placement;
         // The heading's turn of the cell axes (+u, and -z for +v).
         let (au, av, bu, bv) = (cos, sin, sin, -cos);
-        let (mut sum, mut count) = (0f32, 0u32);
-        let most = self.counted.max(1) as f32;
+        let (mut sum, mut count, mut seen) = (0f32, 0u32, 0u32);
         for cj in 0..current.high {
+            let most = (count + self.counted.saturating_sub(seen)).max(1) as f32;
             if hopeless(sum / most) {
                 return None;
             }
@@ -270,6 +271,7 @@ impl Candidates {
                 let Some(level) = current.value(k) else {
                     continue;
                 };
+                seen += 1;
                 let (u, v) = (ci as f32, cj as f32);
                 let Some(value) = keyframe.at(au * u + bu * v + ou, -(av * u + bv * v) + ov) else {
                     continue;
@@ -339,6 +341,14 @@ impl Ranked {
     }
 }
 
+/// What a coarse search is asked for: the runner-up costs more, as fewer
+/// candidates can be given up early.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Wanted {
+    Best,
+    BestAndRunnerUp,
+}
+
 /// A coarse search's answer: the motion, its score (mean absolute
 /// difference per cell, `f32::MAX` when nothing was measured), and the
 /// next best candidate.
@@ -359,8 +369,17 @@ impl CoarseSearch {
     pub(super) const EMPTY: CoarseSearch = CoarseSearch { keyframe: Coarse::EMPTY, current: Coarse::EMPTY, turned: Turned::EMPTY };
 
     /// The planar motion (tx, tz, yaw) on images of `cell_mm` cells,
-    /// searched over 3 `sigma` around `start`.
+    /// searched over 3 `sigma` around `start`; no runner-up.
     pub(super) fn search(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32) -> CoarseFound {
+        self.search_for(scene, start, sigma, cell_mm, Wanted::Best)
+    }
+
+    /// [`Self::search`] with the runner-up.
+    pub(super) fn search_with_runner_up(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32) -> CoarseFound {
+        self.search_for(scene, start, sigma, cell_mm, Wanted::BestAndRunnerUp)
+    }
+
+    fn search_for(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32, wanted: Wanted) -> CoarseFound {
         let p = *start;
         let unmeasured = CoarseFound { p, score: f32::MAX, runner_up: None };
         let grid = scene.grid;
@@ -408,10 +427,15 @@ impl CoarseSearch {
         // candidates that cannot beat it are given up soon.
         for steps in shortlist.best_first() {
             let [dyaw, dz, dx] = steps;
-            // A candidate that cannot beat the second best so far changes
-            // nothing: it is given up as soon as a lower bound shows that.
+            // A candidate that cannot beat the best so far (or the second
+            // best, when the runner-up is wanted) changes nothing: it is
+            // given up as soon as a lower bound shows that.
             let placement = candidates.placement(dyaw, dx, dz);
-            let hopeless = |bound: f32| second.cost < f32::MAX && !(Ranked { cost: candidates.cost(bound, dyaw, dx, dz), steps }).beats(&second);
+            let to_beat = match wanted {
+                Wanted::Best => best,
+                Wanted::BestAndRunnerUp => second,
+            };
+            let hopeless = |bound: f32| to_beat.cost < f32::MAX && !(Ranked { cost: candidates.cost(bound, dyaw, dx, dz), steps }).beats(&to_beat);
             let Some(score) = candidates.exact_score_unless(&self.keyframe, &self.current, &placement, hopeless) else { continue };
             // Never full: the shortlist holds SHORTLIST candidates.
             let _ = scored.push((steps, score));
@@ -430,7 +454,7 @@ impl CoarseSearch {
             return unmeasured;
         }
         let [by, bz, bx] = best.steps;
-        let runner_up = (second.cost < f32::MAX).then(|| candidates.moved(second.steps[0] as f32, second.steps[2] as f32, second.steps[1] as f32));
+        let runner_up = (wanted == Wanted::BestAndRunnerUp && second.cost < f32::MAX).then(|| candidates.moved(second.steps[0] as f32, second.steps[2] as f32, second.steps[1] as f32));
         // Sub-cell: a parabola along each axis through the best.
         let exact = |dyaw: i32, dx: i32, dz: i32| match scored.iter().find(|(steps, _)| *steps == [dyaw, dz, dx]) {
             Some(&(_, score)) => score,

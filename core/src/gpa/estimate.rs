@@ -220,7 +220,7 @@ impl Estimator {
         let mut p = prior.p;
         let mut sigma = prior.sigma;
         if reach(sigma[0].max(sigma[1]), fine_mm) > 3.0 {
-            let wide = self.coarse.search(scene, &p, &sigma, 2.0 * fine_mm);
+            let wide = self.coarse.search_with_runner_up(scene, &p, &sigma, 2.0 * fine_mm);
             // What is left: about a large cell, and its yaw step.
             sigma[0] = 2.0 * fine_mm / 3.0;
             sigma[1] = sigma[0];
