@@ -175,13 +175,20 @@ pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N]
                 jacobian[0][k] = (there.0 - at.0) / step[k];
                 jacobian[1][k] = (there.1 - at.1) / step[k];
             }
+            // The lower triangle only: the normal matrix is symmetric, and
+            // the Cholesky factorisation reads no other half.
             for axis in 0..2 {
                 for a in 0..N {
                     gradient[a] += w * jacobian[axis][a] * error[axis];
-                    for b in 0..N {
+                    for b in 0..=a {
                         normal[a][b] += w * jacobian[axis][a] * jacobian[axis][b];
                     }
                 }
+            }
+        }
+        for a in 0..N {
+            for b in a + 1..N {
+                normal[a][b] = normal[b][a];
             }
         }
         for k in 0..N {
