@@ -161,22 +161,34 @@ impl Turned {
 
     /// The sum of |turned(k - shift) - keyframe(k) in Q4| over the keyframe
     /// cells `k` both images cover, and their count.
-    fn difference(&self, keyframe: &Coarse, (di, dj): (i32, i32)) -> (u32, u32) {
+    #[cfg(test)]
+    fn difference(&self, keyframe: &Coarse, shift: (i32, i32)) -> (u32, u32) {
+        self.difference_unless(keyframe, shift, |_, _| false).unwrap_or((0, 0))
+    }
+
+    /// [`Self::difference`], or None as soon as `hopeless(sum, most)`
+    /// holds for the sum so far and the most cells the whole sum can count
+    /// (a lower bound of its mean: the sum only grows).
+    fn difference_unless(&self, keyframe: &Coarse, (di, dj): (i32, i32), hopeless: impl Fn(u32, u32) -> bool) -> Option<(u32, u32)> {
         let (wide, high) = (keyframe.wide as i32, keyframe.high as i32);
         let columns = di.max(0)..(wide + di).min(wide);
         let (mut sum, mut count) = (0u32, 0u32);
         if columns.is_empty() {
-            return (0, 0);
+            return Some((0, 0));
         }
-        for kj in dj.max(0)..(high + dj).min(high) {
+        let rows = dj.max(0)..(high + dj).min(high);
+        let len = columns.len();
+        for (done, kj) in rows.clone().enumerate() {
+            if hopeless(sum, count + (rows.len() - done) as u32 * len as u32) {
+                return None;
+            }
             let key_at = (kj * wide + columns.start) as usize;
             let turned_at = ((kj - dj) * wide + columns.start - di) as usize;
-            let len = columns.len();
             let (row_sum, row_count) = kernels::seen_difference(&keyframe.cells[key_at..][..len], &self.cells[turned_at..][..len]);
             sum += row_sum;
             count += row_count;
         }
-        (sum, count)
+        Some((sum, count))
     }
 }
 
@@ -285,12 +297,20 @@ impl Candidates {
 
     /// The same score from the current image turned by the candidate's
     /// yaw, moved by its (dx, dz) steps.
+    #[cfg(test)]
     fn turned_score(&self, turned: &Turned, keyframe: &Coarse, dx: i32, dz: i32) -> f32 {
-        let (sum, count) = turned.difference(keyframe, (dx, -dz));
-        match self.mean(sum as f32, count) {
+        self.turned_score_unless(turned, keyframe, dx, dz, |_| false).unwrap_or(f32::MAX)
+    }
+
+    /// [`Self::turned_score`], or None as soon as `hopeless` holds for a
+    /// lower bound of it.
+    fn turned_score_unless(&self, turned: &Turned, keyframe: &Coarse, dx: i32, dz: i32, hopeless: impl Fn(f32) -> bool) -> Option<f32> {
+        let score = |mean: f32| self.gain * mean / (1u32 << TURNED_FRAC) as f32;
+        let (sum, count) = turned.difference_unless(keyframe, (dx, -dz), |sum, most| hopeless(score(sum as f32 / most.max(1) as f32)))?;
+        Some(match self.mean(sum as f32, count) {
             f32::MAX => f32::MAX,
-            mean => self.gain * mean / (1u32 << TURNED_FRAC) as f32,
-        }
+            mean => score(mean),
+        })
     }
 }
 
@@ -304,6 +324,11 @@ struct Shortlist {
 
 impl Shortlist {
     const EMPTY: Shortlist = Shortlist { entries: [(f32::MAX, [0; 3]); SHORTLIST] };
+
+    /// The cost an offer must get under to be kept.
+    fn last_cost(&self) -> f32 {
+        self.entries[SHORTLIST - 1].0
+    }
 
     fn offer(&mut self, cost: f32, steps: [i32; 3]) {
         let last = SHORTLIST - 1;
@@ -407,7 +432,11 @@ impl CoarseSearch {
             self.turned.build(&self.current, &candidates.placement(dyaw, 0, 0), gain);
             for dz in -reach_z..=reach_z {
                 for dx in -reach_x..=reach_x {
-                    let score = candidates.turned_score(&self.turned, &self.keyframe, dx, dz);
+                    // Once the shortlist is full, a candidate whose cost
+                    // cannot get under its last is given up early.
+                    let last = shortlist.last_cost();
+                    let hopeless = |bound: f32| last < f32::MAX && candidates.cost(bound, dyaw, dx, dz) >= last;
+                    let Some(score) = candidates.turned_score_unless(&self.turned, &self.keyframe, dx, dz, hopeless) else { continue };
                     if score != f32::MAX {
                         shortlist.offer(candidates.cost(score, dyaw, dx, dz), [dyaw, dz, dx]);
                     }
