@@ -160,15 +160,9 @@ impl Turned {
     }
 
     /// The sum of |turned(k - shift) - keyframe(k) in Q4| over the keyframe
-    /// cells `k` both images cover, and their count.
-    #[cfg(test)]
-    fn difference(&self, keyframe: &Coarse, shift: (i32, i32)) -> (u32, u32) {
-        self.difference_unless(keyframe, shift, |_, _| false).unwrap_or((0, 0))
-    }
-
-    /// [`Self::difference`], or None as soon as `hopeless(sum, most)`
-    /// holds for the sum so far and the most cells the whole sum can count
-    /// (a lower bound of its mean: the sum only grows).
+    /// cells `k` both images cover, and their count; or None as soon as
+    /// `hopeless(sum, most)` holds for the sum so far and the most cells
+    /// the whole sum can count (a lower bound of its mean: the sum only grows).
     fn difference_unless(&self, keyframe: &Coarse, (di, dj): (i32, i32), hopeless: impl Fn(u32, u32) -> bool) -> Option<(u32, u32)> {
         let (wide, high) = (keyframe.wide as i32, keyframe.high as i32);
         let columns = di.max(0)..(wide + di).min(wide);
@@ -302,7 +296,7 @@ impl Candidates {
         self.turned_score_unless(turned, keyframe, dx, dz, |_| false).unwrap_or(f32::MAX)
     }
 
-    /// [`Self::turned_score`], or None as soon as `hopeless` holds for a
+    /// The same score from the turned image ([`Self::turned_score`]), or None as soon as `hopeless` holds for a
     /// lower bound of it.
     fn turned_score_unless(&self, turned: &Turned, keyframe: &Coarse, dx: i32, dz: i32, hopeless: impl Fn(f32) -> bool) -> Option<f32> {
         let score = |mean: f32| self.gain * mean / (1u32 << TURNED_FRAC) as f32;

@@ -186,11 +186,7 @@ pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N]
                 }
             }
         }
-        for a in 0..N {
-            for b in a + 1..N {
-                normal[a][b] = normal[b][a];
-            }
-        }
+        mirror_lower_triangle(&mut normal);
         for k in 0..N {
             let precision = 1.0 / (problem.sigma[k] * problem.sigma[k]);
             normal[k][k] += precision;
@@ -220,6 +216,16 @@ pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N]
 pub(super) fn capped_chi2(matches: &[BlockMatch], surfaces: &Surfaces, scale: f32) -> f32 {
     const CAP: f32 = 3.0;
     matches.iter().map(|m| surfaces.residual(m).map_or(CAP, |r| (r / scale).min(CAP))).map(|r| r * r).sum()
+}
+
+/// Copies the lower triangle of `a` onto its upper one.
+#[allow(clippy::needless_range_loop)]
+fn mirror_lower_triangle<const N: usize>(a: &mut [[f32; N]; N]) {
+    for row in 0..N {
+        for column in row + 1..N {
+            a[row][column] = a[column][row];
+        }
+    }
 }
 
 /// Solves the NxN symmetric positive definite system (Cholesky); None if singular.
