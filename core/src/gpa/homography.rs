@@ -11,42 +11,91 @@
 //! keyframe pixel.
 
 use crate::grid::KgGrid;
+use core::ops::{Add, Div, Mul, Neg, Sub};
 
 /// Motion parameters: tx mm, tz mm, yaw deg, pitch deg, roll deg.
 pub(super) type Params = [f32; 5];
 
-type Matrix = [[f32; 3]; 3];
+/// The floating point a map is built and evaluated in: `f32` for the
+/// motion estimate (the M4's FPU), `f64` for the warp's rows (their Q16
+/// positions need its precision).
+pub(super) trait Real: Copy + PartialOrd + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> + Div<Output = Self> + Neg<Output = Self> {
+    const ZERO: Self;
+    const ONE: Self;
+    const HALF: Self;
+    /// The least `w` a point maps with.
+    const LEAST_W: Self;
+    fn from_f64(value: f64) -> Self;
+    fn from_usize(value: usize) -> Self;
+    /// (sin, cos) of `self` degrees.
+    fn sin_cos_deg(self) -> (Self, Self);
+}
 
-fn product(a: &Matrix, b: &Matrix) -> Matrix {
+impl Real for f32 {
+    const ZERO: f32 = 0.0;
+    const ONE: f32 = 1.0;
+    const HALF: f32 = 0.5;
+    const LEAST_W: f32 = 1e-6;
+    fn from_f64(value: f64) -> f32 {
+        value as f32
+    }
+    fn from_usize(value: usize) -> f32 {
+        value as f32
+    }
+    fn sin_cos_deg(self) -> (f32, f32) {
+        libm::sincosf(self.to_radians())
+    }
+}
+
+impl Real for f64 {
+    const ZERO: f64 = 0.0;
+    const ONE: f64 = 1.0;
+    const HALF: f64 = 0.5;
+    const LEAST_W: f64 = 1e-6;
+    fn from_f64(value: f64) -> f64 {
+        value
+    }
+    fn from_usize(value: usize) -> f64 {
+        value as f64
+    }
+    fn sin_cos_deg(self) -> (f64, f64) {
+        libm::sincos(self.to_radians())
+    }
+}
+
+type Matrix<T> = [[T; 3]; 3];
+
+fn product<T: Real>(a: &Matrix<T>, b: &Matrix<T>) -> Matrix<T> {
     core::array::from_fn(|r| core::array::from_fn(|c| a[r][0] * b[0][c] + a[r][1] * b[1][c] + a[r][2] * b[2][c]))
 }
 
 /// Current KG pixel -> keyframe KG pixel under one motion.
 #[derive(Clone, Copy, Debug)]
-pub(super) struct PixelMap {
+pub(super) struct PixelMap<T = f32> {
     /// Scaled so that the third coordinate is positive (and ~1) where the
     /// turned ray meets the ground.
-    h: Matrix,
+    h: Matrix<T>,
 }
 
 /// The ground seen through the fixed remap by a body at `pitch`, `roll`
 /// (degrees): the remap's point (x, z, 1) -> the level ground point,
 /// homogeneous (as [`crate::motion::GroundMap`]'s tilt).
-fn tilt(pitch: f32, roll: f32, height_mm: f32) -> Matrix {
-    let (sp, cp) = libm::sincosf(pitch.to_radians());
-    let (sr, cr) = libm::sincosf(roll.to_radians());
+fn tilt<T: Real>(pitch: T, roll: T, height_mm: T) -> Matrix<T> {
+    let (sp, cp) = pitch.sin_cos_deg();
+    let (sr, cr) = roll.sin_cos_deg();
+    let (zero, one) = (T::ZERO, T::ONE);
     // Rz(roll) Rx(pitch) of a body vector (x right, y up, z forward), as GroundMap.
-    let turn = [[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [0.0, sp, cp]];
+    let turn = [[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [zero, sp, cp]];
     let centre = [turn[0][1] * height_mm, turn[1][1] * height_mm, turn[2][1] * height_mm];
     // The point -> its vector from the camera (x, -H, z).
-    let to_ray = [[1.0, 0.0, 0.0], [0.0, 0.0, -height_mm], [0.0, 1.0, 0.0]];
+    let to_ray = [[one, zero, zero], [zero, zero, -height_mm], [zero, one, zero]];
     // Turned ray r -> the ground point where it meets the ground, times r_y.
-    let meet = [[-centre[1], centre[0], 0.0], [0.0, centre[2], -centre[1]], [0.0, 1.0, 0.0]];
+    let meet = [[-centre[1], centre[0], zero], [zero, centre[2], -centre[1]], [zero, one, zero]];
     product(&meet, &product(&turn, &to_ray))
 }
 
 /// The inverse of a homography, up to scale (its adjugate).
-fn adjugate(m: &Matrix) -> Matrix {
+fn adjugate<T: Real>(m: &Matrix<T>) -> Matrix<T> {
     let cofactor = |r: usize, c: usize| {
         let (r0, r1) = ((r + 1) % 3, (r + 2) % 3);
         let (c0, c1) = ((c + 1) % 3, (c + 2) % 3);
@@ -55,23 +104,24 @@ fn adjugate(m: &Matrix) -> Matrix {
     core::array::from_fn(|r| core::array::from_fn(|c| cofactor(c, r)))
 }
 
-impl PixelMap {
+impl<T: Real> PixelMap<T> {
     /// The map of motion `p` (the attitude change in `p[3]`, `p[4]`) from a
     /// keyframe whose body stood at `keyframe` (pitch, roll, degrees).
-    pub(super) fn new(p: &Params, keyframe: [f32; 2], height_mm: f32, grid: &KgGrid) -> PixelMap {
-        let (m, left, far) = (grid.mm_per_px as f32, grid.x_left_mm as f32, grid.z_far_mm as f32);
-        let to_ground_mm = [[m, 0.0, left], [0.0, -m, far], [0.0, 0.0, 1.0]];
+    pub(super) fn new(p: &[T; 5], keyframe: [T; 2], height_mm: T, grid: &KgGrid) -> PixelMap<T> {
+        let (zero, one) = (T::ZERO, T::ONE);
+        let (m, left, far) = (T::from_f64(grid.mm_per_px), T::from_f64(grid.x_left_mm), T::from_f64(grid.z_far_mm));
+        let to_ground_mm = [[m, zero, left], [zero, -m, far], [zero, zero, one]];
         let now = tilt(keyframe[0] + p[3], keyframe[1] + p[4], height_mm);
         // The planar motion: keyframe ground = tx,tz + yaw-turned point.
-        let (sy, cy) = libm::sincosf(p[2].to_radians());
-        let planar = [[cy, -sy, p[0]], [sy, cy, p[1]], [0.0, 0.0, 1.0]];
-        let (ci, cj) = (0.5 * grid.width() as f32, 0.5 * grid.height() as f32);
-        let w_at_centre = |h: &Matrix| h[2][0] * ci + h[2][1] * cj + h[2][2];
-        let to_pixel = [[1.0 / m, 0.0, -left / m], [0.0, -1.0 / m, far / m], [0.0, 0.0, 1.0]];
+        let (sy, cy) = p[2].sin_cos_deg();
+        let planar = [[cy, -sy, p[0]], [sy, cy, p[1]], [zero, zero, one]];
+        let (ci, cj) = (T::HALF * T::from_usize(grid.width()), T::HALF * T::from_usize(grid.height()));
+        let w_at_centre = |h: &Matrix<T>| h[2][0] * ci + h[2][1] * cj + h[2][2];
+        let to_pixel = [[one / m, zero, -left / m], [zero, -one / m, far / m], [zero, zero, one]];
         let to_ground = product(&planar, &product(&now, &to_ground_mm));
         // w = r_y < 0 where the turned ray meets the ground.
-        let meets = w_at_centre(&to_ground) < 0.0;
-        let mut h = if keyframe == [0.0, 0.0] {
+        let meets = w_at_centre(&to_ground) < zero;
+        let mut h = if keyframe == [zero, zero] {
             product(&to_pixel, &to_ground)
         } else {
             product(&to_pixel, &product(&adjugate(&tilt(keyframe[0], keyframe[1], height_mm)), &to_ground))
@@ -79,10 +129,10 @@ impl PixelMap {
         // Scaled so that w is 1 at the grid centre where the ray meets the
         // ground there, and negative (nothing maps) where it does not.
         let w = w_at_centre(&h);
-        let scale = if meets { 1.0 / w } else { -1.0 / w };
+        let scale = if meets { one / w } else { -one / w };
         for row in h.iter_mut() {
             for value in row.iter_mut() {
-                *value *= scale;
+                *value = *value * scale;
             }
         }
         PixelMap { h }
@@ -91,14 +141,14 @@ impl PixelMap {
     /// Keyframe pixel of current pixel (i, j); None where the turned ray
     /// no longer meets the ground.
     #[inline]
-    #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(w > 1e-6)` also refuses NaN
-    pub(super) fn at(&self, i: f32, j: f32) -> Option<(f32, f32)> {
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(w > LEAST_W)` also refuses NaN
+    pub(super) fn at(&self, i: T, j: T) -> Option<(T, T)> {
         let h = &self.h;
         let w = h[2][0] * i + h[2][1] * j + h[2][2];
-        if !(w > 1e-6) {
+        if !(w > T::LEAST_W) {
             return None;
         }
-        let inverse = 1.0 / w;
+        let inverse = T::ONE / w;
         Some(((h[0][0] * i + h[0][1] * j + h[0][2]) * inverse, (h[1][0] * i + h[1][1] * j + h[1][2]) * inverse))
     }
 }

@@ -4,7 +4,8 @@
 //! can be compared at all.
 
 use crate::grid::{KgGrid, MAX_GRID_SIDE};
-use crate::motion::{Attitude, GroundMap, GroundMotion};
+use super::homography::PixelMap;
+use crate::motion::{Attitude, GroundMotion};
 use crate::remap::RemapTable;
 use core::ops::Range;
 
@@ -83,8 +84,9 @@ impl RowWarp {
 /// so then each row's line runs through its exact ends.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Warp {
-    /// The map through the attitude; None when level.
-    bent: Option<GroundMap>,
+    /// The map through the attitude ([`crate::motion::GroundMap`] as one
+    /// homography, in `f64`); None when level.
+    bent: Option<PixelMap<f64>>,
     grid: KgGrid,
     /// The planar part as an affine map (exact without attitude).
     origin: (f64, f64),
@@ -120,7 +122,11 @@ impl Warp {
         let down = warp(0.0, 1.0);
         let level = [motion.attitude, *keyframe].iter().all(|a| libm::fabs(a.pitch_deg) < LEVEL_DEG && libm::fabs(a.roll_deg) < LEVEL_DEG);
         Warp {
-            bent: (!level).then(|| GroundMap::from_tilted_keyframe(motion, keyframe, height_mm)),
+            bent: (!level).then(|| {
+                let (planar, attitude) = (&motion.planar, &motion.attitude);
+                let p = [planar.tx_mm, planar.tz_mm, planar.dyaw_deg, attitude.pitch_deg, attitude.roll_deg];
+                PixelMap::new(&p, [keyframe.pitch_deg, keyframe.roll_deg], height_mm, grid)
+            }),
             grid: *grid,
             origin,
             column: (along.0 - origin.0, along.1 - origin.1),
@@ -133,10 +139,7 @@ impl Warp {
         let jf = j as f64;
         if let Some(bent) = &self.bent {
             let last = (self.grid.width().max(2) - 1) as f64;
-            let at = |i: f64| {
-                let (x, z) = self.grid.pixel_to_ground(i, jf);
-                bent.to_keyframe(x, z).map(|(xk, zk)| self.grid.ground_to_pixel(xk, zk))
-            };
+            let at = |i: f64| bent.at(i, jf);
             let middle = libm::round(0.5 * last);
             if let (Some(first), Some(centre), Some(end)) = (at(0.0), at(middle), at(last)) {
                 // The quadratic through the three: p(c) = first + step c + bend c^2.
@@ -331,7 +334,7 @@ impl Coverage {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::motion::Motion;
+    use crate::motion::{GroundMap, Motion};
 
     /// Every column of every row lands where the exact map puts it: a roll
     /// bends the rows (projective spacing), which the quadratic follows.
