@@ -260,6 +260,7 @@ impl<S: Read + ReadReady + Write> Link<S> {
 }
 
 /// Validates the rig, checks it fits the target's memory, builds the table.
+#[inline(never)] // start-up only: its locals stay out of the frame loop's stack
 pub(crate) fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Result<(Rig, KgGrid), SetupError> {
     let rig = Rig::try_from(record).map_err(SetupError::Rig)?;
     if usize::from(record.width) > MAX_CAMERA_WIDTH {
@@ -349,6 +350,7 @@ impl<A: OutputPin, K: Clock, W: Watchdog> Guard<'_, A, K, W> {
 
 /// Waits for a rig that fits, builds the remap table, and announces it.
 /// None when the input ends first.
+#[inline(never)] // start-up only: its locals stay out of the frame loop's stack
 fn configure<S: Read + ReadReady + Write, C: CycleCounter, A: OutputPin, K: Clock, W: Watchdog>(
     link: &mut Link<S>,
     guard: &mut Guard<A, K, W>,

@@ -121,6 +121,7 @@ impl<const N: usize> Solution<N> {
 /// The parameters from `start` and the robust scale of the residuals
 /// (MAD, floored: sub-pixel matches are not better than ~0.1 px); None
 /// when too few blocks agree with the result.
+#[inline(never)] // Its arrays (2 KB) would otherwise sit in every caller's frame, under the block matcher's.
 pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N], problem: &Problem<N>) -> Option<Solution<N>> {
     if matches.len() < problem.min_inliers {
         return None;

@@ -65,7 +65,7 @@ use crate::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE, SHIFT_SCALE};
 use crate::scan::{Scan, ScanLayout, View};
 use band::Band;
 use decision::{Alarm, Noise};
-use estimate::{Estimator, KeyframeAttitude, Prior, Scene};
+use estimate::{Estimate, Estimator, KeyframeAttitude, Prior, Scene};
 use keyframe::Keyframe;
 use layout::Layout;
 use parallax::{Hypotheses, Parallax};
@@ -460,6 +460,15 @@ impl<'b> Gpa<'b> {
     /// ground without texture): the frame restarts the keyframe instead.
     fn compare(&mut self, keyframe_frame: u32) -> Option<FrameReport> {
         let prior = self.prior();
+        let estimate = self.estimate(&prior);
+        self.compare_with(keyframe_frame, prior, estimate)
+    }
+
+    /// The motion from the keyframe, measured on the two images.
+    // Not inlined, nor is `compare_with`: the estimate's deep calls then
+    // stand on a small frame, not on the row stages' locals (3.6 KB).
+    #[inline(never)]
+    fn estimate(&mut self, prior: &Prior) -> Option<Estimate> {
         let scene = Scene {
             keyframe: self.keyframe.keyframe_image(),
             current: self.keyframe.current_image(),
@@ -470,11 +479,18 @@ impl<'b> Gpa<'b> {
         };
         let start = self.profiler.now();
         self.estimator.profiler.profile = GpaProfile::default();
-        let estimate = self.estimator.estimate(&scene, &prior);
+        let estimate = self.estimator.estimate(&scene, prior);
         self.profiler.charge(start, |p| &mut p.estimate);
         let parts = self.estimator.profiler.profile;
         let profile = &mut self.profiler.profile;
         (profile.estimate_coarse, profile.estimate_blocks, profile.estimate_lower_level) = (parts.estimate_coarse, parts.estimate_blocks, parts.estimate_lower_level);
+        estimate
+    }
+
+    /// The rest of [`Self::compare`]: the frame compared under the
+    /// measured motion (or the prior's), and decided.
+    #[inline(never)]
+    fn compare_with(&mut self, keyframe_frame: u32, prior: Prior, estimate: Option<Estimate>) -> Option<FrameReport> {
         self.change_sigma = [prior.sigma[3] as f32, prior.sigma[4] as f32];
         if let Some(estimate) = &estimate {
             self.keyframe_attitude = estimate.keyframe_attitude;
