@@ -31,37 +31,29 @@ pub(super) trait Real: Copy + PartialOrd + Add<Output = Self> + Sub<Output = Sel
     fn sin_cos_deg(self) -> (Self, Self);
 }
 
-impl Real for f32 {
-    const ZERO: f32 = 0.0;
-    const ONE: f32 = 1.0;
-    const HALF: f32 = 0.5;
-    const LEAST_W: f32 = 1e-6;
-    fn from_f64(value: f64) -> f32 {
-        value as f32
-    }
-    fn from_usize(value: usize) -> f32 {
-        value as f32
-    }
-    fn sin_cos_deg(self) -> (f32, f32) {
-        libm::sincosf(self.to_radians())
-    }
+/// `Real` for a primitive float, its (sin, cos) from `libm`.
+macro_rules! real {
+    ($float:ty, $sin_cos:path) => {
+        impl Real for $float {
+            const ZERO: $float = 0.0;
+            const ONE: $float = 1.0;
+            const HALF: $float = 0.5;
+            const LEAST_W: $float = 1e-6;
+            fn from_f64(value: f64) -> $float {
+                value as $float
+            }
+            fn from_usize(value: usize) -> $float {
+                value as $float
+            }
+            fn sin_cos_deg(self) -> ($float, $float) {
+                $sin_cos(self.to_radians())
+            }
+        }
+    };
 }
 
-impl Real for f64 {
-    const ZERO: f64 = 0.0;
-    const ONE: f64 = 1.0;
-    const HALF: f64 = 0.5;
-    const LEAST_W: f64 = 1e-6;
-    fn from_f64(value: f64) -> f64 {
-        value
-    }
-    fn from_usize(value: usize) -> f64 {
-        value as f64
-    }
-    fn sin_cos_deg(self) -> (f64, f64) {
-        libm::sincos(self.to_radians())
-    }
-}
+real!(f32, libm::sincosf);
+real!(f64, libm::sincos);
 
 type Matrix<T> = [[T; 3]; 3];
 
