@@ -27,6 +27,10 @@ const COARSE_PRIOR_WEIGHT: f32 = 0.01;
 /// held a 1.4 m grid's search to 15 deg: short of a robot that turns 20
 /// deg between frames.
 const MAX_YAW_STEPS: i32 = 40;
+/// Yaw steps either side of the start searched first: the whole reach
+/// only when the best lies on their edge (the start is within one step
+/// in most searches).
+const FIRST_YAW_STEPS: i32 = 2;
 /// Most translation steps either side of the start, per axis.
 const MAX_SHIFT_STEPS: i32 = 8;
 /// Fractional bits of the turned image's gray levels.
@@ -420,59 +424,73 @@ impl CoarseSearch {
         let cell_centre = 0.5 * (self.current.side as f32 - 1.0) / self.current.side as f32;
         let origin = (grid.x_left_mm as f32 / cell_mm + cell_centre, grid.z_far_mm as f32 / cell_mm - cell_centre);
         let candidates = Candidates { start: p, sigma: *sigma, cell_mm, yaw_step, origin, gain, counted };
-        // Rank every candidate on the turned image; keep the few best.
+        // Rank the candidates on the turned image, keeping the few best, and
+        // score those exactly: first the yaws nearest the start, then, if
+        // the best lies on their edge, every yaw within reach.
         let mut shortlist = Shortlist::EMPTY;
-        for dyaw in -yaw_reach..=yaw_reach {
-            self.turned.build(&self.current, &candidates.placement(dyaw, 0, 0), gain);
-            for dz in -reach_z..=reach_z {
-                for dx in -reach_x..=reach_x {
-                    // Once the shortlist is full, a candidate whose cost
-                    // cannot get under its last is given up early.
-                    let last = shortlist.last_cost();
-                    let hopeless = |bound: f32| last < f32::MAX && candidates.cost(bound, dyaw, dx, dz) >= last;
-                    let Some(score) = candidates.turned_score_unless(&self.turned, &self.keyframe, dx, dz, hopeless) else { continue };
-                    if score != f32::MAX {
-                        shortlist.offer(candidates.cost(score, dyaw, dx, dz), [dyaw, dz, dx]);
-                    }
-                }
-            }
-        }
-        // The shortlist scored again sampling the keyframe at each current
-        // cell: the turned image samples the current one instead, as good
-        // for ranking but rounded differently cell by cell, and the fine
-        // steps start from what is chosen here.
-        let exact = |dyaw: i32, dx: i32, dz: i32| candidates.exact_score(&self.keyframe, &self.current, &candidates.placement(dyaw, dx, dz));
-        let (mut best, mut second) = (Ranked::NONE, Ranked::NONE);
         // The shortlist's exact scores, for the sub-cell steps below (the
         // best's neighbours are mostly on it).
         let mut scored: heapless::Vec<([i32; 3], f32), SHORTLIST> = heapless::Vec::new();
-        // Best first, so that the second best is known early and the
-        // candidates that cannot beat it are given up soon.
-        for steps in shortlist.best_first() {
-            let [dyaw, dz, dx] = steps;
-            // A candidate that cannot beat the best so far (or the second
-            // best, when the runner-up is wanted) changes nothing: it is
-            // given up as soon as a lower bound shows that.
-            let placement = candidates.placement(dyaw, dx, dz);
-            let to_beat = match wanted {
-                Wanted::Best => best,
-                Wanted::BestAndRunnerUp => second,
-            };
-            let hopeless = |bound: f32| to_beat.cost < f32::MAX && !(Ranked { cost: candidates.cost(bound, dyaw, dx, dz), steps }).beats(&to_beat);
-            let Some(score) = candidates.exact_score_unless(&self.keyframe, &self.current, &placement, hopeless) else { continue };
-            // Never full: the shortlist holds SHORTLIST candidates.
-            let _ = scored.push((steps, score));
-            if score == f32::MAX {
-                continue;
+        let (mut ranked, mut reach) = (None, yaw_reach.min(FIRST_YAW_STEPS));
+        let (best, second) = loop {
+            for dyaw in -reach..=reach {
+                if ranked.is_some_and(|ranked: i32| dyaw.abs() <= ranked) {
+                    continue;
+                }
+                self.turned.build(&self.current, &candidates.placement(dyaw, 0, 0), gain);
+                for dz in -reach_z..=reach_z {
+                    for dx in -reach_x..=reach_x {
+                        // Once the shortlist is full, a candidate whose cost
+                        // cannot get under its last is given up early.
+                        let last = shortlist.last_cost();
+                        let hopeless = |bound: f32| last < f32::MAX && candidates.cost(bound, dyaw, dx, dz) >= last;
+                        let Some(score) = candidates.turned_score_unless(&self.turned, &self.keyframe, dx, dz, hopeless) else { continue };
+                        if score != f32::MAX {
+                            shortlist.offer(candidates.cost(score, dyaw, dx, dz), [dyaw, dz, dx]);
+                        }
+                    }
+                }
             }
-            let candidate = Ranked { cost: candidates.cost(score, dyaw, dx, dz), steps };
-            if candidate.beats(&best) {
-                second = best;
-                best = candidate;
-            } else if candidate.beats(&second) {
-                second = candidate;
+            ranked = Some(reach);
+            let (mut best, mut second) = (Ranked::NONE, Ranked::NONE);
+            scored.clear();
+            // The shortlist scored again sampling the keyframe at each current
+            // cell: the turned image samples the current one instead, as good
+            // for ranking but rounded differently cell by cell, and the fine
+            // steps start from what is chosen here. Best first, so that the
+            // one to beat is known early and hopeless candidates given up soon.
+            for steps in shortlist.best_first() {
+                let [dyaw, dz, dx] = steps;
+                // A candidate that cannot beat the best so far (or the second
+                // best, when the runner-up is wanted) changes nothing: it is
+                // given up as soon as a lower bound shows that.
+                let placement = candidates.placement(dyaw, dx, dz);
+                let to_beat = match wanted {
+                    Wanted::Best => best,
+                    Wanted::BestAndRunnerUp => second,
+                };
+                let hopeless = |bound: f32| to_beat.cost < f32::MAX && !(Ranked { cost: candidates.cost(bound, dyaw, dx, dz), steps }).beats(&to_beat);
+                let Some(score) = candidates.exact_score_unless(&self.keyframe, &self.current, &placement, hopeless) else { continue };
+                // Never full: the shortlist holds SHORTLIST candidates.
+                let _ = scored.push((steps, score));
+                if score == f32::MAX {
+                    continue;
+                }
+                let candidate = Ranked { cost: candidates.cost(score, dyaw, dx, dz), steps };
+                if candidate.beats(&best) {
+                    second = best;
+                    best = candidate;
+                } else if candidate.beats(&second) {
+                    second = candidate;
+                }
             }
-        }
+            let on_edge = best.cost < f32::MAX && best.steps[0].abs() == reach;
+            if reach == yaw_reach || !on_edge {
+                break (best, second);
+            }
+            reach = yaw_reach;
+        };
+        let exact = |dyaw: i32, dx: i32, dz: i32| candidates.exact_score(&self.keyframe, &self.current, &candidates.placement(dyaw, dx, dz));
         if best.cost == f32::MAX {
             return unmeasured;
         }
