@@ -1,9 +1,9 @@
 //! The frame loop speaking MAVLink 2 (feature `mavlink`): the same stages
 //! and pipeline as [`crate::frame_loop`], talking to an autopilot.
 //!
-//! - Out: `HEARTBEAT` (component `MAV_COMP_ID_OBSTACLE_AVOIDANCE`) at start,
-//!   on every change of its status, and at most once a second between frames; `OBSTACLE_DISTANCE` per
-//!   frame (the scan, `core::mavlink::obstacle_distance`; every element
+//! - Out: `HEARTBEAT` (component `MAV_COMP_ID_OBSTACLE_AVOIDANCE`) at
+//!   start, on every change of its status, and at most once a second
+//!   between frames; `OBSTACLE_DISTANCE` per frame (the scan, `core::mavlink::obstacle_distance`; every element
 //!   unknown for a frame that only (re)started the keyframe, since nothing
 //!   was compared); `STATUSTEXT` on the rig and on every fault, and the
 //!   counters at the end.

@@ -347,6 +347,9 @@ impl Shortlist {
     }
 }
 
+/// The shortlist's exact scores by steps (yaw, z, x).
+type Scored = heapless::Vec<([i32; 3], f32), SHORTLIST>;
+
 /// A candidate's exact cost and its steps (yaw, z, x); the steps break a
 /// tie, smaller first, so that the choice is the one a search over all
 /// candidates in step order would make, whatever order they are scored in.
@@ -430,7 +433,7 @@ impl CoarseSearch {
         let mut shortlist = Shortlist::EMPTY;
         // The shortlist's exact scores, for the sub-cell steps below (the
         // best's neighbours are mostly on it).
-        let mut scored: heapless::Vec<([i32; 3], f32), SHORTLIST> = heapless::Vec::new();
+        let mut scored = Scored::new();
         let (mut ranked, mut reach) = (None, yaw_reach.min(FIRST_YAW_STEPS));
         let (best, second) = loop {
             for dyaw in -reach..=reach {
@@ -452,45 +455,13 @@ impl CoarseSearch {
                 }
             }
             ranked = Some(reach);
-            let (mut best, mut second) = (Ranked::NONE, Ranked::NONE);
-            scored.clear();
-            // The shortlist scored again sampling the keyframe at each current
-            // cell: the turned image samples the current one instead, as good
-            // for ranking but rounded differently cell by cell, and the fine
-            // steps start from what is chosen here. Best first, so that the
-            // one to beat is known early and hopeless candidates given up soon.
-            for steps in shortlist.best_first() {
-                let [dyaw, dz, dx] = steps;
-                // A candidate that cannot beat the best so far (or the second
-                // best, when the runner-up is wanted) changes nothing: it is
-                // given up as soon as a lower bound shows that.
-                let placement = candidates.placement(dyaw, dx, dz);
-                let to_beat = match wanted {
-                    Wanted::Best => best,
-                    Wanted::BestAndRunnerUp => second,
-                };
-                let hopeless = |bound: f32| to_beat.cost < f32::MAX && !(Ranked { cost: candidates.cost(bound, dyaw, dx, dz), steps }).beats(&to_beat);
-                let Some(score) = candidates.exact_score_unless(&self.keyframe, &self.current, &placement, hopeless) else { continue };
-                // Never full: the shortlist holds SHORTLIST candidates.
-                let _ = scored.push((steps, score));
-                if score == f32::MAX {
-                    continue;
-                }
-                let candidate = Ranked { cost: candidates.cost(score, dyaw, dx, dz), steps };
-                if candidate.beats(&best) {
-                    second = best;
-                    best = candidate;
-                } else if candidate.beats(&second) {
-                    second = candidate;
-                }
-            }
+            let (best, second) = self.rescore(&shortlist, &candidates, wanted, &mut scored);
             let on_edge = best.cost < f32::MAX && best.steps[0].abs() == reach;
             if reach == yaw_reach || !on_edge {
                 break (best, second);
             }
             reach = yaw_reach;
         };
-        let exact = |dyaw: i32, dx: i32, dz: i32| candidates.exact_score(&self.keyframe, &self.current, &candidates.placement(dyaw, dx, dz));
         if best.cost == f32::MAX {
             return unmeasured;
         }
@@ -499,7 +470,7 @@ impl CoarseSearch {
         // Sub-cell: a parabola along each axis through the best.
         let exact = |dyaw: i32, dx: i32, dz: i32| match scored.iter().find(|(steps, _)| *steps == [dyaw, dz, dx]) {
             Some(&(_, score)) => score,
-            None => exact(dyaw, dx, dz),
+            None => candidates.exact_score(&self.keyframe, &self.current, &candidates.placement(dyaw, dx, dz)),
         };
         let centre = exact(by, bx, bz);
         let offset = |minus: f32, plus: f32| {
@@ -513,6 +484,44 @@ impl CoarseSearch {
         let x = bx as f32 + offset(exact(by, bx - 1, bz), exact(by, bx + 1, bz));
         let z = bz as f32 + offset(exact(by, bx, bz - 1), exact(by, bx, bz + 1));
         CoarseFound { p: candidates.moved(yaw, x, z), score: centre, runner_up }
+    }
+
+    /// The shortlist scored again sampling the keyframe at each current
+    /// cell: the turned image samples the current one instead, as good for
+    /// ranking but rounded differently cell by cell, and the fine steps
+    /// start from what is chosen here. Best first, so that the one to beat
+    /// is known early and hopeless candidates are given up soon. Returns
+    /// the best and the second best; `scored` gets every exact score.
+    #[inline(always)] // a call of its own costs ~45 k instructions a frame on the M4
+    fn rescore(&self, shortlist: &Shortlist, candidates: &Candidates, wanted: Wanted, scored: &mut Scored) -> (Ranked, Ranked) {
+        let (mut best, mut second) = (Ranked::NONE, Ranked::NONE);
+        scored.clear();
+        for steps in shortlist.best_first() {
+            let [dyaw, dz, dx] = steps;
+            // A candidate that cannot beat the best so far (or the second
+            // best, when the runner-up is wanted) changes nothing: it is
+            // given up as soon as a lower bound shows that.
+            let placement = candidates.placement(dyaw, dx, dz);
+            let to_beat = match wanted {
+                Wanted::Best => best,
+                Wanted::BestAndRunnerUp => second,
+            };
+            let hopeless = |bound: f32| to_beat.cost < f32::MAX && !(Ranked { cost: candidates.cost(bound, dyaw, dx, dz), steps }).beats(&to_beat);
+            let Some(score) = candidates.exact_score_unless(&self.keyframe, &self.current, &placement, hopeless) else { continue };
+            // Never full: the shortlist holds SHORTLIST candidates.
+            let _ = scored.push((steps, score));
+            if score == f32::MAX {
+                continue;
+            }
+            let candidate = Ranked { cost: candidates.cost(score, dyaw, dx, dz), steps };
+            if candidate.beats(&best) {
+                second = best;
+                best = candidate;
+            } else if candidate.beats(&second) {
+                second = candidate;
+            }
+        }
+        (best, second)
     }
 }
 

@@ -89,7 +89,7 @@ impl Keyframe<'_> {
             && !columns.is_empty()
             && outs.len() <= MAX_STACK
             && outs.iter().all(|out| out.len() >= columns.end)
-            && outs.iter().enumerate().all(|(k, _)| match self.inside_span(one_row_down(k), columns.clone()) {
+            && (0..outs.len()).all(|k| match self.inside_span(one_row_down(k), columns.clone()) {
                 Span::Inside(span) => {
                     common = common.start.max(span.start)..common.end.min(span.end);
                     spans[k] = span;
