@@ -32,13 +32,6 @@ pub(super) struct Band {
 impl Band {
     pub(super) const EMPTY: Band = Band { ring: [[0; BAND_WIDTH]; MAX_WINDOW], first: 0, source: None, filled: 0..0 };
 
-    pub(super) fn clear(&mut self) {
-        self.ring = [[0; BAND_WIDTH]; MAX_WINDOW];
-        self.first = 0;
-        self.source = None;
-        self.filled = 0..0;
-    }
-
     /// A new frame: nothing sampled to roll on from.
     pub(super) fn forget(&mut self) {
         self.source = None;

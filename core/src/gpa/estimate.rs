@@ -75,6 +75,9 @@ pub(super) struct Estimate {
     pub(super) keyframe_attitude: KeyframeAttitude,
     /// One sigma of the motion's attitude change (pitch, roll, degrees).
     pub(super) change_sigma: [f32; 2],
+    /// The brightness of the current frame over the keyframe's (auto
+    /// exposure): the median over the last block matches.
+    pub(super) gain: f32,
 }
 
 /// The keyframe body's attitude relative to the nominal one (pitch, roll,
@@ -122,6 +125,12 @@ struct Start {
     sigma: Params,
 }
 
+impl Start {
+    fn of(prior: &Prior) -> Start {
+        Start { p: params(&prior.motion), sigma: prior.sigma.map(|s| s as f32) }
+    }
+}
+
 /// One block's match: where the current block's centre lies in the keyframe.
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct BlockMatch {
@@ -158,9 +167,9 @@ impl Scene<'_> {
     }
 }
 
-/// The estimator's memory: the coarse search's images and the block matches.
+/// Steps 2 to 6 and their memory, the block matches (step 1 has its own,
+/// [`CoarseSearch`]: the two are never live at once).
 pub(super) struct Estimator {
-    coarse: CoarseSearch,
     matches: heapless::Vec<BlockMatch, MAX_BLOCK_MATCHES>,
     /// Its parts' ticks (the `estimate_*` fields).
     pub(super) profiler: Profiler,
@@ -168,15 +177,16 @@ pub(super) struct Estimator {
 
 impl Estimator {
     pub(super) const EMPTY: Estimator = Estimator {
-        coarse: CoarseSearch::EMPTY,
         matches: heapless::Vec::new(),
         profiler: Profiler::OFF,
     };
 
-    /// The brightness of the current frame over the keyframe's (auto
-    /// exposure), the median over the last estimate's block matches; 1
-    /// without matches.
-    pub(super) fn gain(&self) -> f32 {
+    /// The brightness of the current frame over the keyframe's, the
+    /// median over the block matches; 1 without matches.
+    // Not inlined: its 1 KB of sorted gains would sit under every block
+    // match of the estimate.
+    #[inline(never)]
+    fn gain(&self) -> f32 {
         let mut gains = [0f32; MAX_BLOCK_MATCHES];
         let count = self.matches.len();
         for (gain, m) in gains.iter_mut().zip(&self.matches) {
@@ -187,15 +197,11 @@ impl Estimator {
         gains.get(count / 2).copied().unwrap_or(1.0)
     }
 
-    /// The motion keyframe -> now, or None when the ground does not show
-    /// enough texture in both images to measure it. `prior.sigma` sets the
-    /// coarse search's reach (3 sigma); a reach of more than a few cells is
-    /// searched on cells twice as large first.
-    pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior) -> Option<Estimate> {
-        let prior = Start { p: params(&prior.motion), sigma: prior.sigma.map(|s| s as f32) };
-        let since = self.profiler.now();
-        let start = self.coarse_start(scene, &prior);
-        self.profiler.charge(since, |p| &mut p.estimate_coarse);
+    /// The motion keyframe -> now from `start`, step 1's (see
+    /// [`Self::coarse_start`]), or None when the ground does not show
+    /// enough texture in both images to measure it.
+    pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior, start: Params) -> Option<Estimate> {
+        let prior = Start::of(prior);
         // A coarse start on an alias of the texture leaves too few blocks
         // agreeing; the prior's own motion is the other start, and standing
         // still the last (wheels that slip turn while the robot stands,
@@ -205,22 +211,30 @@ impl Estimator {
             .or_else(|| self.refine(scene, &prior, prior.p, 0))
             .or_else(|| self.refine(scene, &prior, [0.0; 5], 0))?;
         let (chosen, lower_level) = self.nearest_surface(scene, &prior, fitted);
-        let chained = Estimate { motion: motion(&chosen), keyframe_attitude: scene.keyframe_attitude, change_sigma: [prior.sigma[3], prior.sigma[4]] };
+        let chained = Estimate {
+            motion: motion(&chosen),
+            keyframe_attitude: scene.keyframe_attitude,
+            change_sigma: [prior.sigma[3], prior.sigma[4]],
+            gain: self.gain(),
+        };
         // Step 6 (not over a lower level, which would bend it).
         if lower_level {
             return Some(chained);
         }
-        Some(fit_keyframe_attitude(scene, &self.matches, &chosen, &prior).unwrap_or(chained))
+        Some(fit_keyframe_attitude(scene, &self.matches, &chained, &prior).unwrap_or(chained))
     }
 
-    /// Steps 1: where the blocks start from.
-    fn coarse_start(&mut self, scene: &Scene, prior: &Start) -> Params {
+    /// Step 1: where the blocks start from. `prior.sigma` sets the coarse
+    /// search's reach (3 sigma); a reach of more than a few cells is
+    /// searched on cells twice as large first.
+    pub(super) fn coarse_start(coarse: &mut CoarseSearch, scene: &Scene, prior: &Prior) -> Params {
+        let prior = Start::of(prior);
         let fine_mm = COARSE_CELL_MM.max(2.0 * scene.grid.mm_per_px as f32);
         let reach = |sigma: f32, unit: f32| 3.0 * sigma / unit;
         let mut p = prior.p;
         let mut sigma = prior.sigma;
         if reach(sigma[0].max(sigma[1]), fine_mm) > 3.0 {
-            let wide = self.coarse.search_with_runner_up(scene, &p, &sigma, 2.0 * fine_mm);
+            let wide = coarse.search_with_runner_up(scene, &p, &sigma, 2.0 * fine_mm);
             // What is left: about a large cell, and its yaw step.
             sigma[0] = 2.0 * fine_mm / 3.0;
             sigma[1] = sigma[0];
@@ -229,16 +243,16 @@ impl Estimator {
             // between the two best (a near obstacle filling the view leaves
             // the large cells a near-tie a yaw step apart, which the
             // least rounding tips either way).
-            let best = self.coarse.search(scene, &wide.p, &sigma, fine_mm);
+            let best = coarse.search(scene, &wide.p, &sigma, fine_mm);
             p = match wide.runner_up {
                 Some(runner_up) => {
-                    let other = self.coarse.search(scene, &runner_up, &sigma, fine_mm);
+                    let other = coarse.search(scene, &runner_up, &sigma, fine_mm);
                     if other.score < best.score { other.p } else { best.p }
                 }
                 None => best.p,
             };
         } else {
-            p = self.coarse.search(scene, &p, &sigma, fine_mm).p;
+            p = coarse.search(scene, &p, &sigma, fine_mm).p;
         }
         // The coarse search moves level images: its translation is the one
         // that best explains the attitude change too, so the blocks start
@@ -303,6 +317,7 @@ impl Estimator {
     /// after 100 mm. Each row of blocks is tried as the edge; the ground's
     /// motion of the best two-level fit replaces `chosen` when that fit is
     /// clearly the better explanation ([`LOWER_LEVEL_CHI2`]).
+    #[inline(never)]
     fn lower_level(&self, scene: &Scene, prior: &Start, chosen: &Params) -> Option<Params> {
         let ground_only = Surfaces::ground(scene.map(chosen));
         let mut best: Option<(f32, Params)> = None;
@@ -406,7 +421,10 @@ fn two_levels(scene: &Scene, p: &Params, edge_row: f32, depth_mm: f32) -> Surfac
 /// known of it before as their prior. It shows only through how the motion
 /// moves tilted ground (about a T z / H per radian: 1 px at 1.4 m for 0.2
 /// degree after 100 mm), so a short baseline leaves it to the prior.
-fn fit_keyframe_attitude(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start) -> Option<Estimate> {
+/// Starts from the `chained` estimate (the keyframe's attitude held) and
+/// keeps its gain.
+#[inline(never)]
+fn fit_keyframe_attitude(scene: &Scene, matches: &[BlockMatch], chained: &Estimate, prior: &Start) -> Option<Estimate> {
     let five = |p: &[f32; 7]| -> Params { [p[0], p[1], p[2], p[3], p[4]] };
     let surfaces = |p: &[f32; 7]| Surfaces::ground(PixelMap::new(&five(p), [p[5], p[6]], scene.height_mm as f32, scene.grid));
     let seven = |p: &Params, keyframe: [f32; 2]| -> [f32; 7] { [p[0], p[1], p[2], p[3], p[4], keyframe[0], keyframe[1]] };
@@ -418,12 +436,13 @@ fn fit_keyframe_attitude(scene: &Scene, matches: &[BlockMatch], start: &Params, 
         sigma: seven(&prior.sigma, keyframe.sigma_deg),
         min_inliers: MIN_INLIERS,
     };
-    let fit = robust_fit(matches, seven(start, keyframe.deg), &problem)?;
+    let fit = robust_fit(matches, seven(&params(&chained.motion), keyframe.deg), &problem)?;
     let (p, sigma) = (fit.p, fit.variance()?.map(libm::sqrtf));
     Some(Estimate {
         motion: motion(&five(&p)),
         keyframe_attitude: KeyframeAttitude { deg: [p[5], p[6]], sigma_deg: [sigma[5], sigma[6]] },
         change_sigma: [sigma[3], sigma[4]],
+        ..*chained
     })
 }
 
@@ -447,6 +466,7 @@ fn fit_two_levels(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::gpa::workspace::Workspace;
     use crate::motion::GroundMap;
     use std::vec::Vec;
 
@@ -503,8 +523,14 @@ mod tests {
         let grid = grid();
         let coverage = Coverage::full(&grid);
         let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: KeyframeAttitude::NOMINAL };
-        let mut estimator = std::boxed::Box::new(Estimator::EMPTY);
-        estimator.estimate(&scene, prior).expect("a textured floor is measured").motion
+        estimate(&scene, prior).expect("a textured floor is measured").motion
+    }
+
+    /// Step 1, then the rest, as `Gpa::estimate` runs them.
+    fn estimate(scene: &Scene, prior: &Prior) -> Option<Estimate> {
+        let mut workspace = std::boxed::Box::new(Workspace::EMPTY);
+        let start = Estimator::coarse_start(workspace.coarse(), scene, prior);
+        workspace.estimator().estimate(scene, prior, start)
     }
 
     fn assert_close(found: &GroundMotion, truth: &GroundMotion) {
@@ -617,13 +643,12 @@ mod tests {
         let coverage = Coverage::full(&grid);
         let keyframe = render(&GroundMotion { planar: Motion::default(), attitude: sitting }, |_, _| false);
         let mut known = KeyframeAttitude::NOMINAL;
-        let mut estimator = std::boxed::Box::new(Estimator::EMPTY);
         for tz_mm in [40.0, 80.0, 120.0, 160.0] {
             let change = Attitude { pitch_deg: 0.1, roll_deg: 0.05 };
             let current = render(&GroundMotion { planar: Motion { tx_mm: 5.0, tz_mm, dyaw_deg: 0.5 }, attitude: sitting.then(&change) }, |_, _| false);
             let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: known };
             let prior = Prior { motion: GroundMotion { planar: Motion { tx_mm: 0.0, tz_mm, dyaw_deg: 0.0 }, attitude: Attitude::default() }, sigma: [12.0, 12.0, 1.0, 1.0, 1.0] };
-            let estimate = estimator.estimate(&scene, &prior).expect("a textured floor is measured");
+            let estimate = estimate(&scene, &prior).expect("a textured floor is measured");
             let found = estimate.keyframe_attitude;
             assert!(found.sigma_deg[0] < known.sigma_deg[0] && found.sigma_deg[1] < known.sigma_deg[1], "{found:?} after {known:?}");
             known = found;

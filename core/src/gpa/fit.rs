@@ -107,6 +107,8 @@ impl<const N: usize> Solution<N> {
     /// blocks' errors taken as independent at `scale`): the diagonal of
     /// the normal matrix's inverse, one column at a time. Asked for only
     /// where it is used: most fits are not.
+    // Not inlined: its copies of the matrix would sit under the fit's frame.
+    #[inline(never)]
     pub(super) fn variance(&self) -> Option<[f32; N]> {
         let factor = cholesky(self.normal)?;
         let mut variance = [0f32; N];

@@ -46,6 +46,7 @@ mod row;
 mod scenes;
 mod shift_search;
 mod warp;
+mod workspace;
 
 /// The difference kernels the stages run (one name to change with them).
 use crate::kernels;
@@ -63,16 +64,14 @@ use crate::motion::{Attitude, GroundMotion, Motion};
 use crate::remap::RemapTable;
 use crate::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE, SHIFT_SCALE};
 use crate::scan::{Scan, ScanLayout, View};
-use band::Band;
 use decision::{Alarm, Noise};
 use estimate::{Estimate, Estimator, KeyframeAttitude, Prior, Scene};
 use keyframe::Keyframe;
 use layout::Layout;
 use parallax::{Hypotheses, Parallax};
 use prediction::Prediction;
-use residue::Residue;
-use shift_search::ShiftSearch;
 use warp::{Coverage, Warp};
+use workspace::Workspace;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -162,10 +161,8 @@ pub struct Gpa<'b> {
     coverage: Coverage,
     keyframe: Keyframe<'b>,
     prediction: Prediction,
-    estimator: Estimator,
-    /// The seed's search around the prediction, when the measured motion
-    /// differs from it (the report's shift and statistics).
-    seed: ShiftSearch,
+    /// The motion estimate's memory and the row stages' sums, in turns.
+    workspace: Workspace,
     /// The odometry and IMU given for this frame (None: no such sensor).
     odometry: Option<Motion>,
     imu: Option<Attitude>,
@@ -193,10 +190,7 @@ pub struct Gpa<'b> {
     last_step: Option<Motion>,
     /// This frame's motion as a warp.
     warp: Warp,
-    band: Band,
-    residue: Residue,
     parallax: Parallax,
-    search: ShiftSearch,
     noise: Noise,
     alarm: Alarm,
     blobs: heapless::Vec<Blob, MAX_BLOBS>,
@@ -233,8 +227,7 @@ impl<'b> Gpa<'b> {
         coverage: Coverage::EMPTY,
         keyframe: Keyframe::EMPTY,
         prediction: Prediction::START,
-        estimator: Estimator::EMPTY,
-        seed: ShiftSearch::EMPTY,
+        workspace: Workspace::EMPTY,
         odometry: None,
         imu: None,
         keyframe_imu: None,
@@ -249,10 +242,7 @@ impl<'b> Gpa<'b> {
         odometry_fault: None,
         last_step: None,
         warp: Warp::NONE,
-        band: Band::EMPTY,
-        residue: Residue::EMPTY,
         parallax: Parallax::EMPTY,
-        search: ShiftSearch::EMPTY,
         noise: Noise::NONE,
         alarm: Alarm::NONE,
         blobs: heapless::Vec::new(),
@@ -312,9 +302,7 @@ impl<'b> Gpa<'b> {
         self.keyframe = Keyframe::new(first, second, grid);
         self.prediction = Prediction::START;
         self.warp = Warp::NONE;
-        self.band.clear();
-        self.search.clear();
-        self.residue.clear();
+        self.workspace = Workspace::EMPTY;
         self.parallax.hypotheses = Hypotheses::NONE;
         self.parallax.clear();
         self.noise = Noise::new(&config);
@@ -332,7 +320,6 @@ impl<'b> Gpa<'b> {
     /// the firmware gives TIM2's instruction count). None turns it off.
     pub fn set_clock(&mut self, clock: Option<fn() -> u32>) {
         self.profiler.clock = clock;
-        self.estimator.profiler.clock = clock;
     }
 
     /// Per-stage ticks of the current (or last) frame; see [`GpaProfile`].
@@ -360,7 +347,6 @@ impl<'b> Gpa<'b> {
     /// A frame that does not follow the last one restarts the keyframe.
     pub fn begin_frame(&mut self, frame: u32, odometry: Option<Motion>, attitude: Option<Attitude>) {
         self.profiler.profile = GpaProfile::default();
-        self.band.forget();
         self.frame = frame;
         self.frame_active = true;
         self.rows_seen = 0;
@@ -477,13 +463,16 @@ impl<'b> Gpa<'b> {
             height_mm: self.layout.camera_height_mm,
             keyframe_attitude: self.keyframe_attitude,
         };
-        let start = self.profiler.now();
-        self.estimator.profiler.profile = GpaProfile::default();
-        let estimate = self.estimator.estimate(&scene, prior);
-        self.profiler.charge(start, |p| &mut p.estimate);
-        let parts = self.estimator.profiler.profile;
+        let since = self.profiler.now();
+        let start = Estimator::coarse_start(self.workspace.coarse(), &scene, prior);
+        self.profiler.charge(since, |p| &mut p.estimate_coarse);
+        let estimator = self.workspace.estimator();
+        estimator.profiler = Profiler { clock: self.profiler.clock, profile: GpaProfile::default() };
+        let estimate = estimator.estimate(&scene, prior, start);
+        let parts = estimator.profiler.profile;
+        self.profiler.charge(since, |p| &mut p.estimate);
         let profile = &mut self.profiler.profile;
-        (profile.estimate_coarse, profile.estimate_blocks, profile.estimate_lower_level) = (parts.estimate_coarse, parts.estimate_blocks, parts.estimate_lower_level);
+        (profile.estimate_blocks, profile.estimate_lower_level) = (parts.estimate_blocks, parts.estimate_lower_level);
         estimate
     }
 
@@ -509,7 +498,7 @@ impl<'b> Gpa<'b> {
         // An exposure step between the frames: the current rows are
         // brought to the keyframe's brightness, or every textured pixel
         // would differ. (Within 1 % a gain is left alone: noise.)
-        let gain = if estimate.is_some() { self.estimator.gain() } else { 1.0 };
+        let gain = estimate.map_or(1.0, |estimate| estimate.gain);
         let exposure = (libm::fabsf(gain - 1.0) > 0.01).then(|| exposure_table(gain));
         // The rows are read from the store while the stages write their sums.
         let mut store = core::mem::replace(&mut self.keyframe, Keyframe::EMPTY);
@@ -532,22 +521,24 @@ impl<'b> Gpa<'b> {
     /// the shift search's part of the row step, on every AOI row. As the
     /// seed sees it: its rig is level and it knows the planar motion only,
     /// so its rows are straight (a translation rolls the band on).
+    #[inline(never)]
     fn search_prediction(&mut self, store: &Keyframe, predicted: &GroundMotion, exposure: Option<&[u8; 256]>) {
         let s = self.config.search_radius;
         let level = GroundMotion { planar: predicted.planar, attitude: Attitude::default() };
         let warp = Warp::new(&self.layout.grid, &level, &Attitude::default(), self.layout.camera_height_mm);
         let (grid, aoi) = (&self.layout.grid, &self.layout.aoi);
-        self.seed.clear();
-        self.band.forget();
+        let rows = self.workspace.rows();
+        rows.seed.clear();
+        rows.band.forget();
         let mut runs = warp::Runs::new();
         let mut adjusted = [0u8; MAX_GRID_SIDE];
         for j in aoi.top..aoi.bottom.min(self.layout.analysis_rows) {
             let Some(seen) = self.coverage.seen(j) else { continue };
             let row_warp = warp.row(j);
             self.coverage.usable_runs(row_warp, seen.clone(), grid, &mut runs);
-            self.band.sample(store, j, row_warp, seen, s, s);
+            rows.band.sample(store, j, row_warp, seen, s, s);
             let row = exposed(store.current_row(j), exposure, &mut adjusted);
-            self.seed.add_row(row, &self.band.rows(s), s, &runs, aoi, self.layout.in_far_half(j));
+            rows.seed.add_row(row, &rows.band.rows(s), s, &runs, aoi, self.layout.in_far_half(j));
         }
     }
 
@@ -555,6 +546,7 @@ impl<'b> Gpa<'b> {
     /// `store` at the motion `measured` (keyframe -> now), through
     /// `exposure` (current level -> keyframe brightness) when there is one;
     /// returns whether this frame, so far from the keyframe, replaces it.
+    #[inline(never)]
     fn compare_at(&mut self, store: &Keyframe, measured: GroundMotion, exposure: Option<&[u8; 256]>) -> bool {
         self.measured = measured;
         let to_last = self.prediction.to_last();
@@ -565,10 +557,11 @@ impl<'b> Gpa<'b> {
         let grid = &self.layout.grid;
         self.parallax.hypotheses = Hypotheses::plan(&planar, &step, grid, &self.config, self.layout.camera_height_mm);
         self.warp = Warp::new(grid, &measured, &self.keyframe_attitude.attitude(), self.layout.camera_height_mm);
-        self.search.clear();
-        self.residue.clear();
+        let rows = self.workspace.rows();
+        rows.search.clear();
+        rows.residue.clear();
+        rows.band.forget();
         self.parallax.clear();
-        self.band.forget();
         let mut adjusted = [0u8; MAX_GRID_SIDE];
         for j in 0..self.layout.analysis_rows {
             let row = exposed(store.current_row(j), exposure, &mut adjusted);
@@ -598,24 +591,18 @@ impl<'b> Gpa<'b> {
     /// `predicted` is the prediction; `seed_apart`: the seed's search ran
     /// around it apart from the measured motion's (else they are one).
     fn decide(&mut self, keyframe_frame: u32, predicted: &Motion, seed_apart: bool) -> FrameReport {
-        let measured = self.prediction.predicted;
-        let fit = self.search.fit(self.config.search_radius, &measured, &self.layout);
-        self.prediction.settle(fit.refined, self.layout.grid.mm_per_px);
-        let histogram = self.search.histogram();
-        self.noise.update(&histogram, &self.config);
-        let seed = if seed_apart { &self.seed } else { &self.search };
-        let (seed_sum, seed_count) = kernels::seed_statistics(&seed.histogram());
-        let seed_fit = seed.fit(self.config.search_radius, predicted, &self.layout);
+        let (seed_sum, seed_count, seed_fit) = self.settle_searches(predicted, seed_apart);
         let (shift_k, shift_g) = (seed_fit.shift_k, seed_fit.shift_g);
+        let rows = self.workspace.rows();
         let baseline_mm = self.prediction.predicted.distance_mm();
         let short_baseline = baseline_mm < 0.5 * self.config.keyframe_travel_mm;
         let (layout, config) = (&self.layout, &self.config);
         let attitude = self.measured.attitude;
         let drops = libm::fabs(attitude.pitch_deg).max(libm::fabs(attitude.roll_deg)) <= config.drop_attitude_limit_deg;
         self.scan.begin(self.frame);
-        let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &self.residue, config, short_baseline, drops, &mut self.scan);
-        self.blobs = obstacles::residue_blobs(layout, &self.residue, config);
-        let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &self.residue, config);
+        let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &rows.residue, config, short_baseline, drops, &mut self.scan);
+        self.blobs = obstacles::residue_blobs(layout, &rows.residue, config);
+        let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &rows.residue, config);
         let hazard = self.alarm.decide(parallax, residue, baseline_mm, config, &self.prediction.step);
         let obstacle = hazard.map(|(footprint, _)| footprint);
         self.finish_scan(obstacle);
@@ -642,6 +629,23 @@ impl<'b> Gpa<'b> {
         }
     }
 
+    /// The shift searches' part of [`Self::decide`]: the motion refined
+    /// and the noise level updated from the search around the measured
+    /// motion; the report's statistics (sum and count of the large
+    /// differences) and shift from the seed's.
+    // Not inlined: its two 1 KB histograms stay off the obstacle search's stack.
+    #[inline(never)]
+    fn settle_searches(&mut self, predicted: &Motion, seed_apart: bool) -> (u32, u32, shift_search::ShiftFit) {
+        let measured = self.prediction.predicted;
+        let rows = self.workspace.rows();
+        let fit = rows.search.fit(self.config.search_radius, &measured, &self.layout);
+        self.prediction.settle(fit.refined, self.layout.grid.mm_per_px);
+        self.noise.update(&rows.search.histogram(), &self.config);
+        let seed = if seed_apart { &rows.seed } else { &rows.search };
+        let (sum, count) = kernels::seed_statistics(&seed.histogram());
+        (sum, count, seed.fit(self.config.search_radius, predicted, &self.layout))
+    }
+
     /// The scan's last steps: the last frame's hazards held when the alarm
     /// is (a baseline too short to see them, and nothing new found), the
     /// decided obstacle, the view; then this frame's hazards are kept for
@@ -653,7 +657,7 @@ impl<'b> Gpa<'b> {
         if let Some(o) = obstacle {
             self.scan.add_span(f64::from(o.near_mm), f64::from(o.left_mm), f64::from(o.right_mm));
         }
-        let (layout, residue) = (&self.layout, &self.residue);
+        let (layout, residue) = (&self.layout, &self.workspace.rows().residue);
         let (grid, cells) = (&layout.grid, &layout.cells);
         let per_mm = (1.0 / grid.mm_per_px) as f32;
         let (x_left, z_far) = (grid.x_left_mm as f32, grid.z_far_mm as f32);

@@ -24,20 +24,21 @@ impl Gpa<'_> {
         let mut runs = Runs::new();
         self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
         let in_aoi = j >= aoi.top && j < aoi.bottom;
-        self.band.sample(keyframe, j, warp, seen.clone(), s, if in_aoi { s } else { 1 });
-        let band = self.band.rows(s);
+        let rows = self.workspace.rows();
+        rows.band.sample(keyframe, j, warp, seen.clone(), s, if in_aoi { s } else { 1 });
+        let band = rows.band.rows(s);
         lap = self.profiler.charge(lap, |p| &mut p.warp);
 
         let in_cells = cell_row < cells.high;
         if in_cells {
             let full = self.parallax.hypotheses.ground_tolerance(j, grid, &self.config);
             let threshold = self.noise.residue_threshold();
-            self.residue.add_row(j, row, &band, s, &runs, full, threshold, cells, cell_row, &mut self.parallax.sums);
+            rows.residue.add_row(j, row, &band, s, &runs, full, threshold, cells, cell_row, &mut self.parallax.sums);
         }
         lap = self.profiler.charge(lap, |p| &mut p.residue);
 
         if in_aoi {
-            self.search.add_row(row, &band, s, &runs, aoi, self.layout.in_far_half(j));
+            rows.search.add_row(row, &band, s, &runs, aoi, self.layout.in_far_half(j));
         }
         lap = self.profiler.charge(lap, |p| &mut p.shift_search);
         self.end_row(keyframe, j, exposure);
@@ -123,7 +124,8 @@ impl Gpa<'_> {
             usable[c] = self.coverage.usable(warp, c, &grid);
         }
         // The search band: band[dg][c + MAX_SEARCH_RADIUS] = keyframe at warp(c) + (0, dg - S).
-        let band = self.band.unrolled();
+        let rows = self.workspace.rows();
+        let band = rows.band.unrolled();
         let first = cur_lo.saturating_sub(s);
         let last = (cur_hi + s).min(width);
         for dg in 0..=2 * s {
@@ -155,7 +157,7 @@ impl Gpa<'_> {
         // rows sideways more than near ones, which is how it is measured.
         let far_half = j < (aoi.top + aoi.bottom) / 2;
         let threshold = self.noise.residue_threshold();
-        let (residue, sums, search) = (&mut self.residue, &mut self.parallax.sums, &mut self.search);
+        let (residue, sums, search) = (&mut rows.residue, &mut self.parallax.sums, &mut rows.search);
         for c in cur_lo..cur_hi {
             if !usable[c] {
                 continue;
@@ -270,19 +272,20 @@ pub(super) mod tests {
     /// Everything a row leaves behind; the band as its logical rows over
     /// `band_columns` (nothing reads the rest).
     fn state(gpa: &Gpa, band_columns: Range<usize>, fast_filled: Range<usize>) -> std::vec::Vec<u32> {
+        let rows = gpa.workspace.rows_ref().expect("a compared frame leaves the row stages' sums");
         let mut v = std::vec::Vec::new();
-        v.extend(gpa.search.sad_near.iter().flatten());
-        v.extend(gpa.search.sad_far.iter().flatten());
-        v.extend(gpa.search.diff_hist.counts().iter());
-        v.push(gpa.search.compared_pixels);
-        v.extend(gpa.residue.cell_residue.iter().map(|&x| u32::from(x)));
-        v.extend(gpa.residue.cell_valid.iter().map(|&x| u32::from(x)));
+        v.extend(rows.search.sad_near.iter().flatten());
+        v.extend(rows.search.sad_far.iter().flatten());
+        v.extend(rows.search.diff_hist.counts().iter());
+        v.push(rows.search.compared_pixels);
+        v.extend(rows.residue.cell_residue.iter().map(|&x| u32::from(x)));
+        v.extend(rows.residue.cell_valid.iter().map(|&x| u32::from(x)));
         v.extend((0..crate::limits::MAX_CELLS).map(|cell| gpa.parallax.height.get(cell) as u32));
-        v.extend(gpa.residue.row_residue.iter().map(|&x| u32::from(x)));
+        v.extend(rows.residue.row_residue.iter().map(|&x| u32::from(x)));
         let s = gpa.config.search_radius;
         let span = band_columns.start + MAX_SEARCH_RADIUS..band_columns.end + MAX_SEARCH_RADIUS;
         // The rows the last row's stages read (the residue's outside the AOI).
-        for row in gpa.band.rows(s).iter().take(2 * s + 1).skip(fast_filled.start).take(fast_filled.len()) {
+        for row in rows.band.rows(s).iter().take(2 * s + 1).skip(fast_filled.start).take(fast_filled.len()) {
             v.extend(row[span.clone()].iter().map(|&x| u32::from(x)));
         }
         v
@@ -324,11 +327,12 @@ pub(super) mod tests {
                 }
                 let (a, b) = (fast.end_frame(), reference.end_frame());
                 assert_eq!(a, b, "frame {n}");
-                let (band_columns, filled) = (fast.band.columns(), fast.band.filled());
+                let band = &fast.workspace.rows().band;
+                let (band_columns, filled) = (band.columns(), band.filled());
                 assert!(state(&fast, band_columns.clone(), filled.clone()) == state(&reference, band_columns, filled), "frame {n}: state differs");
                 compared += usize::from(a.is_some());
             }
-            assert!(compared >= 10 && fast.search.compared_pixels > 1000, "too little compared: {compared}");
+            assert!(compared >= 10 && fast.workspace.rows().search.compared_pixels > 1000, "too little compared: {compared}");
         }
     }
 }
