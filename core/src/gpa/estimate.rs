@@ -33,7 +33,7 @@
 use super::block_match::{self, Images, BLOCK_PX};
 use super::coarse::{yaw_step, CoarseSearch, COARSE_CELL_MM};
 use super::fit::{capped_chi2, robust_fit, Problem, Surfaces};
-use super::homography::{Params, PixelMap};
+use super::homography::{Params, PixelMap, SinCosMemo};
 use super::warp::Coverage;
 use crate::grid::KgGrid;
 use crate::limits::MAX_BLOCK_MATCHES;
@@ -149,12 +149,19 @@ pub(super) struct Scene<'a> {
     pub(super) height_mm: f64,
     /// The keyframe body's attitude: the motion's attitude is the change since.
     pub(super) keyframe_attitude: KeyframeAttitude,
+    pub(super) sin_cos: SinCosMemo,
 }
 
 impl Scene<'_> {
     /// The map of the motion `p`.
     fn map(&self, p: &Params) -> PixelMap {
-        PixelMap::new(p, self.keyframe_attitude.deg, self.height_mm as f32, self.grid)
+        self.map_from(p, self.keyframe_attitude.deg, self.height_mm as f32)
+    }
+
+    /// The map of the motion `p` from a keyframe body at `keyframe` (pitch,
+    /// roll, degrees) of a ground `height_mm` below the camera.
+    fn map_from(&self, p: &Params, keyframe: [f32; 2], height_mm: f32) -> PixelMap {
+        PixelMap::with_sin_cos(p, keyframe, height_mm, self.grid, &|degrees| self.sin_cos.sin_cos_deg(degrees))
     }
 
     /// Whether pixel (i, j) of either image is in the camera's view.
@@ -414,7 +421,9 @@ fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start) -> 
 /// The model of a lower level past `edge_row` `depth_mm` below the ground
 /// moved by `p`.
 fn two_levels(scene: &Scene, p: &Params, edge_row: f32, depth_mm: f32) -> Surfaces {
-    Surfaces::two_levels(scene.map(p), p, scene.keyframe_attitude.deg, scene.grid, scene.height_mm as f32, edge_row, depth_mm)
+    let height_mm = scene.height_mm as f32;
+    let lower = scene.map_from(p, scene.keyframe_attitude.deg, height_mm + depth_mm);
+    Surfaces::two_levels(scene.map(p), lower, scene.grid, height_mm, edge_row, depth_mm)
 }
 
 /// Step 6: the keyframe body's attitude as two more unknowns, what was
@@ -426,7 +435,7 @@ fn two_levels(scene: &Scene, p: &Params, edge_row: f32, depth_mm: f32) -> Surfac
 #[inline(never)]
 fn fit_keyframe_attitude(scene: &Scene, matches: &[BlockMatch], chained: &Estimate, prior: &Start) -> Option<Estimate> {
     let five = |p: &[f32; 7]| -> Params { [p[0], p[1], p[2], p[3], p[4]] };
-    let surfaces = |p: &[f32; 7]| Surfaces::ground(PixelMap::new(&five(p), [p[5], p[6]], scene.height_mm as f32, scene.grid));
+    let surfaces = |p: &[f32; 7]| Surfaces::ground(scene.map_from(&five(p), [p[5], p[6]], scene.height_mm as f32));
     let seven = |p: &Params, keyframe: [f32; 2]| -> [f32; 7] { [p[0], p[1], p[2], p[3], p[4], keyframe[0], keyframe[1]] };
     let keyframe = scene.keyframe_attitude;
     let problem = Problem {
@@ -522,7 +531,7 @@ mod tests {
     fn estimate_between(keyframe: &[u8], current: &[u8], prior: &Prior) -> GroundMotion {
         let grid = grid();
         let coverage = Coverage::full(&grid);
-        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: KeyframeAttitude::NOMINAL };
+        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: KeyframeAttitude::NOMINAL, sin_cos: SinCosMemo::new() };
         estimate(&scene, prior).expect("a textured floor is measured").motion
     }
 
@@ -646,7 +655,7 @@ mod tests {
         for tz_mm in [40.0, 80.0, 120.0, 160.0] {
             let change = Attitude { pitch_deg: 0.1, roll_deg: 0.05 };
             let current = render(&GroundMotion { planar: Motion { tx_mm: 5.0, tz_mm, dyaw_deg: 0.5 }, attitude: sitting.then(&change) }, |_, _| false);
-            let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: known };
+            let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: known, sin_cos: SinCosMemo::new() };
             let prior = Prior { motion: GroundMotion { planar: Motion { tx_mm: 0.0, tz_mm, dyaw_deg: 0.0 }, attitude: Attitude::default() }, sigma: [12.0, 12.0, 1.0, 1.0, 1.0] };
             let estimate = estimate(&scene, &prior).expect("a textured floor is measured");
             let found = estimate.keyframe_attitude;

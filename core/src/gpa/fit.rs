@@ -49,13 +49,14 @@ impl Surfaces {
         Surfaces { ground, lower: None }
     }
 
-    /// The ground, and past `edge_row` a level `depth_mm` below it, moved
-    /// by the motion `p` of the ground seen from `height_mm`.
-    pub(super) fn two_levels(ground: PixelMap, p: &[f32; 5], keyframe: [f32; 2], grid: &KgGrid, height_mm: f32, edge_row: f32, depth_mm: f32) -> Surfaces {
+    /// The ground, and past `edge_row` a level `depth_mm` below it (`lower`:
+    /// the motion's map of a ground `height_mm + depth_mm` below the camera),
+    /// the ground seen from `height_mm`.
+    pub(super) fn two_levels(ground: PixelMap, lower: PixelMap, grid: &KgGrid, height_mm: f32, edge_row: f32, depth_mm: f32) -> Surfaces {
         let m = grid.mm_per_px as f32;
         let lower = Lower {
             edge_row,
-            map: PixelMap::new(p, keyframe, height_mm + depth_mm, grid),
+            map: lower,
             apparent: height_mm / (height_mm + depth_mm),
             left_px: grid.x_left_mm as f32 / m,
             far_px: grid.z_far_mm as f32 / m,

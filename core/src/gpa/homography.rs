@@ -11,6 +11,7 @@
 //! keyframe pixel.
 
 use crate::grid::KgGrid;
+use core::cell::Cell;
 use core::ops::{Add, Div, Mul, Neg, Sub};
 
 /// Motion parameters: tx mm, tz mm, yaw deg, pitch deg, roll deg.
@@ -72,9 +73,9 @@ pub(super) struct PixelMap<T = f32> {
 /// The ground seen through the fixed remap by a body at `pitch`, `roll`
 /// (degrees): the remap's point (x, z, 1) -> the level ground point,
 /// homogeneous (as [`crate::motion::GroundMap`]'s tilt).
-fn tilt<T: Real>(pitch: T, roll: T, height_mm: T) -> Matrix<T> {
-    let (sp, cp) = pitch.sin_cos_deg();
-    let (sr, cr) = roll.sin_cos_deg();
+fn tilt<T: Real>(pitch: T, roll: T, height_mm: T, sin_cos: &dyn Fn(T) -> (T, T)) -> Matrix<T> {
+    let (sp, cp) = sin_cos(pitch);
+    let (sr, cr) = sin_cos(roll);
     let (zero, one) = (T::ZERO, T::ONE);
     // Rz(roll) Rx(pitch) of a body vector (x right, y up, z forward), as GroundMap.
     let turn = [[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [zero, sp, cp]];
@@ -100,12 +101,17 @@ impl<T: Real> PixelMap<T> {
     /// The map of motion `p` (the attitude change in `p[3]`, `p[4]`) from a
     /// keyframe whose body stood at `keyframe` (pitch, roll, degrees).
     pub(super) fn new(p: &[T; 5], keyframe: [T; 2], height_mm: T, grid: &KgGrid) -> PixelMap<T> {
+        Self::with_sin_cos(p, keyframe, height_mm, grid, &T::sin_cos_deg)
+    }
+
+    /// [`Self::new`] with the (sin, cos) of degrees from `sin_cos`.
+    pub(super) fn with_sin_cos(p: &[T; 5], keyframe: [T; 2], height_mm: T, grid: &KgGrid, sin_cos: &dyn Fn(T) -> (T, T)) -> PixelMap<T> {
         let (zero, one) = (T::ZERO, T::ONE);
         let (m, left, far) = (T::from_f64(grid.mm_per_px), T::from_f64(grid.x_left_mm), T::from_f64(grid.z_far_mm));
         let to_ground_mm = [[m, zero, left], [zero, -m, far], [zero, zero, one]];
-        let now = tilt(keyframe[0] + p[3], keyframe[1] + p[4], height_mm);
+        let now = tilt(keyframe[0] + p[3], keyframe[1] + p[4], height_mm, sin_cos);
         // The planar motion: keyframe ground = tx,tz + yaw-turned point.
-        let (sy, cy) = p[2].sin_cos_deg();
+        let (sy, cy) = sin_cos(p[2]);
         let planar = [[cy, -sy, p[0]], [sy, cy, p[1]], [zero, zero, one]];
         let (ci, cj) = (T::HALF * T::from_usize(grid.width()), T::HALF * T::from_usize(grid.height()));
         let w_at_centre = |h: &Matrix<T>| h[2][0] * ci + h[2][1] * cj + h[2][2];
@@ -116,7 +122,7 @@ impl<T: Real> PixelMap<T> {
         let mut h = if keyframe == [zero, zero] {
             product(&to_pixel, &to_ground)
         } else {
-            product(&to_pixel, &product(&adjugate(&tilt(keyframe[0], keyframe[1], height_mm)), &to_ground))
+            product(&to_pixel, &product(&adjugate(&tilt(keyframe[0], keyframe[1], height_mm, sin_cos)), &to_ground))
         };
         // Scaled so that w is 1 at the grid centre where the ray meets the
         // ground there, and negative (nothing maps) where it does not.
@@ -142,6 +148,38 @@ impl<T: Real> PixelMap<T> {
         }
         let inverse = T::ONE / w;
         Some(((h[0][0] * i + h[0][1] * j + h[0][2]) * inverse, (h[1][0] * i + h[1][1] * j + h[1][2]) * inverse))
+    }
+}
+
+/// The (sin, cos) of the angles one motion estimate asks for, remembered:
+/// its fits move one parameter at a time by finite differences, so most of
+/// the maps they build share most of their five angles, and `sincosf`
+/// (software `f64` inside, on the M4) was most of a map's cost. Looked up
+/// by the angle's exact bits, so a remembered value is the one `libm` gives.
+pub(super) struct SinCosMemo {
+    slots: [Cell<Option<(u32, (f32, f32))>>; MEMO_SLOTS],
+}
+
+/// Direct-mapped slots: a fit iteration's maps use about 8 distinct angles.
+const MEMO_SLOTS: usize = 16;
+
+impl SinCosMemo {
+    pub(super) fn new() -> SinCosMemo {
+        SinCosMemo { slots: core::array::from_fn(|_| Cell::new(None)) }
+    }
+
+    /// (sin, cos) of `degrees`.
+    pub(super) fn sin_cos_deg(&self, degrees: f32) -> (f32, f32) {
+        let bits = degrees.to_bits();
+        let slot = &self.slots[((bits ^ (bits >> 9) ^ (bits >> 18)) as usize) % MEMO_SLOTS];
+        match slot.get() {
+            Some((remembered, value)) if remembered == bits => value,
+            _ => {
+                let value = degrees.sin_cos_deg();
+                slot.set(Some((bits, value)));
+                value
+            }
+        }
     }
 }
 

@@ -66,6 +66,7 @@ use crate::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE, SHIFT_SCALE};
 use crate::scan::{Scan, ScanLayout, View};
 use decision::{Alarm, Noise};
 use estimate::{Estimate, Estimator, KeyframeAttitude, Prior, Scene};
+use homography::SinCosMemo;
 use keyframe::Keyframe;
 use layout::Layout;
 use parallax::{Hypotheses, Parallax};
@@ -462,6 +463,7 @@ impl<'b> Gpa<'b> {
             coverage: &self.coverage,
             height_mm: self.layout.camera_height_mm,
             keyframe_attitude: self.keyframe_attitude,
+            sin_cos: SinCosMemo::new(),
         };
         let since = self.profiler.now();
         let start = Estimator::coarse_start(self.workspace.coarse(), &scene, prior);
