@@ -157,8 +157,11 @@ impl<T: Real> PixelMap<T> {
 /// (software `f64` inside, on the M4) was most of a map's cost. Looked up
 /// by the angle's exact bits, so a remembered value is the one `libm` gives.
 pub(super) struct SinCosMemo {
-    slots: [Cell<Option<(u32, (f32, f32))>>; MEMO_SLOTS],
+    slots: [Cell<Option<Remembered>>; MEMO_SLOTS],
 }
+
+/// An angle's bits and its (sin, cos).
+type Remembered = (u32, (f32, f32));
 
 /// Direct-mapped slots: a fit iteration's maps use about 8 distinct angles.
 const MEMO_SLOTS: usize = 16;
