@@ -190,18 +190,19 @@ impl Estimator {
 
     /// The brightness of the current frame over the keyframe's, the
     /// median over the block matches; 1 without matches.
-    // Not inlined: its 1 KB of sorted gains would sit under every block
-    // match of the estimate.
+    // Not inlined: its 1 KB of gains would sit in the estimate's frame,
+    // under every block match.
     #[inline(never)]
     fn gain(&self) -> f32 {
         let mut gains = [0f32; MAX_BLOCK_MATCHES];
         let count = self.matches.len();
+        if count == 0 {
+            return 1.0;
+        }
         for (gain, m) in gains.iter_mut().zip(&self.matches) {
             *gain = m.gain;
         }
-        let gains = &mut gains[..count];
-        gains.sort_unstable_by(|a, b| a.total_cmp(b));
-        gains.get(count / 2).copied().unwrap_or(1.0)
+        *gains[..count].select_nth_unstable_by(count / 2, |a, b| a.total_cmp(b)).1
     }
 
     /// The motion keyframe -> now from `start`, step 1's (see

@@ -245,8 +245,8 @@ fn parallax_group(
                 let near_side = |rows: u8| (usize::from(rows) * cells.px) as f64 - 0.5;
                 let edges = nearest_rows.iter().filter(|&&rows| rows > 0).map(|&rows| grid.pixel_to_ground(0.0, near_side(rows)).1);
                 footprints.extend(edges);
-                depths.sort_unstable();
-                f64::from(depths[depths.len() / 2])
+                let middle = depths.len() / 2;
+                f64::from(*depths.select_nth_unstable(middle).1)
             }
         };
         // Above, every cell of a vertical face points at the same footprint:
@@ -256,11 +256,13 @@ fn parallax_group(
         // Below, a cell straddling the edge mostly sees the floor, so every
         // column's nearest drop cell starts up to a cell past the edge: the
         // nearest column is the edge.
-        footprints.sort_unstable_by(|a, b| a.total_cmp(b));
-        let nearest = match side {
-            Side::Above => footprints[((footprints.len() - 1) / 4).max(1).min(footprints.len() - 1)],
-            Side::Below => footprints[0],
+        // Selected, not sorted: the same value, without a sort's recursion
+        // on the deepest stack of the frame.
+        let rank = match side {
+            Side::Above => ((footprints.len() - 1) / 4).max(1).min(footprints.len() - 1),
+            Side::Below => 0,
         };
+        let nearest = *footprints.select_nth_unstable_by(rank, |a, b| a.total_cmp(b)).1;
         for span in &spans {
             scan.add_span(f64::from(span.z).max(nearest), f64::from(span.left), f64::from(span.right));
         }
