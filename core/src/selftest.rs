@@ -61,6 +61,7 @@ checks! {
         copy_row_copies,
         dot_shifts_equal_plain,
         seen_difference_equals_plain,
+        residues_equal_plain,
     ],
     health: [
         alarm_is_asserted_until_a_frame_is_judged_clear,

@@ -14,8 +14,8 @@ use super::band::BandRows;
 use super::layout::Cells;
 use super::parallax::CellRowSums;
 use crate::grid::MAX_GRID_SIDE;
+use crate::kernels::{self, ResidueLines};
 use crate::limits::{MAX_CELLS, MAX_SEARCH_RADIUS};
-use core::ops::Range;
 
 /// Residue evidence of the current frame.
 pub(super) struct Residue {
@@ -57,19 +57,19 @@ impl Residue {
         ground: &mut CellRowSums,
     ) {
         let cell_base = cell_row * cells.wide;
-        let lines = ResidueLines::new(row, band, s);
+        let lines = residue_lines(row, band, s);
         let mut row_residue = 0u32;
+        // Per pixel: 1 where the wide residue counts; the ground residue.
+        let (mut hot_pixels, mut ground_residues) = ([0u8; MAX_GRID_SIDE], [0u8; MAX_GRID_SIDE]);
         for &run in runs {
             let columns = usize::from(run.0)..usize::from(run.1);
+            let (hot_run, ground_run) = (&mut hot_pixels[columns.clone()], &mut ground_residues[columns.clone()]);
+            kernels::residues(lines.columns(columns.clone()), full, threshold, hot_run, ground_run);
             cells.segments(columns, |cell_column, columns| {
                 let cell = cell_base + cell_column;
                 let n = columns.len();
-                let (hot, sum) = match full {
-                    (false, false) => lines.segment::<false, false>(columns, threshold),
-                    (true, false) => lines.segment::<true, false>(columns, threshold),
-                    (false, true) => lines.segment::<false, true>(columns, threshold),
-                    (true, true) => lines.segment::<true, true>(columns, threshold),
-                };
+                let hot: u32 = hot_pixels[columns.clone()].iter().map(|&h| u32::from(h)).sum();
+                let sum: u32 = ground_residues[columns].iter().map(|&g| u32::from(g)).sum();
                 self.cell_valid[cell] = self.cell_valid[cell].saturating_add(n.min(255) as u8);
                 self.cell_residue[cell] = self.cell_residue[cell].saturating_add(hot.min(255) as u8);
                 row_residue += hot;
@@ -93,57 +93,10 @@ impl Residue {
 }
 
 /// A current row and the band rows around the prediction, aligned by
-/// column (`centre[c]` is the warped keyframe at current column `c`).
-struct ResidueLines<'a> {
-    row: &'a [u8],
-    centre: &'a [u8],
-    up: &'a [u8],
-    down: &'a [u8],
-}
-
-impl<'a> ResidueLines<'a> {
-    fn new(row: &'a [u8], band: &'a BandRows, s: usize) -> ResidueLines<'a> {
-        // The band is padded by MAX_SEARCH_RADIUS columns: `centre` starts one
-        // before column 0 so that left, here and right are consecutive.
-        let r = MAX_SEARCH_RADIUS;
-        ResidueLines { row, centre: &band[s][r - 1..], up: &band[s - 1][r..], down: &band[s + 1][r..] }
-    }
-
-    /// Both residues of `columns` in one pass: the count of wide residues
-    /// above `threshold`, and the sum of the ground hypothesis's residues,
-    /// which reach halfway to a neighbour or (`FULL_K` sideways, `FULL_G`
-    /// along) all the way.
-    #[inline(always)]
-    fn segment<const FULL_K: bool, const FULL_G: bool>(&self, columns: Range<usize>, threshold: u8) -> (u32, u32) {
-        let (a, b) = (columns.start, columns.end);
-        let (mut hot, mut sum) = (0u32, 0u32);
-        let sideways = self.centre[a..b + 2].windows(3);
-        for (((&value, window), &up), &down) in self.row[a..b].iter().zip(sideways).zip(&self.up[a..b]).zip(&self.down[a..b]) {
-            let (left, here, right) = (window[0], window[1], window[2]);
-            let (wide, ground) = residues::<FULL_K, FULL_G>(value, here, [left, right], [up, down]);
-            hot += u32::from(wide > threshold);
-            sum += u32::from(ground);
-        }
-        (hot, sum)
-    }
-}
-
-/// The wide and the ground residue of `value` against the warped keyframe
-/// `here` and its neighbours: beyond the range they span, reached all the
-/// way (wide) or halfway (the ground's, unless `FULL_K` / `FULL_G`). The
-/// halfway point is monotone in the neighbour, so the range's ends are
-/// those of the nearest and farthest neighbour per axis.
-#[inline(always)]
-fn residues<const FULL_K: bool, const FULL_G: bool>(value: u8, here: u8, sideways: [u8; 2], along: [u8; 2]) -> (u8, u8) {
-    let half = |other: u8| ((u16::from(here) + u16::from(other) + 1) >> 1) as u8;
-    let reach = |other: u8, full: bool| if full { other } else { half(other) };
-    let (k_low, k_high) = (sideways[0].min(sideways[1]), sideways[0].max(sideways[1]));
-    let (g_low, g_high) = (along[0].min(along[1]), along[0].max(along[1]));
-    let beyond = |low: u8, high: u8| value.saturating_sub(high).max(low.saturating_sub(value));
-    let wide = beyond(here.min(k_low).min(g_low), here.max(k_high).max(g_high));
-    let ground = beyond(
-        here.min(reach(k_low, FULL_K)).min(reach(g_low, FULL_G)),
-        here.max(reach(k_high, FULL_K)).max(reach(g_high, FULL_G)),
-    );
-    (wide, ground)
+/// column for [`kernels::residues`].
+fn residue_lines<'a>(row: &'a [u8], band: &'a BandRows, s: usize) -> ResidueLines<'a> {
+    // The band is padded by MAX_SEARCH_RADIUS columns: `centre` starts one
+    // before column 0 so that left, here and right are consecutive.
+    let r = MAX_SEARCH_RADIUS;
+    ResidueLines { row, centre: &band[s][r - 1..], up: &band[s - 1][r..], down: &band[s + 1][r..] }
 }

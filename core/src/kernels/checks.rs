@@ -313,3 +313,51 @@ pub fn seen_difference_equals_plain() -> Outcome {
     }
     Ok(())
 }
+
+/// The tolerant residues equal the per-pixel definition: lengths 0 to 40
+/// (every tail), any start, every tolerance, thresholds at the edges, bytes
+/// anywhere and close together (ties between the neighbours); nothing is
+/// written past the row.
+pub fn residues_equal_plain() -> Outcome {
+    let mut state = 0x7E51_D0E5u32;
+    let mut bytes = [[0u8; 48]; 4];
+    for (round, spread) in [256u32, 8, 1, 256].into_iter().enumerate() {
+        for (k, line) in bytes.iter_mut().enumerate() {
+            fill(line, state ^ (round as u32 * 31 + k as u32), spread);
+        }
+        xorshift32(&mut state);
+        let [row, centre, up, down] = &bytes;
+        for threshold in [0u8, 3, 30, 254, 255] {
+            for start in 0..3 {
+                for len in 0..=40 {
+                    let (row, centre, up, down) = (&row[start..start + len], &centre[start..start + len + 2], &up[start..][..len], &down[start..][..len]);
+                    let lines = super::ResidueLines { row, centre, up, down };
+                    for full in [(false, false), (true, false), (false, true), (true, true)] {
+                        let mut plain = ([0u8; 40], [0u8; 40]);
+                        for c in 0..len {
+                            let (value, sideways, along) = (row[c], [centre[c], centre[c + 2]], [up[c], down[c]]);
+                            let (wide, ground) = match full {
+                                (false, false) => super::residue_pair::<false, false>(value, centre[c + 1], sideways, along),
+                                (true, false) => super::residue_pair::<true, false>(value, centre[c + 1], sideways, along),
+                                (false, true) => super::residue_pair::<false, true>(value, centre[c + 1], sideways, along),
+                                (true, true) => super::residue_pair::<true, true>(value, centre[c + 1], sideways, along),
+                            };
+                            plain.0[c] = u8::from(wide > threshold);
+                            plain.1[c] = ground;
+                        }
+                        // One byte more than asked for: it must stay untouched.
+                        let (mut hot, mut ground) = ([9u8; 41], [9u8; 41]);
+                        super::residues(lines, full, threshold, &mut hot[..len + 1], &mut ground[..len + 1]);
+                        let (mut portable_hot, mut portable_ground) = ([9u8; 41], [9u8; 41]);
+                        portable::residues(lines, full, threshold, &mut portable_hot[..len], &mut portable_ground[..len]);
+                        let same = |out: &[u8; 41], expected: &[u8; 40]| out[..len] == expected[..len] && out[len..].iter().all(|&b| b == 9);
+                        if !(same(&hot, &plain.0) && same(&ground, &plain.1) && same(&portable_hot, &plain.0) && same(&portable_ground, &plain.1)) {
+                            return Err("residues differ from the per-pixel definition");
+                        }
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}

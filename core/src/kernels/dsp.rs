@@ -602,3 +602,111 @@ pub fn seen_difference(a: &[u16], b: &[u16]) -> (u32, u32) {
     let (tail_sum, tail_count) = portable::seen_difference(&a[2 * words..n], &b[2 * words..n]);
     (sum + tail_sum, (lanes & 0xFFFF) + (lanes >> 16) + tail_count)
 }
+
+// ------------------------------------------------------ tolerant residue
+
+/// Per byte: (max(a, b), min(a, b)): `usub8` sets a GE flag per byte where
+/// a >= b, and `sel` picks by them.
+#[inline(always)]
+fn max_min(a: u32, b: u32) -> (u32, u32) {
+    let (max, min);
+    // SAFETY: register arithmetic only.
+    unsafe {
+        core::arch::asm!(
+            "usub8 {t}, {a}, {b}",
+            "sel {max}, {a}, {b}",
+            "sel {min}, {b}, {a}",
+            a = in(reg) a, b = in(reg) b, t = out(reg) _, max = out(reg) max, min = out(reg) min,
+            options(pure, nomem, nostack)
+        );
+    }
+    (max, min)
+}
+
+/// Per byte: a - b, or 0 below.
+#[inline(always)]
+fn saturating_sub(a: u32, b: u32) -> u32 {
+    let difference;
+    // SAFETY: register arithmetic only.
+    unsafe {
+        core::arch::asm!("uqsub8 {d}, {a}, {b}", a = in(reg) a, b = in(reg) b, d = out(reg) difference, options(pure, nomem, nostack));
+    }
+    difference
+}
+
+/// Per byte: (a + b + 1) >> 1, as !((!a + !b) >> 1) (`uhadd8` truncates).
+#[inline(always)]
+fn rounded_half(a: u32, b: u32) -> u32 {
+    let half: u32;
+    // SAFETY: register arithmetic only.
+    unsafe {
+        core::arch::asm!("uhadd8 {h}, {a}, {b}", a = in(reg) !a, b = in(reg) !b, h = out(reg) half, options(pure, nomem, nostack));
+    }
+    !half
+}
+
+/// Per byte of `x`: 1 above `threshold` (replicated in each byte), 0
+/// elsewhere: `usub8` from 0 flags the bytes that are 0 after the
+/// subtraction, `sel` makes the others 1.
+#[inline(always)]
+fn above(x: u32, threshold: u32) -> u32 {
+    let flags;
+    // SAFETY: register arithmetic only.
+    unsafe {
+        core::arch::asm!(
+            "uqsub8 {x}, {x}, {threshold}",
+            "usub8 {x}, {zero}, {x}",
+            "sel {flags}, {zero}, {ones}",
+            x = inout(reg) x => _, threshold = in(reg) threshold, zero = in(reg) 0u32, ones = in(reg) 0x0101_0101u32,
+            flags = lateout(reg) flags,
+            options(pure, nomem, nostack)
+        );
+    }
+    flags
+}
+
+/// Four pixels a step, every operation per byte: min and max by `usub8` +
+/// `sel`, the halfway reach by `uhadd8`, the residues by `uqsub8`; a word
+/// of each output stored at once.
+pub fn residues(lines: super::ResidueLines, full: (bool, bool), threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
+    match full {
+        (false, false) => residues_of::<false, false>(lines, threshold, hot, ground),
+        (true, false) => residues_of::<true, false>(lines, threshold, hot, ground),
+        (false, true) => residues_of::<false, true>(lines, threshold, hot, ground),
+        (true, true) => residues_of::<true, true>(lines, threshold, hot, ground),
+    }
+}
+
+#[inline(always)]
+fn residues_of<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLines, threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
+    let super::ResidueLines { row, centre, up, down } = lines;
+    let n = lines.len().min(hot.len()).min(ground.len());
+    let words = n / 4;
+    let threshold4 = u32::from(threshold) * 0x0101_0101;
+    for w in 0..words {
+        let c = 4 * w;
+        // SAFETY: c + 4 <= n, so the words at row, up, down, hot, ground + c
+        // and at centre + c, c + 1, c + 2 lie within their slices (centre
+        // has n + 2 bytes); unaligned word accesses are fine on the M4.
+        let (value, left, here, right, along_up, along_down) = unsafe {
+            let word = |slice: &[u8], at: usize| core::ptr::read_unaligned(slice.as_ptr().add(at).cast::<u32>());
+            (word(row, c), word(centre, c), word(centre, c + 1), word(centre, c + 2), word(up, c), word(down, c))
+        };
+        let (k_high, k_low) = max_min(left, right);
+        let (g_high, g_low) = max_min(along_up, along_down);
+        let (_, wide_low) = max_min(here, max_min(k_low, g_low).1);
+        let (wide_high, _) = max_min(here, max_min(k_high, g_high).0);
+        let wide = saturating_sub(value, wide_high) | saturating_sub(wide_low, value);
+        let reach = |other: u32, full: bool| if full { other } else { rounded_half(here, other) };
+        let (_, low) = max_min(here, max_min(reach(k_low, FULL_K), reach(g_low, FULL_G)).1);
+        let (high, _) = max_min(here, max_min(reach(k_high, FULL_K), reach(g_high, FULL_G)).0);
+        let residue = saturating_sub(value, high) | saturating_sub(low, value);
+        // SAFETY: as above.
+        unsafe {
+            core::ptr::write_unaligned(hot.as_mut_ptr().add(c).cast::<u32>(), above(wide, threshold4));
+            core::ptr::write_unaligned(ground.as_mut_ptr().add(c).cast::<u32>(), residue);
+        }
+    }
+    let c = 4 * words;
+    portable::residues(lines.columns(c..n), (FULL_K, FULL_G), threshold, &mut hot[c..n], &mut ground[c..n]);
+}

@@ -124,6 +124,66 @@ pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8
     selected::bilinear_line(upper, lower, wx, wy, out)
 }
 
+// ------------------------------------------------------ tolerant residue
+
+/// A current row and, aligned by column, the warped keyframe around it:
+/// `centre[c + 1]` under pixel `row[c]` (`centre` starts a column early, so
+/// that the sideways neighbours are `centre[c]` and `centre[c + 2]`), and
+/// `up[c]`, `down[c]` along. `centre` holds two bytes more than `row`, `up`
+/// and `down` as many.
+#[derive(Clone, Copy)]
+pub struct ResidueLines<'a> {
+    pub row: &'a [u8],
+    pub centre: &'a [u8],
+    pub up: &'a [u8],
+    pub down: &'a [u8],
+}
+
+impl<'a> ResidueLines<'a> {
+    /// The lines of `columns` (of `row`).
+    pub fn columns(&self, columns: core::ops::Range<usize>) -> ResidueLines<'a> {
+        let (a, b) = (columns.start, columns.end);
+        ResidueLines { row: &self.row[a..b], centre: &self.centre[a..b + 2], up: &self.up[a..b], down: &self.down[a..b] }
+    }
+
+    /// Columns every line covers.
+    fn len(&self) -> usize {
+        self.row.len().min(self.centre.len().saturating_sub(2)).min(self.up.len()).min(self.down.len())
+    }
+}
+
+/// The two tolerant residues of every pixel of `lines.row` against the
+/// warped keyframe (see `gpa::residue`): the range that the keyframe under
+/// it spans with its neighbours sideways and along. Writes `hot[c]`, 1
+/// where the wide residue (the range reaching every neighbour) is above
+/// `threshold` and 0 elsewhere, and `ground[c]`, the ground residue, whose
+/// range reaches halfway to each neighbour, or all the way sideways with
+/// `full.0`, along with `full.1`.
+#[inline]
+pub fn residues(lines: ResidueLines, full: (bool, bool), threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
+    let n = lines.len().min(hot.len()).min(ground.len());
+    selected::residues(lines.columns(0..n), full, threshold, &mut hot[..n], &mut ground[..n])
+}
+
+/// One pixel's two residues (wide, ground) as [`residues`] defines them,
+/// `FULL_K` / `FULL_G` for `full`: the definition every backend reproduces.
+/// The halfway point is monotone in the neighbour, so the range's ends are
+/// those of the nearest and farthest neighbour per axis.
+#[inline(always)]
+pub(crate) fn residue_pair<const FULL_K: bool, const FULL_G: bool>(value: u8, here: u8, sideways: [u8; 2], along: [u8; 2]) -> (u8, u8) {
+    let half = |other: u8| ((u16::from(here) + u16::from(other) + 1) >> 1) as u8;
+    let reach = |other: u8, full: bool| if full { other } else { half(other) };
+    let (k_low, k_high) = (sideways[0].min(sideways[1]), sideways[0].max(sideways[1]));
+    let (g_low, g_high) = (along[0].min(along[1]), along[0].max(along[1]));
+    let beyond = |low: u8, high: u8| value.saturating_sub(high).max(low.saturating_sub(value));
+    let wide = beyond(here.min(k_low).min(g_low), here.max(k_high).max(g_high));
+    let ground = beyond(
+        here.min(reach(k_low, FULL_K)).min(reach(g_low, FULL_G)),
+        here.max(reach(k_high, FULL_K)).max(reach(g_high, FULL_G)),
+    );
+    (wide, ground)
+}
+
 // ------------------------------------------------------- block matching
 
 /// A row of bytes as 16-bit lanes, two to a word (`row[2i]` low,

@@ -208,3 +208,48 @@ pub unsafe fn pinhole_horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]
 
 /// No faster row copy than `copy_from_slice` (memcpy) here.
 pub use super::portable::{copy_row, dot_shifts, seen_difference};
+
+/// Sixteen pixels a step: `pminub`/`pmaxub` for the ranges, `pavgb`
+/// (which rounds up, as the halfway reach does) for the reach, `psubusb`
+/// for the residues.
+pub fn residues(lines: super::ResidueLines, full: (bool, bool), threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
+    match full {
+        (false, false) => residues_of::<false, false>(lines, threshold, hot, ground),
+        (true, false) => residues_of::<true, false>(lines, threshold, hot, ground),
+        (false, true) => residues_of::<false, true>(lines, threshold, hot, ground),
+        (true, true) => residues_of::<true, true>(lines, threshold, hot, ground),
+    }
+}
+
+#[inline(always)]
+fn residues_of<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLines, threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
+    let super::ResidueLines { row, centre, up, down } = lines;
+    let n = lines.len().min(hot.len()).min(ground.len());
+    let blocks = n / 16;
+    // SAFETY: SSE2 is part of the x86_64 baseline; every access covers 16
+    // bytes at c, c + 1 or c + 2 with c + 16 <= n, within slices of n (row,
+    // up, down, hot, ground) and n + 2 (centre) bytes.
+    unsafe {
+        let ones = _mm_set1_epi8(1);
+        let threshold16 = _mm_set1_epi8(threshold as i8);
+        let load = |slice: &[u8], at: usize| _mm_loadu_si128(slice.as_ptr().add(at).cast());
+        for b in 0..blocks {
+            let c = 16 * b;
+            let (value, left, here, right) = (load(row, c), load(centre, c), load(centre, c + 1), load(centre, c + 2));
+            let (along_up, along_down) = (load(up, c), load(down, c));
+            let (k_low, k_high) = (_mm_min_epu8(left, right), _mm_max_epu8(left, right));
+            let (g_low, g_high) = (_mm_min_epu8(along_up, along_down), _mm_max_epu8(along_up, along_down));
+            let wide_low = _mm_min_epu8(here, _mm_min_epu8(k_low, g_low));
+            let wide_high = _mm_max_epu8(here, _mm_max_epu8(k_high, g_high));
+            let wide = _mm_or_si128(_mm_subs_epu8(value, wide_high), _mm_subs_epu8(wide_low, value));
+            let reach = |other: __m128i, full: bool| if full { other } else { _mm_avg_epu8(here, other) };
+            let low = _mm_min_epu8(here, _mm_min_epu8(reach(k_low, FULL_K), reach(g_low, FULL_G)));
+            let high = _mm_max_epu8(here, _mm_max_epu8(reach(k_high, FULL_K), reach(g_high, FULL_G)));
+            let residue = _mm_or_si128(_mm_subs_epu8(value, high), _mm_subs_epu8(low, value));
+            _mm_storeu_si128(hot.as_mut_ptr().add(c).cast(), _mm_min_epu8(_mm_subs_epu8(wide, threshold16), ones));
+            _mm_storeu_si128(ground.as_mut_ptr().add(c).cast(), residue);
+        }
+    }
+    let c = 16 * blocks;
+    portable::residues(lines.columns(c..n), (FULL_K, FULL_G), threshold, &mut hot[c..n], &mut ground[c..n]);
+}
