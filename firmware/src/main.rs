@@ -41,10 +41,12 @@ fn main() -> ! {
         // After the stack measurement: the kernels' buffers are not the pipeline's.
         let (sad, shifts, histogram) = kernel_bench();
         let bilinear = bilinear_bench();
+        let residue = residue_bench();
         defmt::println!("bench: sad_instructions_per_4_differences_x100: {=u32}", sad);
         defmt::println!("bench: shift_search_instructions_per_4_differences_x100: {=u32}", shifts);
         defmt::println!("bench: histogram_instructions_per_pixel_x100: {=u32}", histogram);
         defmt::println!("bench: bilinear_instructions_per_pixel_x100: {=u32}", bilinear);
+        defmt::println!("bench: residue_instructions_per_pixel_x100: {=u32}", residue);
     }
     exit(if stack.reached_statics() { Exit::Failure } else { Exit::Success })
 }
@@ -107,4 +109,33 @@ fn bilinear_bench() -> u32 {
     let instructions = instructions_now().wrapping_sub(start);
     core::hint::black_box(&line);
     instructions * 100 / (N - 1) as u32
+}
+
+/// Instructions per pixel (x100) of the tolerant residue
+/// (`kernels::residues`, both residues of 1024 pixels, the halfway reach on
+/// both axes; call overhead included).
+#[inline(never)]
+fn residue_bench() -> u32 {
+    use core::hint::black_box;
+    use flatland_core::kernels::{self, ResidueLines};
+    const N: usize = 1024;
+    let mut lines = [[0u8; N + 2]; 4];
+    for (k, line) in lines.iter_mut().enumerate() {
+        for (n, x) in line.iter_mut().enumerate() {
+            *x = ((n * (37 + 18 * k)) % 251) as u8;
+        }
+    }
+    let (mut hot, mut ground) = ([0u8; N], [0u8; N]);
+    let [row, centre, up, down] = &lines;
+    let start = instructions_now();
+    kernels::residues(
+        black_box(ResidueLines { row: &row[..N], centre, up: &up[..N], down: &down[..N] }),
+        black_box((false, false)),
+        black_box(30),
+        black_box(&mut hot),
+        black_box(&mut ground),
+    );
+    let instructions = instructions_now().wrapping_sub(start);
+    black_box((&hot, &ground));
+    instructions * 100 / N as u32
 }

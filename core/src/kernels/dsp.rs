@@ -623,6 +623,23 @@ fn max_min(a: u32, b: u32) -> (u32, u32) {
     (max, min)
 }
 
+/// Per byte: max(a, b), or with `MIN` min(a, b) (`usub8` + one `sel`).
+#[inline(always)]
+fn extreme<const MIN: bool>(a: u32, b: u32) -> u32 {
+    let (first, second) = if MIN { (b, a) } else { (a, b) };
+    let picked;
+    // SAFETY: register arithmetic only.
+    unsafe {
+        core::arch::asm!(
+            "usub8 {t}, {a}, {b}",
+            "sel {picked}, {first}, {second}",
+            a = in(reg) a, b = in(reg) b, first = in(reg) first, second = in(reg) second, t = out(reg) _, picked = lateout(reg) picked,
+            options(pure, nomem, nostack)
+        );
+    }
+    picked
+}
+
 /// Per byte: a - b, or 0 below.
 #[inline(always)]
 fn saturating_sub(a: u32, b: u32) -> u32 {
@@ -694,12 +711,13 @@ fn residues_of<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLine
         };
         let (k_high, k_low) = max_min(left, right);
         let (g_high, g_low) = max_min(along_up, along_down);
-        let (_, wide_low) = max_min(here, max_min(k_low, g_low).1);
-        let (wide_high, _) = max_min(here, max_min(k_high, g_high).0);
+        let (min, max) = (extreme::<true>, extreme::<false>);
+        let wide_low = min(here, min(k_low, g_low));
+        let wide_high = max(here, max(k_high, g_high));
         let wide = saturating_sub(value, wide_high) | saturating_sub(wide_low, value);
         let reach = |other: u32, full: bool| if full { other } else { rounded_half(here, other) };
-        let (_, low) = max_min(here, max_min(reach(k_low, FULL_K), reach(g_low, FULL_G)).1);
-        let (high, _) = max_min(here, max_min(reach(k_high, FULL_K), reach(g_high, FULL_G)).0);
+        let low = min(here, min(reach(k_low, FULL_K), reach(g_low, FULL_G)));
+        let high = max(here, max(reach(k_high, FULL_K), reach(g_high, FULL_G)));
         let residue = saturating_sub(value, high) | saturating_sub(low, value);
         // SAFETY: as above.
         unsafe {
