@@ -685,17 +685,8 @@ fn above(x: u32, threshold: u32) -> u32 {
 /// Four pixels a step, every operation per byte: min and max by `usub8` +
 /// `sel`, the halfway reach by `uhadd8`, the residues by `uqsub8`; a word
 /// of each output stored at once.
-pub fn residues(lines: super::ResidueLines, full: (bool, bool), threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
-    match full {
-        (false, false) => residues_of::<false, false>(lines, threshold, hot, ground),
-        (true, false) => residues_of::<true, false>(lines, threshold, hot, ground),
-        (false, true) => residues_of::<false, true>(lines, threshold, hot, ground),
-        (true, true) => residues_of::<true, true>(lines, threshold, hot, ground),
-    }
-}
-
 #[inline(always)]
-fn residues_of<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLines, threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
+pub fn residues<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLines, threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
     let super::ResidueLines { row, centre, up, down } = lines;
     let n = lines.len().min(hot.len()).min(ground.len());
     let words = n / 4;
@@ -726,5 +717,5 @@ fn residues_of<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLine
         }
     }
     let c = 4 * words;
-    portable::residues(lines.columns(c..n), (FULL_K, FULL_G), threshold, &mut hot[c..n], &mut ground[c..n]);
+    portable::residues::<FULL_K, FULL_G>(lines.columns(c..n), threshold, &mut hot[c..n], &mut ground[c..n]);
 }

@@ -162,7 +162,13 @@ impl<'a> ResidueLines<'a> {
 #[inline]
 pub fn residues(lines: ResidueLines, full: (bool, bool), threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
     let n = lines.len().min(hot.len()).min(ground.len());
-    selected::residues(lines.columns(0..n), full, threshold, &mut hot[..n], &mut ground[..n])
+    let (lines, hot, ground) = (lines.columns(0..n), &mut hot[..n], &mut ground[..n]);
+    match full {
+        (false, false) => selected::residues::<false, false>(lines, threshold, hot, ground),
+        (true, false) => selected::residues::<true, false>(lines, threshold, hot, ground),
+        (false, true) => selected::residues::<false, true>(lines, threshold, hot, ground),
+        (true, true) => selected::residues::<true, true>(lines, threshold, hot, ground),
+    }
 }
 
 /// One pixel's two residues (wide, ground) as [`residues`] defines them,

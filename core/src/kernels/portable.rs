@@ -112,17 +112,8 @@ pub fn seen_difference(a: &[u16], b: &[u16]) -> (u32, u32) {
     (sum, count)
 }
 
-pub fn residues(lines: super::ResidueLines, full: (bool, bool), threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
-    match full {
-        (false, false) => residues_of::<false, false>(lines, threshold, hot, ground),
-        (true, false) => residues_of::<true, false>(lines, threshold, hot, ground),
-        (false, true) => residues_of::<false, true>(lines, threshold, hot, ground),
-        (true, true) => residues_of::<true, true>(lines, threshold, hot, ground),
-    }
-}
-
 #[inline(always)]
-fn residues_of<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLines, threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
+pub fn residues<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLines, threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
     let super::ResidueLines { row, centre, up, down } = lines;
     let sideways = centre.windows(3);
     let inputs = row.iter().zip(sideways).zip(up).zip(down);

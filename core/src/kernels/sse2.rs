@@ -212,17 +212,8 @@ pub use super::portable::{copy_row, dot_shifts, seen_difference};
 /// Sixteen pixels a step: `pminub`/`pmaxub` for the ranges, `pavgb`
 /// (which rounds up, as the halfway reach does) for the reach, `psubusb`
 /// for the residues.
-pub fn residues(lines: super::ResidueLines, full: (bool, bool), threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
-    match full {
-        (false, false) => residues_of::<false, false>(lines, threshold, hot, ground),
-        (true, false) => residues_of::<true, false>(lines, threshold, hot, ground),
-        (false, true) => residues_of::<false, true>(lines, threshold, hot, ground),
-        (true, true) => residues_of::<true, true>(lines, threshold, hot, ground),
-    }
-}
-
 #[inline(always)]
-fn residues_of<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLines, threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
+pub fn residues<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLines, threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
     let super::ResidueLines { row, centre, up, down } = lines;
     let n = lines.len().min(hot.len()).min(ground.len());
     let blocks = n / 16;
@@ -251,5 +242,5 @@ fn residues_of<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLine
         }
     }
     let c = 16 * blocks;
-    portable::residues(lines.columns(c..n), (FULL_K, FULL_G), threshold, &mut hot[c..n], &mut ground[c..n]);
+    portable::residues::<FULL_K, FULL_G>(lines.columns(c..n), threshold, &mut hot[c..n], &mut ground[c..n]);
 }
