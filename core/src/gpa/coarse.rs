@@ -10,7 +10,7 @@
 
 use super::estimate::Scene;
 use super::homography::Params;
-use crate::grid::KgGrid;
+use crate::grid::{KgGrid, MAX_GRID_SIDE};
 use crate::kernels;
 use crate::limits::MAX_COARSE_CELLS;
 
@@ -76,17 +76,27 @@ impl Coarse {
         self.side = side;
         self.wide = w / side;
         self.high = h / side;
+        let wide = self.wide;
+        let mut sums = [0u32; MAX_GRID_SIDE / 2];
         for cj in 0..self.high {
-            for ci in 0..self.wide {
-                let (mut sum, mut valid) = (0u32, true);
-                for j in cj * side..(cj + 1) * side {
-                    let row = &image[j * w..][..w];
-                    valid &= scene.seen(ci * side, j) && scene.seen((ci + 1) * side - 1, j);
-                    sum += row[ci * side..(ci + 1) * side].iter().map(|&v| u32::from(v)).sum::<u32>();
+            // A cell counts where the camera saw its first and last column
+            // in each of its rows: the cells from `valid.start` to `valid.end`.
+            let mut valid = 0..wide;
+            let sums = &mut sums[..wide];
+            sums.fill(0);
+            for j in cj * side..(cj + 1) * side {
+                valid = match scene.coverage.seen(j) {
+                    Some(columns) => valid.start.max(columns.start.div_ceil(side))..valid.end.min(columns.end / side),
+                    None => 0..0,
+                };
+                let row = &image[j * w..][..wide * side];
+                for (sum, cell) in sums.iter_mut().zip(row.chunks_exact(side)) {
+                    *sum += cell.iter().map(|&v| u32::from(v)).sum::<u32>();
                 }
-                let k = cj * self.wide + ci;
+            }
+            for (ci, &sum) in sums.iter().enumerate() {
                 let level = (sum / (side * side) as u32) as u8;
-                self.cells[k] = if valid { u16::from(level) << TURNED_FRAC } else { UNSEEN };
+                self.cells[cj * wide + ci] = if valid.contains(&ci) { u16::from(level) << TURNED_FRAC } else { UNSEEN };
             }
         }
     }

@@ -164,11 +164,6 @@ impl Scene<'_> {
         PixelMap::with_sin_cos(p, keyframe, height_mm, self.grid, &|degrees| self.sin_cos.sin_cos_deg(degrees))
     }
 
-    /// Whether pixel (i, j) of either image is in the camera's view.
-    pub(super) fn seen(&self, i: usize, j: usize) -> bool {
-        j < self.grid.height() && self.coverage.seen(j).is_some_and(|columns| columns.contains(&i))
-    }
-
     fn images(&self) -> Images<'_> {
         Images { keyframe: self.keyframe, current: self.current, grid: self.grid, coverage: self.coverage }
     }
