@@ -523,6 +523,8 @@ impl<'b> Gpa<'b> {
     /// the shift search's part of the row step, on every AOI row. As the
     /// seed sees it: its rig is level and it knows the planar motion only,
     /// so its rows are straight (a translation rolls the band on).
+    // Not inlined, nor is `compare_at`: their row buffers stay out of
+    // `compare_with`'s frame, which the obstacle search stands on.
     #[inline(never)]
     fn search_prediction(&mut self, store: &Keyframe, predicted: &GroundMotion, exposure: Option<&[u8; 256]>) {
         let s = self.config.search_radius;
