@@ -5,11 +5,10 @@ use flatland_core::grid::GridConfig;
 use flatland_core::motion::Motion;
 use flatland_host::kg::KgFrontEnd;
 use flatland_host::recording::{parse_rig, Recording, RecordingError};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)
-}
+mod common;
+use common::data;
 
 /// Sub-pixel position where a profile crosses `level`, searching outward from `from`.
 fn crossing(profile: &[f64], from: usize, step: isize, level: f64) -> f64 {

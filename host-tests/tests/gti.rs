@@ -9,11 +9,9 @@ use flatland_core::gti::{Gti, HeightPoint, RegionMm};
 use flatland_host::heights::{run_gti, run_gti_perturbed};
 use flatland_host::perturb::Perturbation;
 use flatland_host::recording::{Recording, TruthObstacle};
-use std::path::{Path, PathBuf};
 
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)
-}
+mod common;
+use common::data;
 
 /// Footprint of a rectangle (world frame) in the robot frame of `frame`,
 /// grown by `margin_mm` (bounds of the rotated rectangle).

@@ -14,9 +14,8 @@ use flatland_host::recording::{parse_poses, parse_rig, Binning, Frame, PoseHeade
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)
-}
+mod common;
+use common::data;
 
 /// An empty scratch directory for this test.
 fn scratch(test: &str) -> PathBuf {

@@ -9,11 +9,9 @@ use flatland_core::report::ANGLE_SCALE;
 use flatland_host::perturb::{PerturbError, Perturbation, Slip};
 use flatland_host::recording::{Frame, Recording, Truth};
 use flatland_host::trial::{run_trial, Trial};
-use std::path::{Path, PathBuf};
 
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)
-}
+mod common;
+use common::data;
 
 fn perturbation(spec: &str) -> Perturbation {
     spec.parse().unwrap_or_else(|e| panic!("{spec}: {e}"))

@@ -13,9 +13,8 @@ use flatland_host::summary::SUMMARY_SIZE;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)
-}
+mod common;
+use common::data;
 
 /// A fresh output directory for one test.
 fn out_dir(test: &str) -> PathBuf {

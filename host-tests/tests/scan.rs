@@ -2,7 +2,6 @@
 //! report, claims nothing outside the camera's view, and is clear where the
 //! floor is. `flatland scan` and `flatland detect --format json` carry it.
 
-use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use flatland_core::grid::KgGrid;
@@ -10,6 +9,9 @@ use flatland_core::report::FrameReport;
 use flatland_core::scan::{Scan, Sector, SCAN_INCREMENT_MDEG};
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::recording::Recording;
+
+mod common;
+use common::data;
 
 const RECORDINGS: [&str; 13] = [
     "flat_marks",
@@ -26,10 +28,6 @@ const RECORDINGS: [&str; 13] = [
     "slip",
     "ledge",
 ];
-
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)
-}
 
 /// Every compared frame's report and scan, and the grid.
 fn scans(name: &str) -> (Vec<(FrameReport, Scan)>, KgGrid) {

@@ -8,11 +8,10 @@ use flatland_host::perturb::Perturbation;
 use flatland_host::trial::run_trial;
 use std::fmt::Write as _;
 use std::fs;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)
-}
+mod common;
+use common::data;
 
 /// A copy of recording `name` in a directory of its own with frames 0, k,
 /// 2k, ... as frames 0, 1, 2, ..., no odometry nor IMU, and the truth's
