@@ -316,6 +316,9 @@ impl Coverage {
             }
             return;
         }
+        if self.straight_runs(warp, seen.clone(), grid, runs) {
+            return;
+        }
         let mut open: Option<usize> = None;
         for c in seen.start..=seen.end {
             let usable = c < seen.end && self.usable_at(warp.at(c), grid);
@@ -329,12 +332,123 @@ impl Coverage {
             }
         }
     }
+
+    /// [`Self::usable_runs`] of a straight row (no bend) whose columns step
+    /// right and stay well inside the fixed point's range (any sane warp):
+    /// the usable columns solved for in each keyframe row the line crosses
+    /// (a few), instead of tested one by one. Adds to `runs` (cleared);
+    /// false, `runs` untouched, for any other row.
+    fn straight_runs(&self, warp: RowWarp, seen: Range<usize>, grid: &KgGrid, runs: &mut Runs) -> bool {
+        if warp.is_bent() || warp.i_step <= 0 {
+            return false;
+        }
+        if seen.is_empty() {
+            return true;
+        }
+        // Positions of the first and last seen columns, exactly. Within
+        // +-2^30 the i32 positions do not wrap, and every difference below
+        // fits an i32 (grid positions are below 2^26).
+        const SANE: i64 = 1 << 30;
+        let ends = [seen.start as i64, seen.end as i64 - 1];
+        let sane = |start: i32, step: i32| ends.iter().all(|&c| (i64::from(start) + c * i64::from(step)).abs() < SANE);
+        if !sane(warp.i_start, warp.i_step) || !sane(warp.j_start, warp.j_step) {
+            return false;
+        }
+        // Rounded up, for a positive divisor.
+        let ceil_div = |a: i32, b: i32| -((-a).div_euclid(b));
+        let position = |start: i32, step: i32, c: usize| start + c as i32 * step;
+        let last_row = grid.height() as i32 - 1;
+        let mut c = seen.start;
+        while c < seen.end {
+            let j = position(warp.j_start, warp.j_step, c);
+            let j0 = j >> FRAC;
+            // The first column past this keyframe row.
+            let next = match warp.j_step.signum() {
+                1 => c + ceil_div(((j0 + 1) << FRAC) - j, warp.j_step) as usize,
+                -1 => c + ((j - (j0 << FRAC)) / -warp.j_step) as usize + 1,
+                _ => seen.end,
+            }
+            .min(seen.end);
+            // In that row the usable columns are one run: lo <= i >> FRAC < hi.
+            if (0..last_row).contains(&j0) {
+                let (lo, hi) = self.reference[j0 as usize];
+                let column = |i: u16| ceil_div((i32::from(i) << FRAC) - warp.i_start, warp.i_step).max(0) as usize;
+                let (from, to) = (column(lo).max(c), column(hi).min(next));
+                if from < to {
+                    match runs.last_mut() {
+                        Some(run) if usize::from(run.1) == from => run.1 = to as u16,
+                        _ => {
+                            let _ = runs.push((from as u16, to as u16));
+                        }
+                    }
+                }
+            }
+            c = next;
+        }
+        true
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::motion::{GroundMap, Motion};
+
+    /// The usable columns tested one by one: [`Coverage::usable_runs`]'s definition.
+    fn runs_by_column(coverage: &Coverage, warp: RowWarp, seen: Range<usize>, grid: &KgGrid) -> std::vec::Vec<(u16, u16)> {
+        let mut runs = std::vec::Vec::new();
+        let mut open = None;
+        for c in seen.start..=seen.end {
+            match (c < seen.end && coverage.usable(warp, c, grid), open) {
+                (true, None) => open = Some(c),
+                (false, Some(first)) => {
+                    runs.push((first as u16, c as u16));
+                    open = None;
+                }
+                _ => {}
+            }
+        }
+        runs
+    }
+
+    /// Straight rows solved per keyframe row give the runs the column-by-
+    /// column test gives: yawed either way, shifted past every edge, over
+    /// keyframe rows whose reference columns vary (and some that have none).
+    #[test]
+    fn straight_rows_runs_equal_the_column_test() {
+        let grid = KgGrid { mm_per_px: 5.0, x_left_mm: -350.0, z_far_mm: 1600.0, width: 141, height: 255 };
+        let mut coverage = Coverage::full(&grid);
+        let mut seed = 0x2545_F491u32;
+        let mut next = move |n: u32| {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed % n
+        };
+        for (j, slot) in coverage.reference.iter_mut().enumerate().take(grid.height()) {
+            let lo = next(40) as u16;
+            *slot = if j % 17 == 5 { (0, 0) } else { (lo, (lo + 60 + next(50) as u16).min(141)) };
+        }
+        let mut checked = 0;
+        for _ in 0..20_000 {
+            let yaw = (next(2001) as f64 - 1000.0) * 1e-4;
+            let warp = RowWarp {
+                i_start: (next(200 << FRAC) as i32) - (30 << FRAC),
+                i_step: to_q16(libm::cos(yaw)),
+                i_bend: 0,
+                j_start: (next(300 << FRAC) as i32) - (20 << FRAC),
+                j_step: to_q16(libm::sin(yaw)),
+                j_bend: 0,
+            };
+            let start = next(60) as usize;
+            let seen = start..(start + next(90) as usize).min(141);
+            let mut runs = Runs::new();
+            assert!(coverage.straight_runs(warp, seen.clone(), &grid, &mut runs));
+            assert_eq!(runs.as_slice(), runs_by_column(&coverage, warp, seen.clone(), &grid).as_slice(), "{warp:?} {seen:?}");
+            checked += usize::from(!runs.is_empty());
+        }
+        assert!(checked > 5_000, "too few rows had usable columns: {checked}");
+    }
 
     /// Every column of every row lands where the exact map puts it: a roll
     /// bends the rows (projective spacing), which the quadratic follows.
