@@ -45,10 +45,11 @@ pub enum RowSourceError {
 /// Camera rows, top to bottom, as a camera delivers them.
 pub trait RowSource {
     /// Starts frame `index`; rows follow through [`RowSource::read_row`].
+    /// A camera delivers its next whole frame (the index is the host's).
     fn begin_frame(&mut self, index: u32) -> Result<FrameSize, RowSourceError>;
     /// Fills `row` (exactly one row wide) with the next row of the frame.
     fn read_row(&mut self, row: &mut [u8]) -> Result<(), RowSourceError>;
-    /// Ends the current frame (releases the file, re-arms the camera).
+    /// Ends the current frame (releases the file; a streaming camera goes on).
     fn end_frame(&mut self);
 }
 
