@@ -21,7 +21,7 @@
 use crate::fusion::GtiStage;
 use crate::gpa::Gpa;
 use crate::motion::{Attitude, Motion, Pose};
-use crate::remap::{RemapError, RemapTable, StreamingRemap};
+use crate::remap::{Line, RemapError, RemapTable, StreamingRemap};
 use crate::report::FrameReport;
 use core::fmt;
 
@@ -207,22 +207,23 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         self.previous.is_some_and(|previous| previous.frame.checked_add(1) == Some(frame))
     }
 
-    /// Pushes the frame's next camera row through the remap into the stages.
-    /// On error the frame is given up ([`Pipeline::abort`]).
-    pub fn push_row(&mut self, camera_row: &[u8]) -> Result<(), FrameError> {
-        self.push_row_tapped(camera_row, |_, _| {})
+    /// Pushes the frame's next camera row through the remap into the stages;
+    /// `line` is the remap's scratch ([`Line`], any contents). On error the
+    /// frame is given up ([`Pipeline::abort`]).
+    pub fn push_row(&mut self, camera_row: &[u8], line: &mut Line) -> Result<(), FrameError> {
+        self.push_row_tapped(camera_row, line, |_, _| {})
     }
 
     /// As [`Pipeline::push_row`], and hands each KG row made to `tap`
     /// (the host's KG images).
-    pub fn push_row_tapped(&mut self, camera_row: &[u8], mut tap: impl FnMut(usize, &[u8])) -> Result<(), FrameError> {
+    pub fn push_row_tapped(&mut self, camera_row: &[u8], line: &mut Line, mut tap: impl FnMut(usize, &[u8])) -> Result<(), FrameError> {
         let entered_at = self.now();
         let Pipeline { table, remap, gpa, gti, current, clock, timing, .. } = self;
         let Some(current) = current.as_mut() else { return Err(FrameError::NotBegun) };
         let (table, clock) = (*table, *clock);
         let now = || clock.map_or(0, |clock| clock());
         let (mut detector_rows, mut gti_rows) = (0u32, 0u32);
-        let pushed = remap.push_row(camera_row, |j, kg_row| {
+        let pushed = remap.push_row(camera_row, line, |j, kg_row| {
             let start = now();
             current.kg_rows += 1;
             gpa.on_kg_row(j, kg_row);
@@ -345,6 +346,7 @@ mod tests {
         let mut outcomes = Vec::new();
         with_pipeline(true, |pipeline, table| {
             let row = vec![128u8; table.camera_width()];
+            let mut line = Line::ZERO;
             for &(frame, pose) in frames {
                 let motion = match pipeline.begin(frame, pose) {
                     Ok(motion) => motion,
@@ -354,12 +356,12 @@ mod tests {
                     }
                 };
                 if give_up.contains(&frame) {
-                    pipeline.push_row(&row).unwrap();
+                    pipeline.push_row(&row, &mut line).unwrap();
                     pipeline.abort();
                     continue;
                 }
                 for _ in 0..table.camera_height() {
-                    pipeline.push_row(&row).unwrap();
+                    pipeline.push_row(&row, &mut line).unwrap();
                 }
                 outcomes.push(pipeline.finish().map(|outcome| (motion, outcome)));
             }
@@ -409,13 +411,14 @@ mod tests {
     fn rows_need_a_frame_and_a_frame_needs_its_rows() {
         with_pipeline(false, |pipeline, table| {
             let row = vec![0u8; table.camera_width()];
-            assert_eq!(pipeline.push_row(&row), Err(FrameError::NotBegun));
+            let mut line = Line::ZERO;
+            assert_eq!(pipeline.push_row(&row, &mut line), Err(FrameError::NotBegun));
             assert_eq!(pipeline.finish(), Err(FrameError::NotBegun));
             pipeline.begin(0, at(0.0, 0.0)).unwrap();
-            assert!(matches!(pipeline.push_row(&row[1..]), Err(FrameError::Remap(RemapError::RowLength { .. }))));
-            assert_eq!(pipeline.push_row(&row), Err(FrameError::NotBegun), "the frame was given up");
+            assert!(matches!(pipeline.push_row(&row[1..], &mut line), Err(FrameError::Remap(RemapError::RowLength { .. }))));
+            assert_eq!(pipeline.push_row(&row, &mut line), Err(FrameError::NotBegun), "the frame was given up");
             pipeline.begin(1, at(0.1, 20.0)).unwrap();
-            pipeline.push_row(&row).unwrap();
+            pipeline.push_row(&row, &mut line).unwrap();
             let expected = table.grid_height();
             assert!(matches!(pipeline.finish(), Err(FrameError::MissingRows { got, .. }) if got < expected));
         });

@@ -617,6 +617,13 @@ impl RemapTable {
         core::mem::size_of::<RemapTable>()
     }
 }
+
+/// The pinhole path's vertical pass (2,052 bytes), lent to
+/// [`StreamingRemap::push_row`]: not kept in the remap, it need live only
+/// while rows stream (the firmware's frame loop keeps it out of the
+/// frame's end, its deepest stack).
+pub use crate::kernels::pinhole::Line;
+
 /// Row-by-row remap of one frame at a time; see the module docs.
 pub struct StreamingRemap<'t, 'r> {
     table: &'t RemapTable,
@@ -624,8 +631,6 @@ pub struct StreamingRemap<'t, 'r> {
     rows_received: u16,
     next_kg_row: u16,
     kg_row: [u8; MAX_GRID_SIDE],
-    /// The pinhole path's vertical pass (2,052 bytes).
-    line: pinhole::Line,
 }
 
 impl<'t, 'r> StreamingRemap<'t, 'r> {
@@ -634,7 +639,7 @@ impl<'t, 'r> StreamingRemap<'t, 'r> {
         if ring.len() < table.ring_bytes() {
             return Err(RemapError::RingTooSmall { needed: table.ring_bytes() });
         }
-        Ok(StreamingRemap { table, ring, rows_received: 0, next_kg_row: 0, kg_row: [0; MAX_GRID_SIDE], line: pinhole::Line::ZERO })
+        Ok(StreamingRemap { table, ring, rows_received: 0, next_kg_row: 0, kg_row: [0; MAX_GRID_SIDE] })
     }
 
     /// Forgets the current frame (after a dropped or broken frame).
@@ -649,9 +654,10 @@ impl<'t, 'r> StreamingRemap<'t, 'r> {
     }
 
     /// Pushes the next camera row; calls `emit(kg_row_index, kg_row)` for every
-    /// KG row that became ready. After the last camera row the frame is complete
-    /// and the next push starts a new frame.
-    pub fn push_row(&mut self, camera_row: &[u8], mut emit: impl FnMut(usize, &[u8])) -> Result<(), RemapError> {
+    /// KG row that became ready, sampled through `line` (any contents). After
+    /// the last camera row the frame is complete and the next push starts a
+    /// new frame.
+    pub fn push_row(&mut self, camera_row: &[u8], line: &mut Line, mut emit: impl FnMut(usize, &[u8])) -> Result<(), RemapError> {
         let table = self.table;
         if camera_row.len() != table.camera_width() {
             return Err(RemapError::RowLength { expected: table.camera_width, got: camera_row.len() });
@@ -671,7 +677,7 @@ impl<'t, 'r> StreamingRemap<'t, 'r> {
             if !empty && map.last_source_row >= self.rows_received {
                 break;
             }
-            self.render_row(j);
+            self.render_row(j, line);
             emit(j, &self.kg_row[..table.grid_width()]);
             self.next_kg_row += 1;
         }
@@ -683,7 +689,7 @@ impl<'t, 'r> StreamingRemap<'t, 'r> {
     }
 
     /// Samples KG row `j` from the ring into `self.kg_row`.
-    fn render_row(&mut self, j: usize) {
+    fn render_row(&mut self, j: usize, line: &mut Line) {
         let table = self.table;
         let map = &table.rows[j];
         let out = &mut self.kg_row[..table.grid_width()];
@@ -723,7 +729,7 @@ impl<'t, 'r> StreamingRemap<'t, 'r> {
             let top = (map.v >> FRAC_BITS) as usize;
             let (upper, lower) = (row_at(top), row_at((top + 1).min(last_row)));
             let u = map.u_start.wrapping_add((valid.start as i32).wrapping_mul(map.u_step));
-            pinhole::sample_row(upper, lower, u, map.u_step, map.v, &mut self.line, &mut out[valid]);
+            pinhole::sample_row(upper, lower, u, map.u_step, map.v, line, &mut out[valid]);
             return;
         }
         // Lens path: normalised x steps along the row, y is the row's.
@@ -754,8 +760,9 @@ pub fn remap_frame(table: &RemapTable, frame: &[u8], ring: &mut [u8], out: &mut 
         return Err(RemapError::OutputTooSmall);
     }
     let mut stream = StreamingRemap::new(table, ring)?;
+    let mut line = Line::ZERO;
     for camera_row in frame.chunks_exact(width) {
-        stream.push_row(camera_row, |j, kg_row| out[j * grid_width..][..grid_width].copy_from_slice(kg_row))?;
+        stream.push_row(camera_row, &mut line, |j, kg_row| out[j * grid_width..][..grid_width].copy_from_slice(kg_row))?;
     }
     Ok(())
 }
@@ -924,9 +931,10 @@ mod tests {
             let mut stream = StreamingRemap::new(&table, &mut ring).unwrap();
             let mut emitted_after = std::vec![usize::MAX; grid.height()];
             let mut streamed = std::vec![0u8; grid.len()];
+            let mut line = Line::ZERO;
             for (n, row) in frame.chunks_exact(cw).enumerate() {
                 stream
-                    .push_row(row, |j, kg| {
+                    .push_row(row, &mut line, |j, kg| {
                         emitted_after[j] = n + 1;
                         streamed[j * grid.width()..][..grid.width()].copy_from_slice(kg);
                     })
@@ -1001,7 +1009,8 @@ mod tests {
         assert!(matches!(StreamingRemap::new(&table, &mut small), Err(RemapError::RingTooSmall { .. })));
         let mut ring = std::vec![0u8; table.ring_bytes()];
         let mut stream = StreamingRemap::new(&table, &mut ring).unwrap();
-        let err = stream.push_row(&[0u8; 3], |_, _| {}).unwrap_err();
+        let mut line = Line::ZERO;
+        let err = stream.push_row(&[0u8; 3], &mut line, |_, _| {}).unwrap_err();
         assert_eq!(err, RemapError::RowLength { expected: 256, got: 3 });
         assert_eq!(stream.rows_received(), 0);
     }

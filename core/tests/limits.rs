@@ -10,7 +10,7 @@ use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::kernels::FRAC_BITS;
 use flatland_core::limits::{MAX_GRID_SIDE, MAX_IMAGE_SIDE, MAX_SEARCH_RADIUS};
 use flatland_core::motion::Motion;
-use flatland_core::remap::{RemapTable, StreamingRemap};
+use flatland_core::remap::{Line, RemapTable, StreamingRemap};
 use flatland_core::report::FrameReport;
 
 /// flat_marks' geometry on the largest camera (fx scaled with the side).
@@ -71,6 +71,7 @@ fn run(frames: &[(u8, Option<Motion>)]) -> Vec<Option<FrameReport>> {
     let mut gpa = Gpa::new(&rig, &grid, &table, config, &mut keyframe).expect("gpa");
     let mut ring = vec![0u8; table.ring_bytes()];
     let mut stream = StreamingRemap::new(&table, &mut ring).expect("ring");
+    let mut line = Line::ZERO;
     let (cw, ch) = (table.camera_width(), table.camera_height());
     let mut reports = Vec::new();
     for (n, &(value, odometry)) in frames.iter().enumerate() {
@@ -78,7 +79,7 @@ fn run(frames: &[(u8, Option<Motion>)]) -> Vec<Option<FrameReport>> {
         gpa.begin_frame(n as u32, odometry, None);
         for _ in 0..ch {
             stream
-                .push_row(&row, |j, kg| {
+                .push_row(&row, &mut line, |j, kg| {
                     for i in table.valid_columns(j) {
                         assert_eq!(kg[i], value, "KG pixel ({i}, {j}) of a flat {value} frame");
                     }

@@ -9,7 +9,7 @@ use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::limits::MAX_SEARCH_RADIUS;
 use flatland_core::motion::{Attitude, Motion, Pose};
 use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, Odometry, RigRecord};
-use flatland_core::remap::{remap_frame, RemapTable, StreamingRemap};
+use flatland_core::remap::{remap_frame, Line, RemapTable, StreamingRemap};
 use flatland_core::report::{FrameReport, SHIFT_SCALE};
 use flatland_core::selftest::xorshift32;
 use proptest::prelude::*;
@@ -136,14 +136,15 @@ proptest! {
         let mut ring = vec![0u8; table.ring_bytes()];
         let mut stream = StreamingRemap::new(&table, &mut ring).expect("ring");
         let stop = ((ch as f64) * abandon_at) as usize;
+        let mut line = Line::ZERO;
         for row in frame.chunks_exact(cw).take(stop).rev() {
             // A frame of other content, abandoned part way (rows in reverse order).
-            stream.push_row(row, |_, _| {}).expect("row");
+            stream.push_row(row, &mut line, |_, _| {}).expect("row");
         }
         stream.reset();
         let mut streamed = vec![0u8; grid.len()];
         for row in frame.chunks_exact(cw) {
-            stream.push_row(row, |j, kg| streamed[j * grid.width()..][..grid.width()].copy_from_slice(kg)).expect("row");
+            stream.push_row(row, &mut line, |j, kg| streamed[j * grid.width()..][..grid.width()].copy_from_slice(kg)).expect("row");
         }
         for j in 0..grid.height() {
             let valid = table.valid_columns(j);

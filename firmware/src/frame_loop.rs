@@ -33,7 +33,7 @@ use flatland_core::health::{Monitor, SensorFault, CAMERA_TIMEOUT_US};
 use flatland_core::limits::MAX_GRID_SIDE;
 use flatland_core::pipeline::{FrameError, FrameTiming, Outcome, Pipeline, PoseSample};
 use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, RigRecord};
-use flatland_core::remap::{RemapError, RemapTable};
+use flatland_core::remap::{Line, RemapError, RemapTable};
 use flatland_core::report::FrameReport;
 use static_cell::ConstStaticCell;
 
@@ -461,8 +461,29 @@ pub(crate) fn stream_frame<R: RowSource, C: CycleCounter, K: Clock, W: Watchdog>
     if (width, height) != camera {
         return Err(early(FaultCode::FrameFormat));
     }
+    stream_rows(Camera { frames: &mut *frames, counter, clock, watchdog: &mut *watchdog }, pipeline, camera, asked, read)?;
+    frames.end_frame();
+    watchdog.feed();
+    let outcome = pipeline.finish().map_err(|error| FrameFailure { code: fault_code(error), mid_frame: true });
+    watchdog.feed();
+    outcome
+}
+
+/// [`stream_frame`]'s rows, `camera` = (width, height), asked for at `asked` (µs).
+// Not inlined: the row and the remap's line (2.7 KB) would sit in the frame
+// loop's frame, under the detector's deepest stack.
+#[inline(never)]
+fn stream_rows<R: RowSource, C: CycleCounter, K: Clock, W: Watchdog>(
+    camera_parts: Camera<R, C, K, W>,
+    pipeline: &mut Pipeline,
+    (width, height): (usize, usize),
+    asked: u32,
+    read: &mut u32,
+) -> Result<(), FrameFailure> {
+    let Camera { frames, counter, clock, watchdog } = camera_parts;
     let mut row_buffer = [0u8; MAX_CAMERA_WIDTH];
-    let row = row_buffer.get_mut(..width).ok_or(early(FaultCode::FrameFormat))?;
+    let mut line = Line::ZERO;
+    let row = row_buffer.get_mut(..width).ok_or(FrameFailure { code: FaultCode::FrameFormat, mid_frame: false })?;
     let mid = |code| FrameFailure { code, mid_frame: true };
     for _ in 0..height {
         watchdog.feed();
@@ -474,13 +495,9 @@ pub(crate) fn stream_frame<R: RowSource, C: CycleCounter, K: Clock, W: Watchdog>
         if clock.now_us().wrapping_sub(asked) > CAMERA_TIMEOUT_US {
             return Err(mid(FaultCode::CameraTimeout));
         }
-        pipeline.push_row(row).map_err(|error| mid(fault_code(error)))?;
+        pipeline.push_row(row, &mut line).map_err(|error| mid(fault_code(error)))?;
     }
-    frames.end_frame();
-    watchdog.feed();
-    let outcome = pipeline.finish().map_err(|error| mid(fault_code(error)));
-    watchdog.feed();
-    outcome
+    Ok(())
 }
 
 /// `cycle`: odometry received to report sent, the board's whole cycle

@@ -10,7 +10,7 @@ use flatland_core::geometry::Rig;
 use flatland_core::gpa::{Gpa, GpaConfig};
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::pipeline::{FrameError, Outcome, Pipeline, PoseSample};
-use flatland_core::remap::RemapTable;
+use flatland_core::remap::{Line, RemapTable};
 use flatland_core::report::FrameReport;
 
 /// What happened to one frame.
@@ -130,5 +130,6 @@ impl Detector {
 
 /// Pushes a frame's camera rows into the pipeline begun on it; `tap` sees each KG row.
 pub fn push_frame(pipeline: &mut Pipeline, frame: &Frame, mut tap: impl FnMut(usize, &[u8])) -> Result<(), FrameError> {
-    frame.pixels.chunks_exact(frame.width).try_for_each(|row| pipeline.push_row_tapped(row, &mut tap))
+    let mut line = Line::ZERO;
+    frame.pixels.chunks_exact(frame.width).try_for_each(|row| pipeline.push_row_tapped(row, &mut line, &mut tap))
 }

@@ -351,13 +351,16 @@ impl Estimator {
     /// puts it.
     fn match_blocks(&mut self, scene: &Scene, p: &Params, from_row: usize) {
         let since = self.profiler.now();
-        self.match_blocks_from(scene, p, from_row);
+        let map = scene.map(p);
+        self.match_blocks_from(scene, &map, from_row);
         self.profiler.charge(since, |p| &mut p.estimate_blocks);
     }
 
-    fn match_blocks_from(&mut self, scene: &Scene, p: &Params, from_row: usize) {
+    // Not inlined: its blocks' patches and sums (4 KB) would sit under the
+    // map's sines and cosines, the estimate's deepest stack.
+    #[inline(never)]
+    fn match_blocks_from(&mut self, scene: &Scene, map: &PixelMap, from_row: usize) {
         self.matches.clear();
-        let map = scene.map(p);
         let images = scene.images();
         let (w, h) = (scene.grid.width(), scene.grid.height());
         let half = (BLOCK_PX / 2) as f32;
@@ -366,7 +369,7 @@ impl Estimator {
             let centre_row = bj as f32 + half - 0.5;
             let mut bi = 0;
             while centre_row >= from_row as f32 && bi + BLOCK_PX <= w {
-                if let Some(found) = block_match::match_block(&images, &map, bi, bj) {
+                if let Some(found) = block_match::match_block(&images, map, bi, bj) {
                     let centre = (bi as f32 + half - 0.5, centre_row);
                     if self.matches.push(BlockMatch { current: centre, keyframe: found.keyframe, gain: found.gain }).is_err() {
                         return;

@@ -121,10 +121,13 @@ impl<const N: usize> Solution<N> {
     }
 }
 
+// `robust_fit` indexes the matches with u8.
+const _: () = assert!(MAX_BLOCK_MATCHES <= 256);
+
 /// The parameters from `start` and the robust scale of the residuals
 /// (MAD, floored: sub-pixel matches are not better than ~0.1 px); None
 /// when too few blocks agree with the result.
-#[inline(never)] // Its arrays (2 KB) would otherwise sit in every caller's frame, under the block matcher's.
+#[inline(never)] // Its arrays (1.3 KB) would otherwise sit in every caller's frame, under the block matcher's.
 pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N], problem: &Problem<N>) -> Option<Solution<N>> {
     if matches.len() < problem.min_inliers {
         return None;
@@ -133,21 +136,30 @@ pub(super) fn robust_fit<const N: usize>(matches: &[BlockMatch], start: [f32; N]
     let mut p = start;
     let mut scale = 1.0f32;
     let mut residuals = [0f32; MAX_BLOCK_MATCHES];
+    // The median is selected through the residuals' indices: 256 B of
+    // stack, not a 1 KB copy of them.
+    let mut order = [0u8; MAX_BLOCK_MATCHES];
+    for (n, index) in order.iter_mut().enumerate() {
+        *index = n as u8;
+    }
     let mut normal = [[0f32; N]; N];
     for iteration in 0..8 {
         let surfaces = (problem.surfaces)(&p);
-        let moved: [Surfaces; N] = core::array::from_fn(|k| {
-            let mut moved = p;
-            moved[k] += step[k];
-            (problem.surfaces)(&moved)
-        });
+        // Filled in place: `array::from_fn` builds a second array to move.
+        let mut moved = [surfaces; N];
+        for (k, stepped) in moved.iter_mut().enumerate() {
+            let mut q = p;
+            q[k] += step[k];
+            *stepped = (problem.surfaces)(&q);
+        }
         let count = matches.len();
         for (m, r) in matches.iter().zip(residuals.iter_mut()) {
             *r = surfaces.residual(m).unwrap_or(f32::MAX);
         }
         // The median: the element a full sort would put in the middle.
-        let mut ordered = residuals;
-        let (_, &mut median, _) = ordered[..count].select_nth_unstable_by(count / 2, |a, b| a.total_cmp(b));
+        let by_residual = |a: &u8, b: &u8| residuals[usize::from(*a)].total_cmp(&residuals[usize::from(*b)]);
+        let (_, &mut middle, _) = order[..count].select_nth_unstable_by(count / 2, by_residual);
+        let median = residuals[usize::from(middle)];
         scale = (1.4826 * median).max(0.15);
         // Huber first (wide basin), Tukey after (rejects obstacles).
         let weight = |r: f32| -> f32 {

@@ -11,7 +11,7 @@ use flatland_core::geometry::{Aoi, Distortion, Intrinsics, Mount, Rig};
 use flatland_core::gpa::{Gpa, GpaConfig};
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::motion::Motion;
-use flatland_core::remap::{remap_frame, RemapTable, StreamingRemap};
+use flatland_core::remap::{remap_frame, Line, RemapTable, StreamingRemap};
 use flatland_host::perturb::SplitMix;
 use libfuzzer_sys::fuzz_target;
 
@@ -132,6 +132,7 @@ fuzz_target!(|input: Input| {
     let mut ring = vec![0u8; table.ring_bytes()];
     let mut whole_ring = vec![0u8; table.ring_bytes()];
     let mut stream = StreamingRemap::new(&table, &mut ring).expect("ring sized by the table");
+    let mut line = Line::ZERO;
     let mut frame_number = 0u32;
     for (n, f) in input.frames.iter().take(5).enumerate() {
         if n > 0 {
@@ -156,7 +157,7 @@ fuzz_target!(|input: Input| {
         let gw = grid.width();
         for camera_row in image.chunks_exact(cw).take(rows) {
             stream
-                .push_row(camera_row, |j, kg_row| {
+                .push_row(camera_row, &mut line, |j, kg_row| {
                     if let Some(gpa) = gpa.as_mut() {
                         gpa.on_kg_row(j, kg_row);
                     }
