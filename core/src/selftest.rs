@@ -62,6 +62,7 @@ checks! {
         dot_shifts_equal_plain,
         seen_difference_equals_plain,
         residues_equal_plain,
+        float_kernels_equal_reference,
     ],
     health: [
         alarm_is_asserted_until_a_frame_is_judged_clear,

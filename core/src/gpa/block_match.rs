@@ -46,6 +46,31 @@ impl Images<'_> {
     }
 }
 
+/// One block's working arrays, every element written before it is read:
+/// made once per pass over the blocks, not zeroed (and the patch not
+/// copied out of its sampler) for every block.
+pub(super) struct Scratch {
+    block: [[u8; BLOCK_PX]; BLOCK_PX],
+    patch: Patch,
+    /// Per patch row and horizontal shift: the sums of the block-wide run.
+    run_sums: [[u32; WINDOW]; PATCH],
+    run_squares: [[u32; WINDOW]; PATCH],
+    /// The block's rows two pixels to a word, for the kernel's paired products.
+    pairs: [[u32; BLOCK_PX / 2]; BLOCK_PX],
+}
+
+impl Scratch {
+    pub(super) const fn new() -> Scratch {
+        Scratch {
+            block: [[0; BLOCK_PX]; BLOCK_PX],
+            patch: [[0; PATCH]; PATCH],
+            run_sums: [[0; WINDOW]; PATCH],
+            run_squares: [[0; WINDOW]; PATCH],
+            pairs: [[0; BLOCK_PX / 2]; BLOCK_PX],
+        }
+    }
+}
+
 /// A block found: its centre's keyframe position and the brightness of the
 /// current block over the keyframe's there.
 pub(super) struct Found {
@@ -55,16 +80,15 @@ pub(super) struct Found {
 
 /// The keyframe position of the centre of the block at (`bi`, `bj`) under
 /// `map`, or None when it is off the view, flat, or ambiguous.
-pub(super) fn match_block(images: &Images, map: &PixelMap, bi: usize, bj: usize) -> Option<Found> {
+pub(super) fn match_block(images: &Images, map: &PixelMap, bi: usize, bj: usize, scratch: &mut Scratch) -> Option<Found> {
     let w = images.grid.width();
     if !(bj..bj + BLOCK_PX).all(|j| images.seen(bi, j) && images.seen(bi + BLOCK_PX - 1, j)) {
         return None;
     }
     // The current block; flat blocks (below ~3 gray levels RMS: sensor
     // noise, not texture) measure nothing.
-    let mut block = [[0u8; BLOCK_PX]; BLOCK_PX];
     let (mut sum, mut squares) = (0u32, 0u32);
-    for (v, row) in block.iter_mut().enumerate() {
+    for (v, row) in scratch.block.iter_mut().enumerate() {
         row.copy_from_slice(&images.current[(bj + v) * w + bi..][..BLOCK_PX]);
         for &value in row.iter() {
             sum += u32::from(value);
@@ -85,8 +109,9 @@ pub(super) fn match_block(images: &Images, map: &PixelMap, bi: usize, bj: usize)
     let along = map.at(ci + 1.0, cj)?;
     let down = map.at(ci, cj + 1.0)?;
     let (du, dv) = ((along.0 - origin.0, along.1 - origin.1), (down.0 - origin.0, down.1 - origin.1));
-    let patch = sample_patch(images, origin, du, dv)?;
-    let scores = correlate(&block, sum, energy, &patch);
+    sample_patch(images, origin, du, dv, &mut scratch.patch)?;
+    let scores = correlate(sum, energy, scratch);
+    let patch = &scratch.patch;
     let (mut best_u, mut best_v) = (REACH, REACH);
     for (sv, row) in scores.iter().enumerate() {
         for (su, &score) in row.iter().enumerate() {
@@ -121,8 +146,9 @@ pub(super) fn match_block(images: &Images, map: &PixelMap, bi: usize, bj: usize)
 
 /// The keyframe sampled bilinearly at `origin + a du + b dv` for a, b from
 /// -(half - 0.5) - reach in whole steps, in Q4 gray levels; None
-/// unless every sample's four neighbours are in the camera's view.
-fn sample_patch(images: &Images, origin: (f32, f32), du: (f32, f32), dv: (f32, f32)) -> Option<Patch> {
+/// unless every sample's four neighbours are in the camera's view (then
+/// `patch` is left as it was).
+fn sample_patch(images: &Images, origin: (f32, f32), du: (f32, f32), dv: (f32, f32), patch: &mut Patch) -> Option<()> {
     let first = -((BLOCK_PX / 2) as f32 - 0.5) - REACH as f32;
     // Steps rounded, and every position offset by half the bilinear
     // weights' 1/256 px so that truncating to it rounds: truncated, the
@@ -166,7 +192,6 @@ fn sample_patch(images: &Images, origin: (f32, f32), du: (f32, f32), dv: (f32, f
         }
     }
     let (w, keyframe) = (w as usize, images.keyframe);
-    let mut patch = [[0u16; PATCH]; PATCH];
     for (row, &(mut i, mut j)) in patch.iter_mut().zip(&starts) {
         for value in row.iter_mut() {
             let at = (j >> FRAC) as usize * w + (i >> FRAC) as usize;
@@ -190,15 +215,13 @@ fn sample_patch(images: &Images, origin: (f32, f32), du: (f32, f32), dv: (f32, f
             j += step_j;
         }
     }
-    Some(patch)
+    Some(())
 }
 
-/// The zero-mean normalised correlation of `block` (sum `sum`, n^2 times
-/// its variance `energy`) with the patch at every shift.
-fn correlate(block: &[[u8; BLOCK_PX]; BLOCK_PX], sum: i64, energy: i64, patch: &Patch) -> [[f32; WINDOW]; WINDOW] {
-    // Per patch row and horizontal shift: the sums of the block-wide run.
-    let mut run_sums = [[0u32; WINDOW]; PATCH];
-    let mut run_squares = [[0u32; WINDOW]; PATCH];
+/// The zero-mean normalised correlation of the scratch's block (sum `sum`,
+/// n^2 times its variance `energy`) with its patch at every shift.
+fn correlate(sum: i64, energy: i64, scratch: &mut Scratch) -> [[f32; WINDOW]; WINDOW] {
+    let Scratch { block, patch, run_sums, run_squares, pairs } = scratch;
     for ((row, sums), squares) in patch.iter().zip(run_sums.iter_mut()).zip(run_squares.iter_mut()) {
         let (mut s, mut q) = (0u32, 0u32);
         for &k in &row[..BLOCK_PX] {
@@ -215,8 +238,6 @@ fn correlate(block: &[[u8; BLOCK_PX]; BLOCK_PX], sum: i64, energy: i64, patch: &
             squares[su] = q;
         }
     }
-    // The block's rows two pixels to a word, for the kernel's paired products.
-    let mut pairs = [[0u32; BLOCK_PX / 2]; BLOCK_PX];
     for (row, packed) in block.iter().zip(pairs.iter_mut()) {
         kernels::pack_pairs(row, packed);
     }
@@ -230,6 +251,7 @@ fn correlate(block: &[[u8; BLOCK_PX]; BLOCK_PX], sum: i64, energy: i64, patch: &
             window_squares[su] += i64::from(run_squares[v][su]);
         }
     }
+    let energy_f32 = kernels::i64_to_f32(energy);
     let mut scores = [[0f32; WINDOW]; WINDOW];
     for (sv, score_row) in scores.iter_mut().enumerate() {
         let mut cross = [0u32; WINDOW];
@@ -249,7 +271,7 @@ fn correlate(block: &[[u8; BLOCK_PX]; BLOCK_PX], sum: i64, energy: i64, patch: &
             // n^2 times the keyframe's variance and the covariance.
             let variance = PIXELS * q - s * s;
             let covariance = PIXELS * i64::from(cross[su]) - sum * s;
-            *score = if variance > PIXELS << (2 * PATCH_FRAC) { covariance as f32 / libm::sqrtf(energy as f32 * variance as f32) } else { -1.0 };
+            *score = if variance > PIXELS << (2 * PATCH_FRAC) { kernels::i64_to_f32(covariance) / kernels::sqrtf(energy_f32 * kernels::i64_to_f32(variance)) } else { -1.0 };
         }
     }
     scores

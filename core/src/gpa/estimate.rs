@@ -364,12 +364,13 @@ impl Estimator {
         let images = scene.images();
         let (w, h) = (scene.grid.width(), scene.grid.height());
         let half = (BLOCK_PX / 2) as f32;
+        let mut scratch = block_match::Scratch::new();
         let mut bj = 0;
         while bj + BLOCK_PX <= h {
             let centre_row = bj as f32 + half - 0.5;
             let mut bi = 0;
             while centre_row >= from_row as f32 && bi + BLOCK_PX <= w {
-                if let Some(found) = block_match::match_block(&images, map, bi, bj) {
+                if let Some(found) = block_match::match_block(&images, map, bi, bj, &mut scratch) {
                     let centre = (bi as f32 + half - 0.5, centre_row);
                     if self.matches.push(BlockMatch { current: centre, keyframe: found.keyframe, gain: found.gain }).is_err() {
                         return;

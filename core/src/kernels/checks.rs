@@ -367,3 +367,54 @@ pub fn residues_equal_plain() -> Outcome {
     }
     Ok(())
 }
+
+/// `sqrtf` and `i64_to_f32` give libm's and the language's results bit
+/// for bit: square roots of zero, subnormals, normals across the whole
+/// exponent range and infinity (NaN stays NaN); conversions of the i32
+/// edges, every power of two and its neighbours to 2^62, ties at every
+/// scale (odd multiples of half a unit in the last place), and random
+/// values of every magnitude, both signs.
+pub fn float_kernels_equal_reference() -> Outcome {
+    let mut state = 0x5EED_F10Au32;
+    let same_root = |x: f32| {
+        let (fast, reference) = (super::sqrtf(x), libm::sqrtf(x));
+        fast.to_bits() == reference.to_bits() || (fast.is_nan() && reference.is_nan())
+    };
+    for x in [0.0, -0.0, f32::MIN_POSITIVE, f32::MAX, f32::INFINITY, -1.0, f32::NAN, 1.0, 2.0] {
+        if !same_root(x) {
+            return Err("sqrtf differs from libm at an edge value");
+        }
+    }
+    for _ in 0..20_000 {
+        // Random bits of a positive float: every exponent, subnormals too.
+        let x = f32::from_bits(xorshift32(&mut state) & 0x7F7F_FFFF);
+        if !same_root(x) {
+            return Err("sqrtf differs from libm");
+        }
+    }
+    let same_float = |v: i64| super::i64_to_f32(v).to_bits() == (v as f32).to_bits();
+    for v in [0, 1, -1, i64::from(i32::MAX), i64::from(i32::MAX) + 1, i64::from(i32::MIN), i64::from(i32::MIN) - 1, (1 << 62) - 1, -(1 << 62) + 1, i64::MAX, i64::MIN] {
+        if !same_float(v) {
+            return Err("i64_to_f32 differs from `as f32` at an edge value");
+        }
+    }
+    for bit in 24..62 {
+        let power = 1i64 << bit;
+        // A tie: half a unit in the last place (24 bits) past an odd or even mantissa.
+        let half_unit = 1i64 << (bit - 24);
+        for v in [power - 1, power, power + 1, power + half_unit, power + 3 * half_unit, power + half_unit + 1, power + 3 * half_unit - 1] {
+            if !(same_float(v) && same_float(-v)) {
+                return Err("i64_to_f32 differs from `as f32` near a power of two");
+            }
+        }
+    }
+    for _ in 0..20_000 {
+        let bits = (u64::from(xorshift32(&mut state)) << 32) | u64::from(xorshift32(&mut state));
+        // Every magnitude: shifted down by 0 to 63 bits.
+        let v = (bits >> (xorshift32(&mut state) % 64)) as i64;
+        if !same_float(v) {
+            return Err("i64_to_f32 differs from `as f32`");
+        }
+    }
+    Ok(())
+}

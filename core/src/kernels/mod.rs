@@ -225,6 +225,60 @@ pub fn seen_difference(a: &[u16], b: &[u16]) -> (u32, u32) {
     selected::seen_difference(a, b)
 }
 
+// ---------------------------------------------------------------- float
+
+/// The square root, correctly rounded as IEEE 754 asks: bit for bit what
+/// `libm::sqrtf` gives, from the M4F's `vsqrt.f32` (five instructions with
+/// its moves) instead of libm's software loop (~40 a call, ~1 M a frame in
+/// the block matcher's scores).
+#[inline]
+pub fn sqrtf(x: f32) -> f32 {
+    #[cfg(all(flatland_dsp, target_abi = "eabihf"))]
+    {
+        let mut bits = x.to_bits();
+        // SAFETY: the hard-float ABI implies the FPU. Rust's target does not
+        // name it as its (unstable) `vfp2` feature, without which `asm!`
+        // takes no FPU register, so the value goes through s0, saved and
+        // restored around it.
+        unsafe {
+            core::arch::asm!(
+                "vpush {{s0}}",
+                "vmov s0, {bits}",
+                "vsqrt.f32 s0, s0",
+                "vmov {bits}, s0",
+                "vpop {{s0}}",
+                bits = inout(reg) bits,
+                options(pure, nomem),
+            )
+        };
+        f32::from_bits(bits)
+    }
+    #[cfg(not(all(flatland_dsp, target_abi = "eabihf")))]
+    libm::sqrtf(x)
+}
+
+/// `value as f32` (round to nearest, ties to even), for |value| < 2^62:
+/// the M4 has no 64-bit conversion, and the library's takes ~25
+/// instructions; here the value is cut to 31 bits with the bits cut off
+/// kept as a sticky bit, so the FPU's one 32-bit conversion rounds it as
+/// the whole would be, then scaled back by a power of two (exact).
+#[inline]
+pub fn i64_to_f32(value: i64) -> f32 {
+    const LIMIT: i64 = 1 << 62;
+    if value == value as i32 as i64 {
+        return value as i32 as f32;
+    }
+    if !(-LIMIT..LIMIT).contains(&value) {
+        return value as f32;
+    }
+    let magnitude = value.unsigned_abs();
+    // Bits above the 31 a positive i32 holds.
+    let cut = 33 - magnitude.leading_zeros();
+    let kept = (magnitude >> cut) as u32 | u32::from(magnitude & ((1 << cut) - 1) != 0);
+    let scaled = kept as i32 as f32 * f32::from_bits((127 + cut) << 23);
+    if value < 0 { -scaled } else { scaled }
+}
+
 // ---------------------------------------------------------------- remap
 
 /// Fractional bits of the fixed-point source coordinates (Q16.16 pixels).
