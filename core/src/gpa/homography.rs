@@ -163,8 +163,12 @@ pub(super) struct SinCosMemo {
 /// An angle's bits and its (sin, cos).
 type Remembered = (u32, (f32, f32));
 
-/// Direct-mapped slots: a fit iteration's maps use about 8 distinct angles.
-const MEMO_SLOTS: usize = 16;
+/// Direct-mapped slots, by a multiplicative hash of the bits: a fit
+/// iteration's maps use about 8 distinct angles, and the lower level's fits
+/// all start from one motion, so angles recur across fits too. On
+/// flat_marks 32 slots miss 3,244 of 18,665 look-ups; 16 slots with an
+/// xor-shift hash missed 6,264 (a miss is ~2,400 M4 instructions).
+const MEMO_SLOTS: usize = 32;
 
 impl SinCosMemo {
     pub(super) fn new() -> SinCosMemo {
@@ -174,7 +178,7 @@ impl SinCosMemo {
     /// (sin, cos) of `degrees`.
     pub(super) fn sin_cos_deg(&self, degrees: f32) -> (f32, f32) {
         let bits = degrees.to_bits();
-        let slot = &self.slots[((bits ^ (bits >> 9) ^ (bits >> 18)) as usize) % MEMO_SLOTS];
+        let slot = &self.slots[(bits.wrapping_mul(0x9E37_79B1) >> 20) as usize % MEMO_SLOTS];
         match slot.get() {
             Some((remembered, value)) if remembered == bits => value,
             _ => {
