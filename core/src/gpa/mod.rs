@@ -71,7 +71,8 @@ use keyframe::Keyframe;
 use layout::Layout;
 use parallax::{Hypotheses, Parallax};
 use prediction::Prediction;
-use warp::{Coverage, Warp};
+use layout::MAX_CELL_PX;
+use warp::{Coverage, RowWarp, Warp};
 use workspace::Workspace;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -191,6 +192,10 @@ pub struct Gpa<'b> {
     last_step: Option<Motion>,
     /// This frame's motion as a warp.
     warp: Warp,
+    /// The warps of the current cell row's rows so far, by row within it:
+    /// its hypotheses' pass reads them again at its last row (a tilted
+    /// body's row costs a few thousand M4 instructions of `f64`).
+    cell_row_warps: [RowWarp; MAX_CELL_PX],
     parallax: Parallax,
     noise: Noise,
     alarm: Alarm,
@@ -243,6 +248,7 @@ impl<'b> Gpa<'b> {
         odometry_fault: None,
         last_step: None,
         warp: Warp::NONE,
+        cell_row_warps: [RowWarp::LEVEL; MAX_CELL_PX],
         parallax: Parallax::EMPTY,
         noise: Noise::NONE,
         alarm: Alarm::NONE,

@@ -14,6 +14,7 @@ impl Gpa<'_> {
     pub(super) fn compare_row(&mut self, keyframe: &Keyframe, j: usize, row: &[u8], exposure: Option<&[u8; 256]>) {
         let s = self.config.search_radius;
         let warp = self.warp.row(j);
+        self.cell_row_warps[j % self.layout.cells.px] = warp;
         let Some(seen) = self.coverage.seen(j) else {
             self.end_row(keyframe, j, exposure);
             return;
@@ -60,14 +61,15 @@ impl Gpa<'_> {
             self.parallax.spans_to_try(&cells, min_gain, &mut spans);
             if !spans.is_empty() {
                 // The rows' usable runs and exposure-adjusted values are
-                // made again here: keeping a cell row's would cost ~8 KB
-                // of RAM, and on open ground few cell rows get this far.
+                // made again here (their warps were kept): keeping a cell
+                // row's would cost ~8 KB of RAM, and on open ground few
+                // cell rows get this far.
                 let grid = &self.layout.grid;
                 let mut runs = Runs::new();
                 let mut adjusted = [0u8; crate::grid::MAX_GRID_SIDE];
                 for row_j in cell_row * cells.px..=j {
                     let Some(seen) = self.coverage.seen(row_j) else { continue };
-                    let warp = self.warp.row(row_j);
+                    let warp = self.cell_row_warps[row_j % cells.px];
                     self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
                     let row = super::exposed(keyframe.current_row(row_j), exposure, &mut adjusted);
                     for span in &spans {

@@ -39,6 +39,9 @@ pub(super) struct RowWarp {
 }
 
 impl RowWarp {
+    /// Every column onto keyframe column 0 of row 0: a placeholder.
+    pub(super) const LEVEL: RowWarp = RowWarp { i_start: 0, i_step: 0, i_bend: 0, j_start: 0, j_step: 0, j_bend: 0 };
+
     /// No yaw: the row maps onto one keyframe row, columns a pixel apart.
     #[inline(always)]
     pub(super) fn is_translation(&self) -> bool {
