@@ -145,6 +145,11 @@ impl Keyframe<'_> {
             let (i, j) = exact(c);
             (0..i64::from(i_limit)).contains(&i) && (0..i64::from(j_limit)).contains(&j)
         };
+        if !line.is_bent() {
+            if let Some(span) = straight_span(line, columns.clone(), (i_limit, j_limit)) {
+                return Span::Inside(span);
+            }
+        }
         let Some(first) = columns.clone().find(|&c| inside(c)) else {
             return Span::Inside(columns.start..columns.start);
         };
@@ -293,10 +298,93 @@ fn between(top: i32, bottom: i32, wy: i32) -> u8 {
 /// the largest radius.
 const MAX_STACK: usize = crate::gpa::band::MAX_WINDOW;
 
+/// [`Keyframe::inside_span`] of a straight line, solved instead of
+/// scanned: the columns where `0 <= i < limits.0` and `0 <= j < limits.1`,
+/// each coordinate linear in c, as an interval of `columns` (empty at its
+/// start when there is none). None unless positions, steps and limits lie
+/// within +-2^29 (any line a sane warp gives), so that every difference
+/// below fits an i32 (the M4 divides those in one instruction).
+fn straight_span(line: RowWarp, columns: Range<usize>, limits: (i32, i32)) -> Option<Range<usize>> {
+    const SANE: i64 = 1 << 29;
+    let ends = [columns.start as i64, columns.end as i64 - 1];
+    let sane = |start: i32, step: i32| {
+        i64::from(step).abs() < SANE && ends.iter().all(|&c| (i64::from(start) + c * i64::from(step)).abs() < SANE)
+    };
+    let limits_sane = i64::from(limits.0) < SANE && i64::from(limits.1) < SANE;
+    if columns.is_empty() || columns.end as i64 >= SANE || !limits_sane || !sane(line.i_start, line.i_step) || !sane(line.j_start, line.j_step) {
+        return None;
+    }
+    // The columns c with 0 <= start + c step < limit, as [from, to).
+    let solve = |start: i32, step: i32, limit: i32| -> (i32, i32) {
+        let ceil_div = |a: i32, b: i32| -((-a).div_euclid(b));
+        match step.signum() {
+            1 => (ceil_div(-start, step), ceil_div(limit - start, step)),
+            -1 => ((start - limit).div_euclid(-step) + 1, start.div_euclid(-step) + 1),
+            _ if (0..limit).contains(&start) => (i32::MIN, i32::MAX),
+            _ => (0, 0),
+        }
+    };
+    let (i_from, i_to) = solve(line.i_start, line.i_step, limits.0);
+    let (j_from, j_to) = solve(line.j_start, line.j_step, limits.1);
+    let from = i_from.max(j_from).max(columns.start as i32);
+    let to = i_to.min(j_to).min(columns.end as i32);
+    Some(if from < to { from as usize..to as usize } else { columns.start..columns.start })
+}
+
 /// Where a line lies inside the grid ([`Keyframe::inside_span`]).
 enum Span {
     /// These columns, and no others.
     Inside(Range<usize>),
     /// Its positions leave i32 (a degenerate warp): test pixel by pixel.
     Wraps,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The scan's definition: the first and last columns inside, per column.
+    fn scanned(line: RowWarp, columns: Range<usize>, (i_limit, j_limit): (i32, i32)) -> Range<usize> {
+        let inside = |c: usize| {
+            let (i, j) = line.at(c);
+            (0..i_limit).contains(&i) && (0..j_limit).contains(&j)
+        };
+        match columns.clone().find(|&c| inside(c)) {
+            None => columns.start..columns.start,
+            Some(first) => first..columns.clone().rev().find(|&c| inside(c)).unwrap() + 1,
+        }
+    }
+
+    /// Straight lines solved give the scan's interval: yawed either way
+    /// (steps of both signs and zero), starting anywhere around the grid.
+    #[test]
+    fn straight_spans_equal_the_scan() {
+        let limits = (140 << FRAC, 254 << FRAC);
+        let mut seed = 0x1234_5678u32;
+        let mut next = move |n: u32| {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed % n
+        };
+        let mut nonempty = 0;
+        for round in 0..20_000 {
+            let yaw = (f64::from(next(4001)) - 2000.0) * 1e-3;
+            let (sin, cos) = libm::sincos(yaw);
+            let line = RowWarp {
+                i_start: next(400 << FRAC) as i32 - (130 << FRAC),
+                i_step: if round % 7 == 0 { 0 } else { (cos * 65536.0) as i32 },
+                i_bend: 0,
+                j_start: next(500 << FRAC) as i32 - (120 << FRAC),
+                j_step: if round % 5 == 0 { 0 } else { (sin * 65536.0) as i32 },
+                j_bend: 0,
+            };
+            let start = next(100) as usize;
+            let columns = start..start + 1 + next(120) as usize;
+            let solved = straight_span(line, columns.clone(), limits).expect("a sane line");
+            assert_eq!(solved, scanned(line, columns.clone(), limits), "{line:?} {columns:?}");
+            nonempty += usize::from(!solved.is_empty());
+        }
+        assert!(nonempty > 3_000, "too few lines inside the grid: {nonempty}");
+    }
 }
