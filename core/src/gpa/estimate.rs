@@ -36,6 +36,7 @@ use super::fit::{capped_chi2, robust_fit, Problem, Surfaces};
 use super::homography::{Params, PixelMap, SinCosMemo};
 use super::warp::Coverage;
 use crate::grid::KgGrid;
+use crate::kernels;
 use crate::limits::MAX_BLOCK_MATCHES;
 use crate::motion::{Attitude, GroundMotion, Motion};
 use super::Profiler;
@@ -446,7 +447,7 @@ fn fit_keyframe_attitude(scene: &Scene, matches: &[BlockMatch], chained: &Estima
         min_inliers: MIN_INLIERS,
     };
     let fit = robust_fit(matches, seven(&params(&chained.motion), keyframe.deg), &problem)?;
-    let (p, sigma) = (fit.p, fit.variance()?.map(libm::sqrtf));
+    let (p, sigma) = (fit.p, fit.variance()?.map(kernels::sqrtf));
     Some(Estimate {
         motion: motion(&five(&p)),
         keyframe_attitude: KeyframeAttitude { deg: [p[5], p[6]], sigma_deg: [sigma[5], sigma[6]] },

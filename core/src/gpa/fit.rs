@@ -13,6 +13,7 @@
 use super::estimate::BlockMatch;
 use super::homography::PixelMap;
 use crate::grid::KgGrid;
+use crate::kernels;
 use crate::limits::MAX_BLOCK_MATCHES;
 
 /// Where a model puts the blocks: the ground's map, and past `edge_row`
@@ -265,7 +266,7 @@ fn cholesky<const N: usize>(a: [[f32; N]; N]) -> Option<[[f32; N]; N]> {
                 if !(sum > 0.0) {
                     return None;
                 }
-                l[i][i] = libm::sqrtf(sum);
+                l[i][i] = kernels::sqrtf(sum);
             } else {
                 l[i][j] = sum / l[j][j];
             }

@@ -4,7 +4,8 @@
 //! points support together.
 
 use crate::limits::MAX_OBSERVATIONS;
-use libm::{fabsf, roundf, sqrtf};
+use crate::kernels::sqrtf;
+use libm::{fabsf, roundf};
 
 /// Observations at which the quality stops growing with their count.
 const FULL_QUALITY_OBSERVATIONS: usize = 10;

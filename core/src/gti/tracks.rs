@@ -12,7 +12,8 @@ use super::{Gti, HeightPoint};
 use crate::grid::KgGrid;
 use crate::limits::{MAX_EDGES_PER_LINE, MAX_OBSERVATIONS, MAX_TRACKS, MAX_WEAK_EDGES_PER_LINE};
 use heapless::{Deque, Vec};
-use libm::{fabsf, roundf, sqrtf};
+use crate::kernels::sqrtf;
+use libm::{fabsf, roundf};
 
 /// Observation storage unit: 1/4 mm in i16 (tracks span at most +-8 m).
 const OBS_UNITS_PER_MM: f32 = 4.0;

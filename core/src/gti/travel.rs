@@ -9,7 +9,8 @@ use super::tracks::{zncc, Track};
 use super::Gti;
 use crate::limits::MAX_TRACKS;
 use crate::motion::{Motion, Rotation};
-use libm::{fabsf, sqrtf};
+use crate::kernels::sqrtf;
+use libm::fabsf;
 
 /// `v` along a unit `axis` and across it (towards `(u_z, -u_x)`): the frame
 /// a track's locus is measured in.
