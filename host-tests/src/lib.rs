@@ -13,6 +13,7 @@ pub mod images;
 pub mod serial_decode;
 pub mod summary;
 pub mod kg;
+pub mod m4_profile;
 pub mod mavlink_decode;
 pub mod perturb;
 pub mod qemu;

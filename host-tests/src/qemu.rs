@@ -226,13 +226,16 @@ pub fn mavlink_script(recording: &Recording, poses: PoseMessages) -> Result<Vec<
 
 // ------------------------------------------------------------------ QEMU
 
-fn qemu_command(elf: &Path, serial: &str, append: &str, icount: bool) -> Command {
+fn qemu_command(elf: &Path, serial: &str, append: &str, icount: bool, exec_log: Option<&Path>) -> Command {
     let mut command = Command::new("qemu-system-arm");
     command.args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"]);
     command.args(["-semihosting-config", "enable=on,target=native"]);
     command.args(["-serial", serial]);
     if icount {
         command.args(["-icount", "shift=0"]);
+    }
+    if let Some(path) = exec_log {
+        command.args(crate::m4_profile::qemu_args(path));
     }
     if !append.is_empty() {
         command.args(["-append", append]);
@@ -445,6 +448,8 @@ pub struct RunRequest<'a> {
     pub bench_no_margins: bool,
     /// Print the defmt log live.
     pub echo_log: bool,
+    /// QEMU's record of every block it runs, for [`crate::m4_profile`].
+    pub exec_log: Option<&'a Path>,
     pub timeout: Duration,
     /// The firmware speaks MAVLink (the `mavlink` build): the script goes
     /// at its first bytes and the run ends at QEMU's exit.
@@ -472,7 +477,7 @@ pub fn run_firmware(request: RunRequest, on_message: &mut dyn FnMut(&Message)) -
     if request.bench && request.bench_no_margins {
         append.push_str(" no_margins");
     }
-    let mut qemu = qemu_command(request.elf, &format!("tcp:127.0.0.1:{port}"), &append, request.bench);
+    let mut qemu = qemu_command(request.elf, &format!("tcp:127.0.0.1:{port}"), &append, request.bench, request.exec_log);
     qemu.current_dir(request.dir);
     let deadline = Instant::now() + request.timeout;
     let emulator = Emulator::start(qemu, request.elf, request.echo_log)?;
@@ -485,7 +490,7 @@ pub fn run_firmware(request: RunRequest, on_message: &mut dyn FnMut(&Message)) -
 /// core's checks on the target (`selftest` ELF), or a deliberate fault
 /// (`request` = "panic" / "hardfault"). Returns the exit status and the log.
 pub fn run_selftest(elf: &Path, request: &str, echo_log: bool, timeout: Duration) -> Result<(ExitStatus, String)> {
-    Emulator::start(qemu_command(elf, "null", request, false), elf, echo_log)?.finish(Instant::now() + timeout)
+    Emulator::start(qemu_command(elf, "null", request, false, None), elf, echo_log)?.finish(Instant::now() + timeout)
 }
 
 /// Flash and RAM use of the firmware ELF, from its section headers.

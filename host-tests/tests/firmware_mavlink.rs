@@ -50,7 +50,7 @@ fn mavlink_elf() -> std::path::PathBuf {
 fn run_raw(dir: &Path, script: Vec<u8>) -> (Vec<u8>, String) {
     let elf = mavlink_elf();
     let request =
-        RunRequest { elf: &elf, dir, script, then: None, bench: false, bench_mm_per_px: None, bench_no_margins: false, echo_log: false, timeout: common::TIMEOUT, mavlink: true };
+        RunRequest { elf: &elf, dir, script, then: None, bench: false, bench_mm_per_px: None, bench_no_margins: false, echo_log: false, exec_log: None, timeout: common::TIMEOUT, mavlink: true };
     let outcome = qemu::run_firmware(request, &mut |_| {}).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
     assert!(outcome.status.success(), "{}: firmware exit {}; log:\n{}", dir.display(), outcome.status, outcome.log);
     (outcome.serial.raw, outcome.log)

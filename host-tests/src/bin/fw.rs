@@ -9,6 +9,8 @@
 //! - `--selftest`: core's checks on the target, then the panic, HardFault and watchdog
 //!   paths, which must end QEMU with a nonzero status and a message.
 //! - `--bench`: the main job under `-icount shift=0`; prints `key: value`.
+//!   With `--profile`: first the instructions per function on the first
+//!   frames, from QEMU's record of what it ran ([`m4_profile`]).
 //!   With `--full-frame`: the worst case, a square AOI making the KG grid
 //!   256x256 without margins (`bench::FullFrame`, as `flatland bench
 //!   --full-frame`), on the `full-frame` firmware build (no GTI stage).
@@ -39,7 +41,7 @@ use flatland_core::protocol::Message;
 use flatland_host::bench::FullFrame;
 use flatland_host::qemu::{self, RunRequest, Sensors, DEFAULT_RECORDING};
 use flatland_host::recording::Recording;
-use flatland_host::{mavlink_decode, serial_decode};
+use flatland_host::{m4_profile, mavlink_decode, serial_decode};
 
 type Result<T> = std::result::Result<T, String>;
 
@@ -76,7 +78,12 @@ struct Args {
     mavlink: Option<qemu::PoseMessages>,
     /// `--capture FILE`: the firmware's raw serial output.
     capture: Option<PathBuf>,
+    /// `--profile`: instructions per function (`--bench` only).
+    profile: bool,
 }
+
+/// Frames `--profile` runs: QEMU's record grows by ~0.4 GB a frame.
+const PROFILE_FRAMES: u32 = 3;
 
 /// `--odometry poses|none`, `--imu poses|none`, as on `flatland detect`:
 /// whether the run uses that sensor's poses.csv columns.
@@ -98,6 +105,7 @@ fn parse_args() -> Result<Args> {
     let mut sensors = Sensors::ALL;
     let mut protocol = Protocol::Lines;
     let mut poses = None;
+    let mut profile = false;
     let mut capture = None;
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
@@ -106,6 +114,7 @@ fn parse_args() -> Result<Args> {
             "--selftest" => mode = Mode::SelfTest,
             "--bench" => mode = Mode::Bench,
             "--full-frame" => full_frame = true,
+            "--profile" => profile = true,
             "--protocol" => {
                 protocol = match args.next().as_deref() {
                     Some("lines") => Protocol::Lines,
@@ -132,7 +141,7 @@ fn parse_args() -> Result<Args> {
                 mm_per_px = Some(args.next().and_then(|s| s.parse().ok()).ok_or("--mm-per-px needs a number")?);
             }
             "-h" | "--help" => {
-                println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame]");
+                println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame] [--profile]");
                 println!("       --odometry none / --imu none: $FLODO leaves the wheels' pose / the IMU's attitude out");
                 println!("       --protocol lines|mavlink: the serial protocol (default lines); mavlink runs the mavlink build, poses sent as MAVLink;");
                 println!("         with --csv it prints OBSTACLE_DISTANCE as `flatland serial decode --mavlink --recording RECORDING` does");
@@ -150,6 +159,9 @@ fn parse_args() -> Result<Args> {
     if full_frame && mode != Mode::Bench {
         return Err("--full-frame is for cargo fw-bench".into());
     }
+    if profile && mode != Mode::Bench {
+        return Err("--profile is for cargo fw-bench".into());
+    }
     // QEMU runs in the recording's directory: the ELF's path must not be relative.
     let elf = elf.map(|elf: PathBuf| elf.canonicalize().map_err(|e| format!("firmware {}: {e}", elf.display()))).transpose()?;
     if mode == Mode::Run && elf.as_deref().and_then(Path::file_name).is_some_and(|name| name == "selftest") {
@@ -163,7 +175,7 @@ fn parse_args() -> Result<Args> {
     if mavlink.is_some() && !matches!(mode, Mode::Run | Mode::Csv) {
         return Err("--protocol mavlink runs the main job (no --bench or --selftest)".into());
     }
-    Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame, sensors, mavlink, capture })
+    Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame, sensors, mavlink, capture, profile })
 }
 
 fn describe(message: &Message) -> Option<String> {
@@ -195,9 +207,12 @@ fn describe(message: &Message) -> Option<String> {
 
 /// The main job, `--csv` and `--bench`: runs the firmware `elf` on a recording.
 /// Returns the decoded log.
-fn run_recording(args: &Args, elf: &Path) -> Result<String> {
+fn run_recording(args: &Args, elf: &Path, exec_log: Option<&Path>) -> Result<String> {
     let mut recording = Recording::open(&args.recording).map_err(|e| e.to_string())?;
     args.sensors.apply(&mut recording);
+    if exec_log.is_some() {
+        recording.poses.retain(|row| row.frame < PROFILE_FRAMES);
+    }
     let mut mm_per_px = args.mm_per_px;
     if args.full_frame {
         let full = FullFrame::for_rig(&recording.rig, mm_per_px)?;
@@ -219,6 +234,7 @@ fn run_recording(args: &Args, elf: &Path) -> Result<String> {
         bench_mm_per_px: mm_per_px,
         bench_no_margins: args.full_frame,
         echo_log: human,
+        exec_log,
         timeout: args.timeout,
     };
     let outcome = qemu::run_firmware(request, &mut |message| {
@@ -291,7 +307,15 @@ fn run_selftest(args: &Args, elf: &Path) -> Result<()> {
 }
 
 fn run_bench(args: &Args, elf: &Path) -> Result<()> {
-    let log = run_recording(args, elf)?;
+    let exec_log = args.profile.then(|| std::env::temp_dir().join(format!("flatland-exec-{}.log", std::process::id())));
+    let log = run_recording(args, elf, exec_log.as_deref());
+    if let Some(path) = &exec_log {
+        let profile = std::fs::File::open(path).map(std::io::BufReader::new).and_then(m4_profile::read);
+        let _ = std::fs::remove_file(path);
+        let profile = profile.map_err(|e| format!("QEMU's record {}: {e}", path.display()))?;
+        print_profile(&profile);
+    }
+    let log = log?;
     let mut per_frame: BTreeMap<String, Vec<u64>> = BTreeMap::new();
     let mut once: Vec<(String, String)> = Vec::new();
     for line in log.lines() {
@@ -334,6 +358,20 @@ fn run_bench(args: &Args, elf: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The profile's biggest entries (`--profile`).
+fn print_profile(profile: &m4_profile::Profile) {
+    let share = |count: u64| 100.0 * count as f64 / profile.total.max(1) as f64;
+    println!("profile: every instruction the M4 ran on the first {PROFILE_FRAMES} frames (set-up and serial waits included; the pipeline's own count is instructions_per_cycle below)");
+    println!("profile_total: {}", profile.total);
+    for (name, count) in profile.functions.iter().take(40) {
+        println!("profile: {count:>11} {:5.1} %  {name}", share(*count));
+    }
+    println!("profile: library routines by caller (their instructions are in the list above too)");
+    for ((routine, caller), count) in profile.routines.iter().take(20) {
+        println!("profile: {count:>11} {:5.1} %  {routine} <- {caller}", share(*count));
+    }
+}
+
 fn main() {
     let result = parse_args().and_then(|args| {
         qemu::ensure_tools()?;
@@ -348,7 +386,7 @@ fn main() {
             }
         };
         match args.mode {
-            Mode::Run | Mode::Csv => run_recording(&args, &elf).map(drop),
+            Mode::Run | Mode::Csv => run_recording(&args, &elf, None).map(drop),
             Mode::SelfTest => run_selftest(&args, &elf),
             Mode::Bench => run_bench(&args, &elf),
         }

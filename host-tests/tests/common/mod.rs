@@ -43,7 +43,7 @@ pub fn run(dir: &Path, script: Vec<u8>) -> RunOutcome {
 /// As [`run`], with more bytes sent once a frame is answered.
 pub fn run_then(dir: &Path, script: Vec<u8>, then: Option<qemu::Continuation>) -> RunOutcome {
     let elf = firmware_elf();
-    let request = RunRequest { elf: &elf, dir, script, then, bench: false, bench_mm_per_px: None, bench_no_margins: false, echo_log: false, timeout: TIMEOUT, mavlink: false };
+    let request = RunRequest { elf: &elf, dir, script, then, bench: false, bench_mm_per_px: None, bench_no_margins: false, echo_log: false, exec_log: None, timeout: TIMEOUT, mavlink: false };
     let outcome = qemu::run_firmware(request, &mut |_| {}).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
     assert!(outcome.status.success(), "{}: firmware exit {}; log:\n{}", dir.display(), outcome.status, outcome.log);
     assert!(!outcome.log.contains("panic"), "{}: log mentions a panic:\n{}", dir.display(), outcome.log);
