@@ -63,6 +63,7 @@ checks! {
         seen_difference_equals_plain,
         residues_equal_plain,
         float_kernels_equal_reference,
+        hypotf_equals_libm,
     ],
     health: [
         alarm_is_asserted_until_a_frame_is_judged_clear,

@@ -40,7 +40,7 @@ const UNSEEN: u16 = kernels::UNSEEN_Q4;
 
 /// The yaw step that moves the grid's farthest corner by half a cell.
 pub(super) fn yaw_step(grid: &KgGrid, cell_mm: f32) -> f32 {
-    let far_mm = libm::hypotf(grid.x_left_mm as f32, grid.z_far_mm as f32).max(1.0);
+    let far_mm = kernels::hypotf(grid.x_left_mm as f32, grid.z_far_mm as f32).max(1.0);
     (0.5 * cell_mm / far_mm).to_degrees()
 }
 

@@ -107,7 +107,7 @@ impl KeyframeAttitude {
         let next = self.attitude().then(change);
         KeyframeAttitude {
             deg: [next.pitch_deg as f32, next.roll_deg as f32],
-            sigma_deg: core::array::from_fn(|k| libm::hypotf(self.sigma_deg[k], change_sigma[k])),
+            sigma_deg: core::array::from_fn(|k| kernels::hypotf(self.sigma_deg[k], change_sigma[k])),
         }
     }
 }

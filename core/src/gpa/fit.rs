@@ -79,7 +79,7 @@ impl Surfaces {
 
     /// How far from where it was found the model puts block `m`, KG px.
     pub(super) fn residual(&self, m: &BlockMatch) -> Option<f32> {
-        self.place(m).map(|at| libm::hypotf(at.0 - m.keyframe.0, at.1 - m.keyframe.1))
+        self.place(m).map(|at| kernels::hypotf(at.0 - m.keyframe.0, at.1 - m.keyframe.1))
     }
 }
 

@@ -418,3 +418,38 @@ pub fn float_kernels_equal_reference() -> Outcome {
     }
     Ok(())
 }
+
+/// `hypotf` gives libm's result bit for bit: random operands of every
+/// magnitude and sign (both scaled paths too), operands 0 to 30 binades
+/// apart, equal ones, zeros, infinities, NaN, and sums that fall close to
+/// halfway between two floats (mantissas of all ones and of one bit).
+pub fn hypotf_equals_libm() -> Outcome {
+    let mut state = 0x4879_7074u32;
+    let same = |x: f32, y: f32| {
+        let (fast, reference) = (super::hypotf(x, y), libm::hypotf(x, y));
+        fast.to_bits() == reference.to_bits() || (fast.is_nan() && reference.is_nan())
+    };
+    let edges = [0.0, -0.0, 1.0, f32::MIN_POSITIVE, f32::MAX, f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 3.0e-19, 7.0e18];
+    for &x in &edges {
+        for &y in &edges {
+            if !same(x, y) {
+                return Err("hypotf differs from libm at an edge value");
+            }
+        }
+    }
+    for _ in 0..30_000 {
+        let x = f32::from_bits(xorshift32(&mut state));
+        // y within 30 binades of x, or anywhere.
+        let apart = xorshift32(&mut state) % 31;
+        let y = match xorshift32(&mut state) % 4 {
+            0 => f32::from_bits(xorshift32(&mut state)),
+            1 => x,
+            2 => f32::from_bits((x.to_bits() & 0x807F_FFFF) | ((x.to_bits() >> 23 & 0xFF).saturating_sub(apart) << 23) ^ (xorshift32(&mut state) & 0x7FFF)),
+            _ => f32::from_bits(((x.to_bits() >> 23 & 0xFF).saturating_sub(apart) << 23) | [0x7F_FFFF, 0x40_0001, 1, 0x7F_FFFE][(xorshift32(&mut state) % 4) as usize]),
+        };
+        if !same(x, y) {
+            return Err("hypotf differs from libm");
+        }
+    }
+    Ok(())
+}
