@@ -666,9 +666,9 @@ mod tests {
         // Within two of its own sigmas, and most of the way from nominal
         // (measured: 0.70, -0.37 with sigmas 0.09, 0.14).
         let truth = [sitting.pitch_deg as f32, sitting.roll_deg as f32];
-        for k in 0..2 {
-            let error = libm::fabsf(known.deg[k] - truth[k]);
-            assert!(error < 2.0 * known.sigma_deg[k] && error < libm::fabsf(truth[k]) / 3.0, "{known:?}");
+        for ((found, sigma), truth) in known.deg.iter().zip(known.sigma_deg).zip(truth) {
+            let error = libm::fabsf(found - truth);
+            assert!(error < 2.0 * sigma && error < libm::fabsf(truth) / 3.0, "{known:?}");
         }
     }
 
