@@ -196,10 +196,15 @@ impl Scan {
             None if angle(x_right_mm) > 0.0 => self.len().saturating_sub(1),
             None => return,
         };
+        // A sector's far edge is the next one's near edge (the same angle,
+        // exactly): each tangent is taken once (software f64 on the M4).
+        let tan = |angle_deg: f64| libm::tan(angle_deg.to_radians());
+        let mut near_edge_tan = tan(self.layout.edges_deg(first).0);
         for k in first..=last {
-            let (a0, a1) = self.layout.edges_deg(k);
-            let lo = x_left_mm.max(z_mm * libm::tan(a0.to_radians()));
-            let hi = x_right_mm.min(z_mm * libm::tan(a1.to_radians()));
+            let far_edge_tan = tan(self.layout.edges_deg(k).1);
+            let lo = x_left_mm.max(z_mm * near_edge_tan);
+            let hi = x_right_mm.min(z_mm * far_edge_tan);
+            near_edge_tan = far_edge_tan;
             // The sector's part of the segment (a point where it only
             // touches an edge); its point nearest the origin.
             let x = 0.0f64.clamp(lo.min(hi), hi.max(lo));
