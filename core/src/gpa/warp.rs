@@ -319,7 +319,7 @@ impl Coverage {
             }
             return;
         }
-        if self.straight_runs(warp, seen.clone(), grid, runs) {
+        if self.straight_runs(warp, seen.clone(), grid, runs) || self.bent_runs(warp, seen.clone(), grid, runs) {
             return;
         }
         let mut open: Option<usize> = None;
@@ -390,6 +390,68 @@ impl Coverage {
         }
         true
     }
+
+    /// [`Self::usable_runs`] of a bent row, a chunk of columns at a time: a
+    /// chunk whose positions all lie, by the bound below, in one keyframe
+    /// row's reference columns is usable whole, one whose positions all lie
+    /// outside them (or outside the rows) unusable whole, and only the
+    /// others are tested column by column. Adds to `runs` (cleared); false,
+    /// `runs` untouched, if the row's positions could wrap.
+    fn bent_runs(&self, warp: RowWarp, seen: Range<usize>, grid: &KgGrid, runs: &mut Runs) -> bool {
+        const CHUNK: usize = 16;
+        const SANE: i64 = 1 << 30;
+        // A coordinate's exact value at column c, as `RowWarp::at` computes it when nothing wraps.
+        let exact = |start: i32, step: i32, bend: i32, c: usize| {
+            let c = c as i64;
+            i64::from(start) + c * i64::from(step) + ((c * c * i64::from(bend)) >> (BEND_FRAC - FRAC))
+        };
+        if !warp.is_bent() {
+            return false;
+        }
+        if seen.is_empty() {
+            return true;
+        }
+        // The quadratic part leaves its chord by at most |bend| (n / 2)^2 over n
+        // columns (in bend units), and the rounding down by under 1 more.
+        let apart = |bend: i32, n: usize| ((i64::from(bend).abs() * (n * n) as i64) >> (BEND_FRAC - FRAC + 2)) + 2;
+        // The range of a coordinate over the columns first..=last.
+        let range = |start: i32, step: i32, bend: i32, first: usize, last: usize| {
+            let (a, b) = (exact(start, step, bend, first), exact(start, step, bend, last));
+            let margin = apart(bend, last - first);
+            (a.min(b) - margin, a.max(b) + margin)
+        };
+        let whole = (range(warp.i_start, warp.i_step, warp.i_bend, seen.start, seen.end - 1), range(warp.j_start, warp.j_step, warp.j_bend, seen.start, seen.end - 1));
+        if [whole.0 .0, whole.0 .1, whole.1 .0, whole.1 .1].iter().any(|v| v.abs() >= SANE) {
+            return false;
+        }
+        let rows_limit = i64::from(grid.height() as i32 - 1) << FRAC;
+        let mut add = |from: usize, to: usize| match runs.last_mut() {
+            Some(run) if usize::from(run.1) == from => run.1 = to as u16,
+            _ => {
+                let _ = runs.push((from as u16, to as u16));
+            }
+        };
+        let mut first = seen.start;
+        while first < seen.end {
+            let end = (first + CHUNK).min(seen.end);
+            let (i_range, j_range) = (range(warp.i_start, warp.i_step, warp.i_bend, first, end - 1), range(warp.j_start, warp.j_step, warp.j_bend, first, end - 1));
+            let outside_rows = j_range.1 < 0 || j_range.0 >= rows_limit;
+            let one_row = j_range.0 >= 0 && j_range.1 < rows_limit && j_range.0 >> FRAC == j_range.1 >> FRAC;
+            let (lo, hi) = if one_row { self.reference[(j_range.0 >> FRAC) as usize] } else { (0, 0) };
+            let (lo, hi) = (i64::from(lo) << FRAC, i64::from(hi) << FRAC);
+            if one_row && i_range.0 >= lo && i_range.1 < hi {
+                add(first, end);
+            } else if !(outside_rows || one_row && (i_range.1 < lo || i_range.0 >= hi)) {
+                for c in first..end {
+                    if self.usable_at(warp.at(c), grid) {
+                        add(c, c + 1);
+                    }
+                }
+            }
+            first = end;
+        }
+        true
+    }
 }
 
 #[cfg(test)]
@@ -414,11 +476,12 @@ mod tests {
         runs
     }
 
-    /// Straight rows solved per keyframe row give the runs the column-by-
-    /// column test gives: yawed either way, shifted past every edge, over
-    /// keyframe rows whose reference columns vary (and some that have none).
+    /// Straight rows solved per keyframe row, and bent rows a chunk at a
+    /// time, give the runs the column-by-column test gives: yawed either
+    /// way, bent either way, shifted past every edge, over keyframe rows
+    /// whose reference columns vary (and some that have none).
     #[test]
-    fn straight_rows_runs_equal_the_column_test() {
+    fn solved_runs_equal_the_column_test() {
         let grid = KgGrid { mm_per_px: 5.0, x_left_mm: -350.0, z_far_mm: 1600.0, width: 141, height: 255 };
         let mut coverage = Coverage::full(&grid);
         let mut seed = 0x2545_F491u32;
@@ -449,6 +512,14 @@ mod tests {
             assert!(coverage.straight_runs(warp, seen.clone(), &grid, &mut runs));
             assert_eq!(runs.as_slice(), runs_by_column(&coverage, warp, seen.clone(), &grid).as_slice(), "{warp:?} {seen:?}");
             checked += usize::from(!runs.is_empty());
+            // The same row bent (a roll of up to ~2 degrees bends by ~1/2000 px per column squared).
+            let mut bend = |range: u32| next(2 * range + 1) as i32 - range as i32;
+            let bent = RowWarp { i_bend: bend(1 << 21), j_bend: bend(1 << 21), ..warp };
+            if bent.is_bent() {
+                let mut runs = Runs::new();
+                assert!(coverage.bent_runs(bent, seen.clone(), &grid, &mut runs));
+                assert_eq!(runs.as_slice(), runs_by_column(&coverage, bent, seen.clone(), &grid).as_slice(), "{bent:?} {seen:?}");
+            }
         }
         assert!(checked > 5_000, "too few rows had usable columns: {checked}");
     }
