@@ -155,14 +155,9 @@ impl Keyframe<'_> {
         };
         let end = (first + 1..columns.end).rev().find(|&c| inside(c)).map_or(first + 1, |c| c + 1);
         if line.is_bent() {
-            // A quadratic's turning point, -step / (2 bend), is where it could leave the grid.
-            let turning = |step: i32, bend: i32| {
-                (bend != 0).then(|| -(f64::from(step) * (1u64 << (BEND_FRAC - FRAC)) as f64) / (2.0 * f64::from(bend)))
-            };
-            let leaves = |turn: Option<f64>| {
-                turn.is_some_and(|t| t > first as f64 && t < (end - 1) as f64 && [t as usize, t as usize + 1].iter().any(|&c| !inside(c)))
-            };
-            if leaves(turning(line.i_step, line.i_bend)) || leaves(turning(line.j_step, line.j_bend)) {
+            // A quadratic's turning point is where it could leave the grid.
+            let leaves = |step: i32, bend: i32| turning_column(step, bend, first, end - 1).is_some_and(|c| !inside(c) || !inside(c + 1));
+            if leaves(line.i_step, line.i_bend) || leaves(line.j_step, line.j_bend) {
                 return Span::Wraps;
             }
         }
@@ -331,6 +326,20 @@ fn straight_span(line: RowWarp, columns: Range<usize>, limits: (i32, i32)) -> Op
     Some(if from < to { from as usize..to as usize } else { columns.start..columns.start })
 }
 
+/// The whole part of a bent coordinate's turning point t = -step / (2 bend)
+/// (columns; `step` Q16, `bend` Q32) when `first < t < last`. In integers
+/// (no software f64 on the M4): each comparison multiplied by the
+/// denominator, flipped when it is negative.
+fn turning_column(step: i32, bend: i32, first: usize, last: usize) -> Option<usize> {
+    if bend == 0 {
+        return None;
+    }
+    let (num, den) = (-(i64::from(step) << (BEND_FRAC - FRAC)), 2 * i64::from(bend));
+    let (above, below) = if den > 0 { (num > first as i64 * den, num < last as i64 * den) } else { (num < first as i64 * den, num > last as i64 * den) };
+    // t > first >= 0: its whole part is |num| / |den|.
+    (above && below).then(|| (num.unsigned_abs() / den.unsigned_abs()) as usize)
+}
+
 /// Where a line lies inside the grid ([`Keyframe::inside_span`]).
 enum Span {
     /// These columns, and no others.
@@ -353,6 +362,38 @@ mod tests {
             None => columns.start..columns.start,
             Some(first) => first..columns.clone().rev().find(|&c| inside(c)).unwrap() + 1,
         }
+    }
+
+    /// The turning point's column in integers is the one the same
+    /// division in f64 gives (steps and bends of either sign and any size
+    /// a warp makes, turning points near whole columns included).
+    #[test]
+    fn turning_columns_equal_the_f64_division() {
+        let mut seed = 0x7E57_0001u32;
+        let mut next = move |n: u32| {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed % n
+        };
+        let by_f64 = |step: i32, bend: i32, first: usize, last: usize| {
+            (bend != 0)
+                .then(|| -(f64::from(step) * (1u64 << (BEND_FRAC - FRAC)) as f64) / (2.0 * f64::from(bend)))
+                .filter(|&t| t > first as f64 && t < last as f64)
+                .map(|t| t as usize)
+        };
+        let mut inside = 0;
+        for round in 0..100_000 {
+            let bend = next(1 << 23) as i32 - (1 << 22);
+            // Some steps put the turning point on a whole column exactly.
+            let step = if round % 3 == 0 { -2 * bend * next(300) as i32 / (1 << 16) } else { next(1 << 18) as i32 - (1 << 17) };
+            let first = next(200) as usize;
+            let last = first + next(200) as usize;
+            let found = turning_column(step, bend, first, last);
+            assert_eq!(found, by_f64(step, bend, first, last), "step {step} bend {bend} {first}..{last}");
+            inside += usize::from(found.is_some());
+        }
+        assert!(inside > 1_000, "too few turning points between the columns: {inside}");
     }
 
     /// Straight lines solved give the scan's interval: yawed either way
