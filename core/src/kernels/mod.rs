@@ -295,29 +295,46 @@ pub fn hypotf(x: f32, y: f32) -> f32 {
     // Both normal: value = m 2^(e - 150), m with its implicit bit.
     let parts = |bits: u32| (bits >> 23, u64::from(bits & 0x7F_FFFF | 0x80_0000));
     let ((e_high, m_high), (e_low, m_low)) = (parts(high), parts(low));
-    // x^2 + y^2 = sum 2^(2 (e_low - 150)), exactly (under 2^98).
-    let sum = (u128::from(m_high * m_high) << (2 * (e_high - e_low))) + u128::from(m_low * m_low);
-    let (rounded, shift) = round_to_bits(sum, 53);
-    let (rounded, more) = round_to_bits(rounded, 24);
-    // rounded in [2^23, 2^24] times 2^(shift + more + 2 (e_low - 150)).
-    let (mantissa, exponent) = if rounded == 1 << 24 { (1u128 << 23, shift + more + 1) } else { (rounded, shift + more) };
+    // x^2 + y^2 = sum 2^(2 (e_low - 150)), exactly: in 64 bits while the
+    // two are within 7 binades (most residuals), else in 128 (under 2^98).
+    let apart = 2 * (e_high - e_low);
+    let (rounded, shift) = if apart <= 15 {
+        let sum = ((m_high * m_high) << apart) + m_low * m_low;
+        let (rounded, shift) = round_u64(sum, 53);
+        let (rounded, more) = round_u64(rounded, 24);
+        (rounded, shift + more)
+    } else {
+        let sum = (u128::from(m_high * m_high) << apart) + u128::from(m_low * m_low);
+        let (rounded, shift) = round_u128(sum, 53);
+        let (rounded, more) = round_u128(rounded, 24);
+        (rounded as u64, shift + more)
+    };
+    // rounded in [2^23, 2^24] times 2^(shift + 2 (e_low - 150)).
+    let (mantissa, exponent) = if rounded == 1 << 24 { (1u64 << 23, shift + 1) } else { (rounded, shift) };
     let biased = exponent as i32 + 2 * (e_low as i32 - 150) + 23 + 127;
     sqrtf(f32::from_bits(((biased as u32) << 23) | (mantissa as u32 & 0x7F_FFFF)))
 }
 
 /// `value` rounded to `bits` significant bits, to nearest with ties to
-/// even: the significand and the power of two it is scaled by.
-#[inline]
-fn round_to_bits(value: u128, bits: u32) -> (u128, u32) {
-    let width = 128 - value.leading_zeros();
-    if width <= bits {
-        return (value, 0);
-    }
-    let cut = width - bits;
-    let (kept, rest, half) = (value >> cut, value & ((1 << cut) - 1), 1u128 << (cut - 1));
-    let up = rest > half || (rest == half && kept & 1 == 1);
-    (kept + u128::from(up), cut)
+/// even: the significand and the power of two it is scaled by. For each
+/// width the M4 handles (`u64` in registers, `u128` in library calls).
+macro_rules! round_to_bits {
+    ($name:ident, $int:ty) => {
+        #[inline]
+        fn $name(value: $int, bits: u32) -> ($int, u32) {
+            let width = <$int>::BITS - value.leading_zeros();
+            if width <= bits {
+                return (value, 0);
+            }
+            let cut = width - bits;
+            let (kept, rest, half) = (value >> cut, value & ((1 << cut) - 1), (1 as $int) << (cut - 1));
+            let up = rest > half || (rest == half && kept & 1 == 1);
+            (kept + <$int>::from(up), cut)
+        }
+    };
 }
+round_to_bits!(round_u64, u64);
+round_to_bits!(round_u128, u128);
 
 // ---------------------------------------------------------------- remap
 
