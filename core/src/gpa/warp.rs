@@ -378,12 +378,7 @@ impl Coverage {
                 let column = |i: u16| ceil_div((i32::from(i) << FRAC) - warp.i_start, warp.i_step).max(0) as usize;
                 let (from, to) = (column(lo).max(c), column(hi).min(next));
                 if from < to {
-                    match runs.last_mut() {
-                        Some(run) if usize::from(run.1) == from => run.1 = to as u16,
-                        _ => {
-                            let _ = runs.push((from as u16, to as u16));
-                        }
-                    }
+                    extend_runs(runs, from, to);
                 }
             }
             c = next;
@@ -425,12 +420,6 @@ impl Coverage {
             return false;
         }
         let rows_limit = i64::from(grid.height() as i32 - 1) << FRAC;
-        let mut add = |from: usize, to: usize| match runs.last_mut() {
-            Some(run) if usize::from(run.1) == from => run.1 = to as u16,
-            _ => {
-                let _ = runs.push((from as u16, to as u16));
-            }
-        };
         let mut first = seen.start;
         while first < seen.end {
             let end = (first + CHUNK).min(seen.end);
@@ -440,17 +429,28 @@ impl Coverage {
             let (lo, hi) = if one_row { self.reference[(j_range.0 >> FRAC) as usize] } else { (0, 0) };
             let (lo, hi) = (i64::from(lo) << FRAC, i64::from(hi) << FRAC);
             if one_row && i_range.0 >= lo && i_range.1 < hi {
-                add(first, end);
+                extend_runs(runs, first, end);
             } else if !(outside_rows || one_row && (i_range.1 < lo || i_range.0 >= hi)) {
                 for c in first..end {
                     if self.usable_at(warp.at(c), grid) {
-                        add(c, c + 1);
+                        extend_runs(runs, c, c + 1);
                     }
                 }
             }
             first = end;
         }
         true
+    }
+}
+
+/// Adds the usable columns `from..to` to `runs`, joining the last run when
+/// it ends at `from` (runs are kept a column apart at least).
+fn extend_runs(runs: &mut Runs, from: usize, to: usize) {
+    match runs.last_mut() {
+        Some(run) if usize::from(run.1) == from => run.1 = to as u16,
+        _ => {
+            let _ = runs.push((from as u16, to as u16));
+        }
     }
 }
 
