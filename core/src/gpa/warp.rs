@@ -348,18 +348,21 @@ impl Coverage {
         if seen.is_empty() {
             return true;
         }
-        // Positions of the first and last seen columns, exactly. Within
-        // +-2^30 the i32 positions do not wrap, and every difference below
-        // fits an i32 (grid positions are below 2^26).
+        // The start, the step and the positions of the first and last seen
+        // columns, exactly. Within +-2^30 no position wraps, and every
+        // difference below fits an i32 (grid positions are below 2^26).
         const SANE: i64 = 1 << 30;
         let ends = [seen.start as i64, seen.end as i64 - 1];
-        let sane = |start: i32, step: i32| ends.iter().all(|&c| (i64::from(start) + c * i64::from(step)).abs() < SANE);
+        let sane = |start: i32, step: i32| {
+            i64::from(start).abs() < SANE && i64::from(step).abs() < SANE && ends.iter().all(|&c| (i64::from(start) + c * i64::from(step)).abs() < SANE)
+        };
         if !sane(warp.i_start, warp.i_step) || !sane(warp.j_start, warp.j_step) {
             return false;
         }
         // Rounded up, for a positive divisor.
         let ceil_div = |a: i32, b: i32| -((-a).div_euclid(b));
-        let position = |start: i32, step: i32, c: usize| start + c as i32 * step;
+        // As `RowWarp::at` (the product may wrap where the sum does not).
+        let position = |start: i32, step: i32, c: usize| start.wrapping_add((c as i32).wrapping_mul(step));
         let last_row = grid.height() as i32 - 1;
         let mut c = seen.start;
         while c < seen.end {

@@ -296,14 +296,14 @@ const MAX_STACK: usize = crate::gpa::band::MAX_WINDOW;
 /// [`Keyframe::inside_span`] of a straight line, solved instead of
 /// scanned: the columns where `0 <= i < limits.0` and `0 <= j < limits.1`,
 /// each coordinate linear in c, as an interval of `columns` (empty at its
-/// start when there is none). None unless positions, steps and limits lie
-/// within +-2^29 (any line a sane warp gives), so that every difference
-/// below fits an i32 (the M4 divides those in one instruction).
+/// start when there is none). None unless the starts, positions, steps and
+/// limits lie within +-2^29 (any line a sane warp gives), so that every
+/// difference below fits an i32 (the M4 divides those in one instruction).
 fn straight_span(line: RowWarp, columns: Range<usize>, limits: (i32, i32)) -> Option<Range<usize>> {
     const SANE: i64 = 1 << 29;
     let ends = [columns.start as i64, columns.end as i64 - 1];
     let sane = |start: i32, step: i32| {
-        i64::from(step).abs() < SANE && ends.iter().all(|&c| (i64::from(start) + c * i64::from(step)).abs() < SANE)
+        i64::from(start).abs() < SANE && i64::from(step).abs() < SANE && ends.iter().all(|&c| (i64::from(start) + c * i64::from(step)).abs() < SANE)
     };
     let limits_sane = i64::from(limits.0) < SANE && i64::from(limits.1) < SANE;
     if columns.is_empty() || columns.end as i64 >= SANE || !limits_sane || !sane(line.i_start, line.i_step) || !sane(line.j_start, line.j_step) {
@@ -386,7 +386,7 @@ mod tests {
         for round in 0..100_000 {
             let bend = next(1 << 23) as i32 - (1 << 22);
             // Some steps put the turning point on a whole column exactly.
-            let step = if round % 3 == 0 { -2 * bend * next(300) as i32 / (1 << 16) } else { next(1 << 18) as i32 - (1 << 17) };
+            let step = if round % 3 == 0 { (-2 * i64::from(bend) * i64::from(next(300)) / (1 << 16)) as i32 } else { next(1 << 18) as i32 - (1 << 17) };
             let first = next(200) as usize;
             let last = first + next(200) as usize;
             let found = turning_column(step, bend, first, last);
