@@ -68,10 +68,9 @@ use decision::{Alarm, Noise};
 use estimate::{Estimate, Estimator, KeyframeAttitude, Prior, Scene};
 use homography::SinCosMemo;
 use keyframe::Keyframe;
-use layout::Layout;
+use layout::{Layout, MAX_CELL_PX};
 use parallax::{Hypotheses, Parallax};
 use prediction::Prediction;
-use layout::MAX_CELL_PX;
 use warp::{Coverage, RowWarp, Warp};
 use workspace::Workspace;
 

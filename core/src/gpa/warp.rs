@@ -81,6 +81,20 @@ impl RowWarp {
     }
 }
 
+/// One coordinate of [`RowWarp::at`] at column `c` without its i32
+/// wrapping (the two agree wherever the value fits an i32).
+#[inline(always)]
+pub(super) fn unwrapped(start: i32, step: i32, bend: i32, c: usize) -> i64 {
+    let c = c as i64;
+    i64::from(start) + c * i64::from(step) + ((c * c * i64::from(bend)) >> (BEND_FRAC - FRAC))
+}
+
+/// `a / b` rounded up, for `b > 0`.
+#[inline(always)]
+pub(super) fn ceil_div(a: i32, b: i32) -> i32 {
+    -((-a).div_euclid(b))
+}
+
 /// The measured motion as a map from current KG pixels to keyframe KG
 /// pixels. Planar motion alone is affine; an attitude change bends it
 /// (each row stays a line, its spacing and slope change with distance),
@@ -359,8 +373,6 @@ impl Coverage {
         if !sane(warp.i_start, warp.i_step) || !sane(warp.j_start, warp.j_step) {
             return false;
         }
-        // Rounded up, for a positive divisor.
-        let ceil_div = |a: i32, b: i32| -((-a).div_euclid(b));
         // As `RowWarp::at` (the product may wrap where the sum does not).
         let position = |start: i32, step: i32, c: usize| start.wrapping_add((c as i32).wrapping_mul(step));
         let last_row = grid.height() as i32 - 1;
@@ -398,11 +410,6 @@ impl Coverage {
     fn bent_runs(&self, warp: RowWarp, seen: Range<usize>, grid: &KgGrid, runs: &mut Runs) -> bool {
         const CHUNK: usize = 16;
         const SANE: i64 = 1 << 30;
-        // A coordinate's exact value at column c, as `RowWarp::at` computes it when nothing wraps.
-        let exact = |start: i32, step: i32, bend: i32, c: usize| {
-            let c = c as i64;
-            i64::from(start) + c * i64::from(step) + ((c * c * i64::from(bend)) >> (BEND_FRAC - FRAC))
-        };
         if !warp.is_bent() {
             return false;
         }
@@ -414,7 +421,7 @@ impl Coverage {
         let apart = |bend: i32, n: usize| ((i64::from(bend).abs() * (n * n) as i64) >> (BEND_FRAC - FRAC + 2)) + 2;
         // The range of a coordinate over the columns first..=last.
         let range = |start: i32, step: i32, bend: i32, first: usize, last: usize| {
-            let (a, b) = (exact(start, step, bend, first), exact(start, step, bend, last));
+            let (a, b) = (unwrapped(start, step, bend, first), unwrapped(start, step, bend, last));
             let margin = apart(bend, last - first);
             (a.min(b) - margin, a.max(b) + margin)
         };
@@ -488,12 +495,7 @@ mod tests {
         let grid = KgGrid { mm_per_px: 5.0, x_left_mm: -350.0, z_far_mm: 1600.0, width: 141, height: 255 };
         let mut coverage = Coverage::full(&grid);
         let mut seed = 0x2545_F491u32;
-        let mut next = move |n: u32| {
-            seed ^= seed << 13;
-            seed ^= seed >> 17;
-            seed ^= seed << 5;
-            seed % n
-        };
+        let mut next = move |n: u32| crate::selftest::xorshift32(&mut seed) % n;
         for (j, slot) in coverage.reference.iter_mut().enumerate().take(grid.height()) {
             let lo = next(40) as u16;
             *slot = if j % 17 == 5 { (0, 0) } else { (lo, (lo + 60 + next(50) as u16).min(141)) };

@@ -361,7 +361,7 @@ fn run_bench(args: &Args, elf: &Path) -> Result<()> {
 /// The profile's biggest entries (`--profile`).
 fn print_profile(profile: &m4_profile::Profile) {
     let share = |count: u64| 100.0 * count as f64 / profile.total.max(1) as f64;
-    println!("profile: every instruction the M4 ran on the first {PROFILE_FRAMES} frames (set-up and serial waits included; the pipeline's own count is instructions_per_cycle below)");
+    println!("profile: every instruction the M4 ran on the first {PROFILE_FRAMES} frames (set-up and serial waits included); the figures after the profile are the same run's, over those frames only");
     println!("profile_total: {}", profile.total);
     for (name, count) in profile.functions.iter().take(40) {
         println!("profile: {count:>11} {:5.1} %  {name}", share(*count));

@@ -3,7 +3,7 @@
 
 use super::Keyframe;
 use crate::gpa::kernels;
-use crate::gpa::warp::{RowWarp, BEND_FRAC, FRAC};
+use crate::gpa::warp::{ceil_div, unwrapped, RowWarp, BEND_FRAC, FRAC};
 use core::ops::Range;
 
 impl Keyframe<'_> {
@@ -130,13 +130,7 @@ impl Keyframe<'_> {
     /// interval and no pixel in it needs a test.
     fn inside_span(&self, line: RowWarp, columns: Range<usize>) -> Span {
         let (i_limit, j_limit) = (self.columns_limit(), self.rows_limit());
-        let exact = |c: usize| {
-            let along = |start: i32, step: i32, bend: i32| {
-                let c = c as i64;
-                i64::from(start) + c * i64::from(step) + ((c * c * i64::from(bend)) >> (BEND_FRAC - FRAC))
-            };
-            (along(line.i_start, line.i_step, line.i_bend), along(line.j_start, line.j_step, line.j_bend))
-        };
+        let exact = |c: usize| (unwrapped(line.i_start, line.i_step, line.i_bend, c), unwrapped(line.j_start, line.j_step, line.j_bend, c));
         let fits = |(i, j): (i64, i64)| i32::try_from(i).is_ok() && i32::try_from(j).is_ok();
         if !(fits(exact(columns.start)) && fits(exact(columns.end - 1))) {
             return Span::Wraps;
@@ -311,7 +305,6 @@ fn straight_span(line: RowWarp, columns: Range<usize>, limits: (i32, i32)) -> Op
     }
     // The columns c with 0 <= start + c step < limit, as [from, to).
     let solve = |start: i32, step: i32, limit: i32| -> (i32, i32) {
-        let ceil_div = |a: i32, b: i32| -((-a).div_euclid(b));
         match step.signum() {
             1 => (ceil_div(-start, step), ceil_div(limit - start, step)),
             -1 => ((start - limit).div_euclid(-step) + 1, start.div_euclid(-step) + 1),
@@ -370,12 +363,7 @@ mod tests {
     #[test]
     fn turning_columns_equal_the_f64_division() {
         let mut seed = 0x7E57_0001u32;
-        let mut next = move |n: u32| {
-            seed ^= seed << 13;
-            seed ^= seed >> 17;
-            seed ^= seed << 5;
-            seed % n
-        };
+        let mut next = move |n: u32| crate::selftest::xorshift32(&mut seed) % n;
         let by_f64 = |step: i32, bend: i32, first: usize, last: usize| {
             (bend != 0)
                 .then(|| -(f64::from(step) * (1u64 << (BEND_FRAC - FRAC)) as f64) / (2.0 * f64::from(bend)))
@@ -402,12 +390,7 @@ mod tests {
     fn straight_spans_equal_the_scan() {
         let limits = (140 << FRAC, 254 << FRAC);
         let mut seed = 0x1234_5678u32;
-        let mut next = move |n: u32| {
-            seed ^= seed << 13;
-            seed ^= seed >> 17;
-            seed ^= seed << 5;
-            seed % n
-        };
+        let mut next = move |n: u32| crate::selftest::xorshift32(&mut seed) % n;
         let mut nonempty = 0;
         for round in 0..20_000 {
             let yaw = (f64::from(next(4001)) - 2000.0) * 1e-3;
