@@ -56,10 +56,12 @@ pub struct GpaConfig {
     pub imu_sigma_deg: f64,
     /// Without an IMU: the largest attitude change from the keyframe, degrees.
     pub max_attitude_change_deg: f64,
-    /// Drops are looked for only while the measured attitude change from
-    /// the keyframe stays within this (degrees): past it, the attitude
-    /// model's error at the far AOI edge is as large as a drop's parallax
-    /// (which is small: T*d/(H+d)). Obstacles standing up are unaffected.
+    /// Drops are looked for only while the attitude change from the
+    /// keyframe is measured (by the images or an IMU; an IMU's sigma must
+    /// be within this too) and stays within this (degrees):
+    /// past it, the attitude model's error at the far AOI edge is as large
+    /// as a drop's parallax (which is small: T*d/(H+d)). Obstacles
+    /// standing up are unaffected.
     pub drop_attitude_limit_deg: f64,
 }
 

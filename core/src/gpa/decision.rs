@@ -109,12 +109,16 @@ impl Alarm {
     /// an alarm when the baseline is short (under half the keyframe
     /// travel); a drop's parallax is smaller still (T*d/(H+d), under T
     /// however deep), so a drop is held through baselines under three
-    /// quarters of the travel. A held hazard is moved by the odometry `step`.
+    /// quarters of the travel, and through frames that could not look for
+    /// drops at all (`drops_looked_for` false: the attitude change is
+    /// unmeasured or too large), else a drop seen on the last frame would
+    /// turn into a stale clear. A held hazard is moved by the odometry `step`.
     pub(super) fn decide(
         &mut self,
         parallax: Option<(Footprint, i32)>,
         residue: Option<Footprint>,
         baseline_mm: f64,
+        drops_looked_for: bool,
         config: &GpaConfig,
         step: &Motion,
     ) -> Option<Hazard> {
@@ -124,14 +128,14 @@ impl Alarm {
             (None, None) => AlarmSource::None,
         };
         let found = parallax.map(|(footprint, height)| (footprint, Some(height))).or(residue.map(|footprint| (footprint, None)));
-        let too_short = |held: &Hazard| {
+        let cannot_clear = |held: &Hazard| {
             let is_drop = held.1.is_some_and(|h| h < 0);
             let needed = if is_drop { 0.75 } else { 0.5 } * config.keyframe_travel_mm;
-            baseline_mm < needed
+            baseline_mm < needed || (is_drop && !drops_looked_for)
         };
         let hazard = match (found, self.previous) {
             (Some(found), _) => Some(found),
-            (None, Some(held)) if too_short(&held) => {
+            (None, Some(held)) if cannot_clear(&held) => {
                 self.source = AlarmSource::Held;
                 let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
                 let (footprint, height) = held;
@@ -146,5 +150,42 @@ impl Alarm {
         };
         self.previous = hazard;
         hazard
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const STEP: Motion = Motion { tx_mm: 0.0, tz_mm: 50.0, dyaw_deg: 0.0 };
+
+    fn at(near_mm: i32) -> Footprint {
+        Footprint { near_mm, left_mm: -100, right_mm: 100 }
+    }
+
+    /// A drop seen, then a full baseline that could not look for drops:
+    /// held (moved by the step), not a stale clear; a frame that looked and
+    /// saw nothing clears it.
+    #[test]
+    fn a_drop_is_held_through_a_frame_blind_to_drops() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        let seen = alarm.decide(Some((at(1000), -150)), None, 100.0, true, &config, &STEP);
+        assert_eq!(seen, Some((at(1000), Some(-150))));
+        let blind = alarm.decide(None, None, 100.0, false, &config, &STEP);
+        assert_eq!(blind, Some((at(950), Some(-150))));
+        assert_eq!(alarm.source(), AlarmSource::Held);
+        assert_eq!(alarm.decide(None, None, 100.0, true, &config, &STEP), None);
+    }
+
+    /// An obstacle standing up is seen whatever the attitude: blindness to
+    /// drops does not hold it past a full baseline; a short one does.
+    #[test]
+    fn an_obstacle_is_held_only_through_short_baselines() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        alarm.decide(Some((at(800), 120)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(None, None, 40.0, false, &config, &STEP), Some((at(750), Some(120))));
+        assert_eq!(alarm.decide(None, None, 100.0, false, &config, &STEP), None);
     }
 }

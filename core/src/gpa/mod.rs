@@ -521,7 +521,10 @@ impl<'b> Gpa<'b> {
         store.plan(due);
         self.keyframe = store;
         self.odometry_fault = self.odometry.map(|odometry| self.disagrees(&odometry, &self.prediction.step, estimate.is_some()));
-        Some(self.decide(keyframe_frame, &prior.motion.planar, seed_apart))
+        // Without an estimate the attitude change is the prior's: an IMU's
+        // measurement, or without one a guess (level, 1 degree).
+        let attitude_measured = estimate.is_some() || prior.sigma[3].max(prior.sigma[4]) <= self.config.drop_attitude_limit_deg;
+        Some(self.decide(keyframe_frame, &prior.motion.planar, seed_apart, attitude_measured))
     }
 
     /// Fills the seed's search (`self.seed`) around the `predicted` motion:
@@ -599,7 +602,9 @@ impl<'b> Gpa<'b> {
     /// The frame's sums decide: refined motion, noise, obstacle, alarm.
     /// `predicted` is the prediction; `seed_apart`: the seed's search ran
     /// around it apart from the measured motion's (else they are one).
-    fn decide(&mut self, keyframe_frame: u32, predicted: &Motion, seed_apart: bool) -> FrameReport {
+    /// `attitude_measured`: the attitude change was measured (else drops,
+    /// whose parallax an attitude error mimics, are not looked for).
+    fn decide(&mut self, keyframe_frame: u32, predicted: &Motion, seed_apart: bool, attitude_measured: bool) -> FrameReport {
         let (seed_sum, seed_count, seed_fit) = self.settle_searches(predicted, seed_apart);
         let (shift_k, shift_g) = (seed_fit.shift_k, seed_fit.shift_g);
         let rows = self.workspace.rows();
@@ -607,12 +612,13 @@ impl<'b> Gpa<'b> {
         let short_baseline = baseline_mm < 0.5 * self.config.keyframe_travel_mm;
         let (layout, config) = (&self.layout, &self.config);
         let attitude = self.measured.attitude;
-        let drops = libm::fabs(attitude.pitch_deg).max(libm::fabs(attitude.roll_deg)) <= config.drop_attitude_limit_deg;
+        let small = libm::fabs(attitude.pitch_deg).max(libm::fabs(attitude.roll_deg)) <= config.drop_attitude_limit_deg;
+        let drops = attitude_measured && small;
         self.scan.begin(self.frame);
         let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &rows.residue, config, short_baseline, drops, &mut self.scan);
         self.blobs = obstacles::residue_blobs(layout, &rows.residue, config);
         let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &rows.residue, config);
-        let hazard = self.alarm.decide(parallax, residue, baseline_mm, config, &self.prediction.step);
+        let hazard = self.alarm.decide(parallax, residue, baseline_mm, drops, config, &self.prediction.step);
         let obstacle = hazard.map(|(footprint, _)| footprint);
         self.finish_scan(obstacle);
         let motion = self.prediction.to_last();
