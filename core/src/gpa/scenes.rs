@@ -30,6 +30,14 @@ fn ledge_image(grid: &KgGrid, table: &RemapTable, pose: &Pose, camera_height_mm:
     image
 }
 
+/// Frames driven towards the ledge: its edge goes from 1600 to 600 mm ahead.
+const FRAMES: u32 = 21;
+
+/// How far ahead the edge is at `frame`.
+fn edge_ahead_mm(frame: u32) -> f64 {
+    EDGE_Z_MM - 50.0 * f64::from(frame)
+}
+
 /// Drives 50 mm a frame towards a ledge `drop_mm` deep; the reports.
 fn drive_to_ledge(drop_mm: f64) -> std::vec::Vec<FrameReport> {
     let rig = rig();
@@ -39,7 +47,7 @@ fn drive_to_ledge(drop_mm: f64) -> std::vec::Vec<FrameReport> {
     let mut gpa = Gpa::new(&rig, &grid, &table, GpaConfig::default(), &mut keyframe).unwrap();
     let mut reports = std::vec::Vec::new();
     let step = Motion { tx_mm: 0.0, tz_mm: 50.0, dyaw_deg: 0.0 };
-    for n in 0..12u32 {
+    for n in 0..FRAMES {
         let pose = Pose { x_mm: 0.0, z_mm: 50.0 * f64::from(n), yaw_deg: 0.0 };
         let image = ledge_image(&grid, &table, &pose, rig.height_mm(), drop_mm);
         gpa.begin_frame(n, (n > 0).then_some(step), None);
@@ -51,16 +59,19 @@ fn drive_to_ledge(drop_mm: f64) -> std::vec::Vec<FrameReport> {
     reports
 }
 
-/// A 25 mm drop, just past the 20 mm limit, raises the alarm at its edge
-/// with its depth as a negative height, once the edge is in the AOI.
+/// A 25 mm drop, just past the 20 mm limit, raises the alarm on every
+/// frame from 1200 mm on (the AOI reaches 1400), at its edge (within 5 %)
+/// and with its depth as a negative height.
 #[test]
-#[ignore = "issue 14: passes today only by an estimate bug, so it is no bound yet. After a frame that takes a lower level, step 6 is skipped and the keyframe attitude's sigma falls back to the prior's (1 deg without an IMU); the next frame's step 6 then puts the drop into the keyframe pitch (1.05 deg, growing to 1.41 along the chain; truth 0), and the biased schedule compares frame 10 over 143 mm instead of 100. Fed the true motion, frame 10 reports 1220 mm against the edge at 1100: at 5.75 mm/px a 25 mm drop lags 1.02 px over a 100 mm baseline, inside the tolerant residue's pixel, so the depth hypotheses are not tried in most cells past the edge. Fixing the sigma (step 6 with the depth as an 8th unknown) moves ledge's droll past the 0.5 deg drop gate under jitter (36 errors, jitter::ledge seed 7 frame 19)"]
+#[ignore = "issue 14: a 25 mm drop lags 5.9 mm after the 100 mm baseline, where the odometry's error over a 50 mm step may make 5.4 mm: its depth is not told from the ground. It passes today only through an estimate bias (the keyframe pitch takes the drop in, up to 1.6 deg, and stretches baselines to 150 mm) and even then one frame is 13 % past the edge; without the bias the alarm drops out on 4 of 13 frames. README, GPA: Limits"]
 fn drop_of_25_mm_raises_the_alarm() {
     let reports = drive_to_ledge(25.0);
-    let alarms: std::vec::Vec<_> = reports.iter().filter(|r| r.alarm).collect();
-    assert!(alarms.len() >= 5, "{reports:?}");
-    for report in alarms {
-        let edge = EDGE_Z_MM - 50.0 * f64::from(report.frame);
+    for report in &reports {
+        let edge = edge_ahead_mm(report.frame);
+        assert!(report.alarm || edge > 1200.0, "frame {}: no alarm with the edge {edge} mm ahead: {reports:?}", report.frame);
+        if !report.alarm {
+            continue;
+        }
         let near = f64::from(report.nearest_mm.unwrap());
         assert!((near - edge).abs() <= 0.05 * edge, "frame {}: {near} vs edge {edge}", report.frame);
         let depth = report.obstacle_h_mm.unwrap();
@@ -74,4 +85,3 @@ fn dip_of_10_mm_is_ground() {
     let reports = drive_to_ledge(10.0);
     assert!(reports.iter().all(|r| !r.alarm), "{reports:?}");
 }
-
