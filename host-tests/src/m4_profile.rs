@@ -68,11 +68,13 @@ pub fn read(record: impl BufRead) -> io::Result<Profile> {
         }
         let count = blocks.get(&pc).copied().unwrap_or(0);
         total += count;
-        *functions.entry(demangled(name)).or_default() += count;
+        // Demangled once: the record has a line per block run.
+        let function = demangled(name);
+        *functions.entry(function.clone()).or_default() += count;
         if is_routine(name) {
-            *routines.entry((demangled(name), caller.clone())).or_default() += count;
+            *routines.entry((function, caller.clone())).or_default() += count;
         } else if !name.is_empty() {
-            caller = demangled(name);
+            caller = function;
         }
     }
     Ok(Profile { total, functions: sorted(functions), routines: sorted(routines) })

@@ -89,6 +89,15 @@ pub(super) fn unwrapped(start: i32, step: i32, bend: i32, c: usize) -> i64 {
     i64::from(start) + c * i64::from(step) + ((c * c * i64::from(bend)) >> (BEND_FRAC - FRAC))
 }
 
+/// Whether a straight coordinate, its `start`, its `step` and its positions
+/// at the columns `first` and `last` all lie within +-`bound`: the solved
+/// rows and lines take only such (any sane warp's), so their differences
+/// fit an i32.
+pub(super) fn straight_within(start: i32, step: i32, first: usize, last: usize, bound: i64) -> bool {
+    let within = |v: i64| v.abs() < bound;
+    within(i64::from(start)) && within(i64::from(step)) && [first, last].iter().all(|&c| within(unwrapped(start, step, 0, c)))
+}
+
 /// `a / b` rounded up, for `b > 0`.
 #[inline(always)]
 pub(super) fn ceil_div(a: i32, b: i32) -> i32 {
@@ -366,19 +375,14 @@ impl Coverage {
         // columns, exactly. Within +-2^30 no position wraps, and every
         // difference below fits an i32 (grid positions are below 2^26).
         const SANE: i64 = 1 << 30;
-        let ends = [seen.start as i64, seen.end as i64 - 1];
-        let sane = |start: i32, step: i32| {
-            i64::from(start).abs() < SANE && i64::from(step).abs() < SANE && ends.iter().all(|&c| (i64::from(start) + c * i64::from(step)).abs() < SANE)
-        };
+        let sane = |start: i32, step: i32| straight_within(start, step, seen.start, seen.end - 1, SANE);
         if !sane(warp.i_start, warp.i_step) || !sane(warp.j_start, warp.j_step) {
             return false;
         }
-        // As `RowWarp::at` (the product may wrap where the sum does not).
-        let position = |start: i32, step: i32, c: usize| start.wrapping_add((c as i32).wrapping_mul(step));
         let last_row = grid.height() as i32 - 1;
         let mut c = seen.start;
         while c < seen.end {
-            let j = position(warp.j_start, warp.j_step, c);
+            let (_, j) = warp.at(c);
             let j0 = j >> FRAC;
             // The first column past this keyframe row.
             let next = match warp.j_step.signum() {

@@ -3,7 +3,7 @@
 
 use super::Keyframe;
 use crate::gpa::kernels;
-use crate::gpa::warp::{ceil_div, unwrapped, RowWarp, BEND_FRAC, FRAC};
+use crate::gpa::warp::{ceil_div, straight_within, unwrapped, RowWarp, BEND_FRAC, FRAC};
 use core::ops::Range;
 
 impl Keyframe<'_> {
@@ -295,12 +295,12 @@ const MAX_STACK: usize = crate::gpa::band::MAX_WINDOW;
 /// difference below fits an i32 (the M4 divides those in one instruction).
 fn straight_span(line: RowWarp, columns: Range<usize>, limits: (i32, i32)) -> Option<Range<usize>> {
     const SANE: i64 = 1 << 29;
-    let ends = [columns.start as i64, columns.end as i64 - 1];
-    let sane = |start: i32, step: i32| {
-        i64::from(start).abs() < SANE && i64::from(step).abs() < SANE && ends.iter().all(|&c| (i64::from(start) + c * i64::from(step)).abs() < SANE)
-    };
+    if columns.is_empty() {
+        return None;
+    }
+    let sane = |start: i32, step: i32| straight_within(start, step, columns.start, columns.end - 1, SANE);
     let limits_sane = i64::from(limits.0) < SANE && i64::from(limits.1) < SANE;
-    if columns.is_empty() || columns.end as i64 >= SANE || !limits_sane || !sane(line.i_start, line.i_step) || !sane(line.j_start, line.j_step) {
+    if columns.end as i64 >= SANE || !limits_sane || !sane(line.i_start, line.i_step) || !sane(line.j_start, line.j_step) {
         return None;
     }
     // The columns c with 0 <= start + c step < limit, as [from, to).
