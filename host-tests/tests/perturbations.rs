@@ -353,7 +353,7 @@ zero_errors! {
         diagonal,
         exposure_rolling,
         flat_marks,
-        ledge except [10, 11],
+        ledge,
         noisy_approach,
         noisy_marks,
         qvga_curb,

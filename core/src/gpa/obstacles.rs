@@ -101,6 +101,22 @@ enum Side {
     Below,
 }
 
+impl Side {
+    /// How far apart (cells) two cells of one group may lie. Parallax is
+    /// measured only where there is texture, so a face can leave a cell out
+    /// here and there: one-cell gaps are bridged. Past a drop's edge every
+    /// cell sees one lower level, which shows its depth only on rows where
+    /// its texture changes along the drive; two rows without such texture
+    /// must not cut the cells at the edge off from the hole behind them
+    /// (too few alone to count, so the edge came out a texture period late).
+    fn bridge(self) -> i32 {
+        match self {
+            Side::Above => 2,
+            Side::Below => 3,
+        }
+    }
+}
+
 /// The groups [`parallax_group`] looks for.
 #[derive(Clone, Copy)]
 struct Wanted {
@@ -194,9 +210,7 @@ fn parallax_group(
         let mut spans: heapless::Vec<CellSpan, MAX_BLOB_CELLS> = heapless::Vec::new();
         let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
         let mut group = 0usize;
-        // Parallax is measured only where there is texture, so a face can
-        // leave a cell out here and there: bridge one-cell gaps (radius 2).
-        flood_cells((w, h), 2, start, &mut seen, member, |cell, r, c| {
+        flood_cells((w, h), side.bridge(), start, &mut seen, member, |cell, r, c| {
             group += 1;
             with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
             let height = f64::from(heights.get(cell));
