@@ -305,6 +305,8 @@ fn an_imu_turns_with_the_body_and_stands_with_the_images() {
 
 /// Body pitch and roll, white per frame, sigma 0.3 deg (real robots: 0.3-1 deg).
 const JITTER: &str = "pitch-jitter=0.3,roll-jitter=0.3,seed=7";
+/// The same jitter, another draw.
+const JITTER_SEED_1: &str = "pitch-jitter=0.3,roll-jitter=0.3,seed=1";
 /// A sustained attitude: braking (1.5 deg nose down) on a camber (1 deg) from frame 4 on.
 const SUSTAINED: &str = "pitch=4:1.5,roll=4:1";
 /// Auto-exposure x1.25 at frame 3, x0.8 (back) at frame 6.
@@ -376,6 +378,23 @@ zero_errors! {
         noisy_marks,
         qvga_curb except [9],
         slip except [15],
+        stool_bags,
+        turn,
+    ];
+    // Another draw of the jitter, so that its bound is not one draw's
+    // luck (seed 7 above).
+    jitter_seed_1: super::JITTER_SEED_1 => [
+        approach_box except [11, 12],
+        bumpy_approach,
+        bumpy_marks,
+        diagonal,
+        exposure_rolling except [10],
+        flat_marks,
+        ledge except [10],
+        noisy_approach except [11, 12],
+        noisy_marks,
+        qvga_curb,
+        slip except [8, 9],
         stool_bags,
         turn,
     ];

@@ -57,12 +57,11 @@ pub struct GpaConfig {
     /// Without an IMU: the largest attitude change from the keyframe, degrees.
     pub max_attitude_change_deg: f64,
     /// Drops are looked for only while the attitude change from the
-    /// keyframe is measured (by the images or an IMU; an IMU's sigma must
-    /// be within this too) and stays within this (degrees):
-    /// past it, the attitude model's error at the far AOI edge is as large
-    /// as a drop's parallax (which is small: T*d/(H+d)). Obstacles
-    /// standing up are unaffected.
-    pub drop_attitude_limit_deg: f64,
+    /// keyframe is measured: by the images, or by an IMU whose sigma is
+    /// within this (degrees). A guessed change (level, `max_attitude_change_deg`
+    /// / 3) errs at the far AOI edge by as much as a drop's parallax
+    /// (which is small: T*d/(H+d)). Obstacles standing up are unaffected.
+    pub drop_imu_sigma_limit_deg: f64,
 }
 
 impl Default for GpaConfig {
@@ -96,7 +95,7 @@ impl GpaConfig {
         max_step_yaw_deg: 24.0,
         imu_sigma_deg: 0.1,
         max_attitude_change_deg: 3.0,
-        drop_attitude_limit_deg: 0.5,
+        drop_imu_sigma_limit_deg: 0.5,
     };
 
     /// [`GpaError::Config`] unless the search radius is in
@@ -120,7 +119,7 @@ impl GpaConfig {
             self.max_step_yaw_deg,
             self.imu_sigma_deg,
             self.max_attitude_change_deg,
-            self.drop_attitude_limit_deg,
+            self.drop_imu_sigma_limit_deg,
         ];
         if self.search_radius == 0 || self.search_radius > MAX_SEARCH_RADIUS || !finite.iter().all(|v| v.is_finite() && *v > 0.0) {
             return Err(GpaError::Config);

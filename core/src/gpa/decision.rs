@@ -111,7 +111,7 @@ impl Alarm {
     /// however deep), so a drop is held through baselines under three
     /// quarters of the travel, and through frames that could not look for
     /// drops at all (`drops_looked_for` false: the attitude change is
-    /// unmeasured or too large), else a drop seen on the last frame would
+    /// unmeasured), else a drop seen on the last frame would
     /// turn into a stale clear. A held hazard is moved by the odometry `step`.
     pub(super) fn decide(
         &mut self,

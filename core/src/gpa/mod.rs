@@ -523,7 +523,7 @@ impl<'b> Gpa<'b> {
         self.odometry_fault = self.odometry.map(|odometry| self.disagrees(&odometry, &self.prediction.step, estimate.is_some()));
         // Without an estimate the attitude change is the prior's: an IMU's
         // measurement, or without one a guess (level, 1 degree).
-        let attitude_measured = estimate.is_some() || prior.sigma[3].max(prior.sigma[4]) <= self.config.drop_attitude_limit_deg;
+        let attitude_measured = estimate.is_some() || prior.sigma[3].max(prior.sigma[4]) <= self.config.drop_imu_sigma_limit_deg;
         Some(self.decide(keyframe_frame, &prior.motion.planar, seed_apart, attitude_measured))
     }
 
@@ -611,9 +611,7 @@ impl<'b> Gpa<'b> {
         let baseline_mm = self.prediction.predicted.distance_mm();
         let short_baseline = baseline_mm < 0.5 * self.config.keyframe_travel_mm;
         let (layout, config) = (&self.layout, &self.config);
-        let attitude = self.measured.attitude;
-        let small = libm::fabs(attitude.pitch_deg).max(libm::fabs(attitude.roll_deg)) <= config.drop_attitude_limit_deg;
-        let drops = attitude_measured && small;
+        let drops = attitude_measured;
         self.scan.begin(self.frame);
         let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &rows.residue, config, short_baseline, drops, &mut self.scan);
         self.blobs = obstacles::residue_blobs(layout, &rows.residue, config);
