@@ -1,6 +1,7 @@
 //! The firmware's fail-safe in QEMU (issue 15, item 3): the alarm starts
 //! asserted and only a frame judged clear releases it; lost frames, stopped
-//! odometry and serial noise assert it and are reported as `$FLERR`.
+//! odometry and serial noise assert it and are reported as `$FLERR`; a
+//! drop asserts it as an obstacle does (issue 14).
 //!
 //! QEMU models no GPIO, so the pin's level is read from the log: the loop
 //! logs every change (`alarm: on (...)`, `alarm: off (frame N clear)`).
@@ -174,4 +175,25 @@ fn serial_noise_without_odometry_never_leaves_a_stale_clear() {
     assert_eq!(stats.bad_checksum, 5, "{stats:?}");
     assert_eq!(stats.out_of_order, 10, "{stats:?}");
     assert!(stats.garbage_bytes > 2000, "{stats:?}");
+}
+
+/// A drop raises the alarm pin as an obstacle does (issue 14): on ledge,
+/// released by frame 1, asserted by frame 10, the first to report the drop,
+/// and held through the last frame, which reports it too.
+#[test]
+fn a_drop_asserts_the_alarm_pin() {
+    let dir = data("ledge");
+    let outcome = run(&dir, script(&dir));
+    let drops: Vec<u32> = outcome
+        .serial
+        .messages
+        .iter()
+        .filter_map(|message| match message {
+            Message::Frame(report) if report.alarm && report.obstacle_h_mm.is_some_and(|h| h < 0) => Some(report.frame),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(drops, (10..=19).collect::<Vec<u32>>());
+    let changes = alarm_changes(&outcome);
+    assert_eq!(changes, [Change::On("start".into()), Change::Off(1), Change::On("frame 10: Ok".into())]);
 }
