@@ -523,8 +523,8 @@ impl<'b> Gpa<'b> {
         self.odometry_fault = self.odometry.map(|odometry| self.disagrees(&odometry, &self.prediction.step, estimate.is_some()));
         // Without an estimate the attitude change is the prior's: an IMU's
         // measurement, or without one a guess (level, 1 degree).
-        let attitude_measured = estimate.is_some() || prior.sigma[3].max(prior.sigma[4]) <= self.config.drop_imu_sigma_limit_deg;
-        Some(self.decide(keyframe_frame, &prior.motion.planar, seed_apart, attitude_measured))
+        let drops_looked_for = estimate.is_some() || prior.sigma[3].max(prior.sigma[4]) <= self.config.drop_imu_sigma_limit_deg;
+        Some(self.decide(keyframe_frame, &prior.motion.planar, seed_apart, drops_looked_for))
     }
 
     /// Fills the seed's search (`self.seed`) around the `predicted` motion:
@@ -602,21 +602,20 @@ impl<'b> Gpa<'b> {
     /// The frame's sums decide: refined motion, noise, obstacle, alarm.
     /// `predicted` is the prediction; `seed_apart`: the seed's search ran
     /// around it apart from the measured motion's (else they are one).
-    /// `attitude_measured`: the attitude change was measured (else drops,
+    /// `drops_looked_for`: the attitude change was measured (else drops,
     /// whose parallax an attitude error mimics, are not looked for).
-    fn decide(&mut self, keyframe_frame: u32, predicted: &Motion, seed_apart: bool, attitude_measured: bool) -> FrameReport {
+    fn decide(&mut self, keyframe_frame: u32, predicted: &Motion, seed_apart: bool, drops_looked_for: bool) -> FrameReport {
         let (seed_sum, seed_count, seed_fit) = self.settle_searches(predicted, seed_apart);
         let (shift_k, shift_g) = (seed_fit.shift_k, seed_fit.shift_g);
         let rows = self.workspace.rows();
         let baseline_mm = self.prediction.predicted.distance_mm();
         let short_baseline = baseline_mm < 0.5 * self.config.keyframe_travel_mm;
         let (layout, config) = (&self.layout, &self.config);
-        let drops = attitude_measured;
         self.scan.begin(self.frame);
-        let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &rows.residue, config, short_baseline, drops, &mut self.scan);
+        let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &rows.residue, config, short_baseline, drops_looked_for, &mut self.scan);
         self.blobs = obstacles::residue_blobs(layout, &rows.residue, config);
         let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &rows.residue, config);
-        let hazard = self.alarm.decide(parallax, residue, baseline_mm, drops, config, &self.prediction.step);
+        let hazard = self.alarm.decide(parallax, residue, baseline_mm, drops_looked_for, config, &self.prediction.step);
         let obstacle = hazard.map(|(footprint, _)| footprint);
         self.finish_scan(obstacle);
         let motion = self.prediction.to_last();

@@ -115,7 +115,7 @@ fn drop_of_25_mm_raises_the_alarm() {
     drop_reported(&drive_to_ledge(25.0), -40..=-20);
 }
 
-/// A 10 mm dip is ground: no alarm, no drop cells.
+/// A 10 mm dip is ground: no alarm on any frame.
 #[test]
 fn dip_of_10_mm_is_ground() {
     let reports = drive_to_ledge(10.0);
