@@ -193,7 +193,11 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         if !follows {
             self.gpa.reset_keyframe();
         }
-        self.gpa.begin_frame(frame, motion, pose.and_then(|sample| sample.attitude));
+        let elapsed_s = match (self.previous, pose) {
+            (Some(previous), Some(sample)) if follows => Some(sample.t_s - previous.sample.t_s),
+            _ => None,
+        };
+        self.gpa.begin_frame_at(frame, elapsed_s, motion, pose.and_then(|sample| sample.attitude));
         self.remap.reset();
         self.timing = FrameTiming::default();
         self.current = Some(Current { frame, pose, motion, kg_rows: 0, begun_at });

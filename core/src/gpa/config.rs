@@ -49,9 +49,16 @@ pub struct GpaConfig {
     pub odometry_sigma_mm: f64,
     pub odometry_sigma_yaw_deg: f64,
     /// Without odometry: the largest step (mm) and turn (degrees) between
-    /// frames the estimate searches for.
+    /// frames the estimate searches for when it knows no velocity yet. The
+    /// step is at least a fifth of the grid's depth, whatever the camera.
     pub max_step_mm: f64,
     pub max_step_yaw_deg: f64,
+    /// Without odometry, once a velocity is measured: how far the robot
+    /// may depart from it between frames, as the largest acceleration
+    /// (mm/s², deg/s²) over the frames' interval. A constant-velocity
+    /// prior is then tight at 30 frames/s and wide at 1.
+    pub max_acceleration_mm_s2: f64,
+    pub max_yaw_acceleration_deg_s2: f64,
     /// One sigma of an IMU's attitude change between two frames, degrees.
     pub imu_sigma_deg: f64,
     /// Without an IMU: the largest attitude change from the keyframe, degrees.
@@ -93,6 +100,8 @@ impl GpaConfig {
         odometry_sigma_yaw_deg: 0.5,
         max_step_mm: 250.0,
         max_step_yaw_deg: 24.0,
+        max_acceleration_mm_s2: 6000.0,
+        max_yaw_acceleration_deg_s2: 300.0,
         imu_sigma_deg: 0.1,
         max_attitude_change_deg: 3.0,
         drop_imu_sigma_limit_deg: 0.5,
@@ -117,6 +126,8 @@ impl GpaConfig {
             self.odometry_sigma_yaw_deg,
             self.max_step_mm,
             self.max_step_yaw_deg,
+            self.max_acceleration_mm_s2,
+            self.max_yaw_acceleration_deg_s2,
             self.imu_sigma_deg,
             self.max_attitude_change_deg,
             self.drop_imu_sigma_limit_deg,

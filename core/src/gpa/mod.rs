@@ -189,6 +189,12 @@ pub struct Gpa<'b> {
     odometry_fault: Option<bool>,
     /// The last frame's step from the frame before, if it was compared.
     last_step: Option<Motion>,
+    /// The interval since the last frame (s), if known, the one before it,
+    /// and whether the last frame's step was measured by the images (so
+    /// the velocity is known).
+    elapsed_s: Option<f64>,
+    last_elapsed_s: Option<f64>,
+    velocity_known: bool,
     /// This frame's motion as a warp.
     warp: Warp,
     /// The warps of the current cell row's rows so far, by row within it:
@@ -246,6 +252,9 @@ impl<'b> Gpa<'b> {
         },
         odometry_fault: None,
         last_step: None,
+        elapsed_s: None,
+        last_elapsed_s: None,
+        velocity_known: false,
         warp: Warp::NONE,
         cell_row_warps: [RowWarp::LEVEL; MAX_CELL_PX],
         parallax: Parallax::EMPTY,
@@ -352,6 +361,15 @@ impl<'b> Gpa<'b> {
     /// previous frame and `attitude` the IMU's (None: no such sensor).
     /// A frame that does not follow the last one restarts the keyframe.
     pub fn begin_frame(&mut self, frame: u32, odometry: Option<Motion>, attitude: Option<Attitude>) {
+        self.begin_frame_at(frame, None, odometry, attitude);
+    }
+
+    /// [`Self::begin_frame`], `elapsed_s` after the last frame: without
+    /// odometry the prior of the motion scales with it (tight at video
+    /// rate, wide at a frame a second).
+    pub fn begin_frame_at(&mut self, frame: u32, elapsed_s: Option<f64>, odometry: Option<Motion>, attitude: Option<Attitude>) {
+        self.last_elapsed_s = self.elapsed_s;
+        self.elapsed_s = elapsed_s.filter(|t| t.is_finite() && *t > 0.0);
         self.profiler.profile = GpaProfile::default();
         self.frame = frame;
         self.frame_active = true;
@@ -363,10 +381,12 @@ impl<'b> Gpa<'b> {
             self.keyframe.forget();
         }
         if self.keyframe.taken_at().is_none() {
+            self.velocity_known = false;
             self.start_keyframe();
             return;
         }
-        self.prediction.predict(odometry.as_ref());
+        let interval_ratio = self.elapsed_s.zip(self.last_elapsed_s).map(|(now, last)| now / last);
+        self.prediction.predict(odometry.as_ref(), interval_ratio);
         self.keyframe.plan(false);
     }
 
@@ -436,9 +456,17 @@ impl<'b> Gpa<'b> {
     fn prior(&self) -> Prior {
         let predicted = self.prediction.predicted;
         let config = &self.config;
-        let (translation, yaw) = match self.odometry {
-            Some(step) => (config.odometry_sigma_fraction * step.distance_mm() + config.odometry_sigma_mm, config.odometry_sigma_yaw_deg + 0.2 * libm::fabs(step.dyaw_deg)),
-            None => (config.max_step_mm / 3.0, config.max_step_yaw_deg / 3.0),
+        let grid = &self.layout.grid;
+        // The widest reach: a fifth of the view's depth (a car's 1.2 m, a
+        // small robot's 200 mm), 3 sigma.
+        let reach_mm = config.max_step_mm.max(0.2 * grid.height() as f64 * grid.mm_per_px);
+        let (translation, yaw) = match (self.odometry, self.velocity_known, self.elapsed_s) {
+            (Some(step), _, _) => (config.odometry_sigma_fraction * step.distance_mm() + config.odometry_sigma_mm, config.odometry_sigma_yaw_deg + 0.2 * libm::fabs(step.dyaw_deg)),
+            (None, true, Some(dt)) => (
+                (config.max_acceleration_mm_s2 * dt * dt).clamp(grid.mm_per_px, reach_mm / 3.0),
+                (config.max_yaw_acceleration_deg_s2 * dt * dt).clamp(0.2, config.max_step_yaw_deg / 3.0),
+            ),
+            (None, _, _) => (reach_mm / 3.0, config.max_step_yaw_deg / 3.0),
         };
         let (attitude, tilt_sigma) = match (self.imu, self.keyframe_imu) {
             (Some(now), Some(then)) => (now.since(&then), config.imu_sigma_deg),
@@ -492,6 +520,7 @@ impl<'b> Gpa<'b> {
             self.keyframe_attitude = estimate.keyframe_attitude;
             self.change_sigma = estimate.change_sigma;
         }
+        self.velocity_known = estimate.is_some();
         let measured = match (estimate, self.odometry) {
             (Some(estimate), _) => estimate.motion,
             (None, Some(_)) => prior.motion,

@@ -33,14 +33,22 @@ impl Prediction {
     }
 
     /// Predicts this frame from the last one moved by `odometry`, or
-    /// without it by the step last measured (constant velocity).
-    pub(super) fn predict(&mut self, odometry: Option<&Motion>) {
-        if let Some(odometry) = odometry {
-            self.step = Motion {
-                tx_mm: odometry.tx_mm * self.odometry_scale,
-                tz_mm: odometry.tz_mm * self.odometry_scale,
-                dyaw_deg: odometry.dyaw_deg,
-            };
+    /// without it by the step last measured (constant velocity: times
+    /// `interval_ratio`, this frame's interval over the last one's, when known).
+    pub(super) fn predict(&mut self, odometry: Option<&Motion>, interval_ratio: Option<f64>) {
+        match odometry {
+            Some(odometry) => {
+                self.step = Motion {
+                    tx_mm: odometry.tx_mm * self.odometry_scale,
+                    tz_mm: odometry.tz_mm * self.odometry_scale,
+                    dyaw_deg: odometry.dyaw_deg,
+                };
+            }
+            None => {
+                if let Some(ratio) = interval_ratio.filter(|r| r.is_finite() && (0.1..=10.0).contains(r)) {
+                    self.step = Motion { tx_mm: self.step.tx_mm * ratio, tz_mm: self.step.tz_mm * ratio, dyaw_deg: self.step.dyaw_deg * ratio };
+                }
+            }
         }
         self.predicted = self.to_last.then(&self.step);
     }
@@ -93,5 +101,25 @@ impl Prediction {
         if (0.8..=1.25).contains(&measured) {
             self.odometry_scale = (0.8 * self.odometry_scale + 0.2 * measured).clamp(0.8, 1.25);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Without odometry the step last measured is the velocity: a frame
+    /// twice as far apart in time is predicted twice as far; with
+    /// odometry the interval does not matter.
+    #[test]
+    fn without_odometry_the_step_scales_with_the_interval() {
+        let mut prediction = Prediction::START;
+        prediction.predict(Some(&Motion { tx_mm: 2.0, tz_mm: 50.0, dyaw_deg: 1.0 }), None);
+        prediction.predict(None, Some(2.0));
+        assert_eq!(prediction.predicted, Motion { tx_mm: 4.0, tz_mm: 100.0, dyaw_deg: 2.0 });
+        prediction.predict(None, None);
+        assert_eq!(prediction.predicted, Motion { tx_mm: 4.0, tz_mm: 100.0, dyaw_deg: 2.0 });
+        prediction.predict(Some(&Motion { tx_mm: 0.0, tz_mm: 30.0, dyaw_deg: 0.0 }), Some(3.0));
+        assert_eq!(prediction.predicted, Motion { tx_mm: 0.0, tz_mm: 30.0, dyaw_deg: 0.0 });
     }
 }
