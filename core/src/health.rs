@@ -2,8 +2,8 @@
 //!
 //! The alarm output tells the robot whether its path is clear. It may be
 //! released only by a frame that was judged clear; everything else (reset,
-//! a keyframe restart, a frame that could not be read, a camera or an
-//! odometry stream that went quiet) asserts it. [`Monitor`] holds that rule:
+//! a keyframe restart, a frame not judged, a frame that could not be read,
+//! a camera or an odometry stream that went quiet) asserts it. [`Monitor`] holds that rule:
 //! the frame loop feeds it what happened and when, and reads back
 //! [`Monitor::alarm`] and [`Monitor::health`].
 //!
@@ -159,7 +159,7 @@ impl Monitor {
     }
 
     /// A frame ended without a verdict (it only (re)started the keyframe,
-    /// or it was skipped): nothing is known about the path.
+    /// it was not judged, or it was skipped): nothing is known about the path.
     pub fn unjudged(&mut self) {
         self.verdict = Verdict::Unknown;
     }

@@ -7,8 +7,13 @@
 //! This room holds:
 //! - the odometry gate ([`Pipeline::begin`]): a frame is compared with the
 //!   keyframe only with the motion from the frame just before and forward
-//!   in time; a missing pose, a frame given up ([`Pipeline::abort`]), a gap
-//!   in frame numbers or time running backwards restart the keyframe;
+//!   in time; a frame given up ([`Pipeline::abort`]) or never begun (no
+//!   pose sample, unreadable), a gap in frame numbers or time running
+//!   backwards restart the keyframe;
+//! - every frame after the run's first is judged or says why not
+//!   ([`Outcome::NotJudged`], `report::NotJudged`): a frame that restarts
+//!   the keyframe after a gap, or whose motion could not be measured, gets
+//!   a fail-safe report (alarm asserted) with the reason;
 //! - the frame's rows ([`Pipeline::push_row`]) and its end
 //!   ([`Pipeline::finish`]), with typed outcomes and errors;
 //! - per-stage timing ([`FrameTiming`]) from an injected clock, for the
@@ -22,7 +27,7 @@ use crate::fusion::GtiStage;
 use crate::gpa::Gpa;
 use crate::motion::{Attitude, Motion, Pose};
 use crate::remap::{Line, RemapError, RemapTable, StreamingRemap};
-use crate::report::FrameReport;
+use crate::report::{FrameReport, NotJudged};
 use core::fmt;
 
 /// When a frame was captured, and what the robot's sensors said then.
@@ -40,9 +45,15 @@ pub struct PoseSample {
 /// What became of a finished frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Outcome {
-    /// Compared with the keyframe: GPA's decision with GTI's heights.
+    /// Compared with the keyframe and judged (`status` ok): GPA's decision
+    /// with GTI's heights.
     Compared(FrameReport),
-    /// Became the keyframe: nothing to compare with, so no alarm can be claimed.
+    /// Not judged: the report's `status` says why (`report::NotJudged`),
+    /// its alarm is asserted and it names no obstacle. The frame restarted
+    /// the keyframe from itself.
+    NotJudged(FrameReport),
+    /// The run's first frame: it became the keyframe. Nothing to compare
+    /// with and nothing before it, so no report (and no alarm can be claimed).
     Keyframe { frame: u32 },
 }
 
@@ -115,8 +126,11 @@ struct Previous {
 #[derive(Clone, Copy)]
 struct Current {
     frame: u32,
-    pose: Option<PoseSample>,
+    pose: PoseSample,
     motion: Option<Motion>,
+    /// The run's first frame (none begun, given up or refused before it):
+    /// if it has nothing to compare with, it is not reported.
+    first: bool,
     kg_rows: usize,
     begun_at: u32,
 }
@@ -129,6 +143,9 @@ pub struct Pipeline<'s, 'k, 't, 'r> {
     gti: Option<&'s mut GtiStage>,
     previous: Option<Previous>,
     current: Option<Current>,
+    /// A frame was begun, given up or refused: the next one is not the
+    /// run's first (a keyframe restart is then reported, not silent).
+    started: bool,
     clock: Option<fn() -> u32>,
     timing: FrameTiming,
 }
@@ -144,7 +161,7 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         gti: Option<&'s mut GtiStage>,
     ) -> Result<Self, RemapError> {
         let remap = StreamingRemap::new(table, ring)?;
-        Ok(Pipeline { table, remap, gpa, gti, previous: None, current: None, clock: None, timing: FrameTiming::default() })
+        Ok(Pipeline { table, remap, gpa, gti, previous: None, current: None, started: false, clock: None, timing: FrameTiming::default() })
     }
 
     /// Times the stages with `clock` (any wrapping tick counter), GPA's
@@ -159,32 +176,35 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         self.clock.map_or(0, |clock| clock())
     }
 
-    /// Starts frame `frame` captured at `pose` (None: poses.csv has no row
-    /// for it). Returns the odometry from the frame just before, or None
-    /// when there is none: the keyframe restarts with the first frame, one
-    /// after a gap or a frame given up, and one without a sample; a sample
-    /// without odometry continues on the motion seen in the images. A frame
-    /// whose time is not after the last frame's is skipped (error); a frame
-    /// still in progress is given up first.
-    pub fn begin(&mut self, frame: u32, pose: Option<PoseSample>) -> Result<Option<Motion>, FrameError> {
+    /// Starts frame `frame` captured at `pose`. Returns the odometry from
+    /// the frame just before, or None when there is none: the keyframe
+    /// restarts with the first frame and with one after a gap or a frame
+    /// given up (each but the run's first is then reported not judged,
+    /// `NotJudged::AfterGap`); a sample without odometry continues on the
+    /// motion seen in the images. A frame without a pose sample cannot be
+    /// placed in time: the caller does not begin it (it is a gap, as a
+    /// missing frame). A frame whose time is not after the last frame's is
+    /// skipped (error); a frame still in progress is given up first.
+    pub fn begin(&mut self, frame: u32, pose: PoseSample) -> Result<Option<Motion>, FrameError> {
         let begun_at = self.now();
         if self.current.is_some() {
             self.abort();
         }
-        if let (Some(previous), Some(sample)) = (self.previous, pose) {
-            if previous.frame != frame && sample.t_s <= previous.sample.t_s {
+        if let Some(previous) = self.previous {
+            if previous.frame != frame && pose.t_s <= previous.sample.t_s {
                 self.restart();
                 return Err(FrameError::TimeBackwards {
                     frame,
-                    t_s: sample.t_s,
+                    t_s: pose.t_s,
                     previous_frame: previous.frame,
                     previous_t_s: previous.sample.t_s,
                 });
             }
         }
-        let follows = pose.is_some() && self.follows(frame);
-        let motion = match (self.previous, pose) {
-            (Some(previous), Some(sample)) if follows => match (previous.sample.pose, sample.pose) {
+        let first = !core::mem::replace(&mut self.started, true);
+        let follows = self.follows(frame);
+        let motion = match self.previous {
+            Some(previous) if follows => match (previous.sample.pose, pose.pose) {
                 (Some(from), Some(to)) => Some(Motion::between(&from, &to)),
                 _ => None,
             },
@@ -193,20 +213,19 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         if !follows {
             self.gpa.reset_keyframe();
         }
-        let elapsed_s = match (self.previous, pose) {
-            (Some(previous), Some(sample)) if follows => Some(sample.t_s - previous.sample.t_s),
+        let elapsed_s = match self.previous {
+            Some(previous) if follows => Some(pose.t_s - previous.sample.t_s),
             _ => None,
         };
-        self.gpa.begin_frame_at(frame, elapsed_s, motion, pose.and_then(|sample| sample.attitude));
+        self.gpa.begin_frame_at(frame, elapsed_s, motion, pose.attitude);
         self.remap.reset();
         self.timing = FrameTiming::default();
-        self.current = Some(Current { frame, pose, motion, kg_rows: 0, begun_at });
+        self.current = Some(Current { frame, pose, motion, first, kg_rows: 0, begun_at });
         Ok(motion)
     }
 
-    /// Whether `frame` is the one after the last frame finished: begun
-    /// with a pose sample, it continues on the keyframe instead of
-    /// restarting it.
+    /// Whether `frame` is the one after the last frame finished: it
+    /// continues on the keyframe instead of restarting it.
     pub fn follows(&self, frame: u32) -> bool {
         self.previous.is_some_and(|previous| previous.frame.checked_add(1) == Some(frame))
     }
@@ -250,7 +269,9 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         })
     }
 
-    /// Ends the frame: GPA decides, GTI ends its frame and adds its heights.
+    /// Ends the frame: GPA decides, GTI ends its frame and adds its heights
+    /// to a frame judged. A frame that could not be judged is
+    /// [`Outcome::NotJudged`], the run's first frame [`Outcome::Keyframe`].
     /// On error (rows missing) the frame is given up.
     // Inlined into the caller: a frame of its own would sit under
     // `Gpa::end_frame`, the deepest stack of the firmware's loop.
@@ -266,24 +287,30 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         let start = self.now();
         let mut report = self.gpa.end_frame();
         let gti_start = self.now();
+        // Only a frame judged is GTI's to add to, or the scan's to show.
         if let Some(gti) = self.gti.as_deref_mut() {
             // Without odometry GTI follows the ground's motion as GPA measured it.
             gti.end_frame(current.motion.or_else(|| self.gpa.measured_step()), self.gpa.body_attitude());
-            if let Some(report) = report.as_mut() {
+            if let Some(report) = report.as_mut().filter(|report| report.is_judged()) {
                 gti.enrich(report);
             }
         }
-        if let Some(report) = report.as_ref() {
+        if let Some(report) = report.as_ref().filter(|report| report.is_judged()) {
             self.gpa.scan_report(report);
         }
         let end = self.now();
-        self.previous = current.pose.map(|sample| Previous { frame: current.frame, sample });
+        self.previous = Some(Previous { frame: current.frame, sample: current.pose });
         self.timing.decision = gti_start.wrapping_sub(start);
         self.timing.gti_frame = end.wrapping_sub(gti_start);
         self.timing.cycle = end.wrapping_sub(current.begun_at);
         Ok(match report {
-            Some(report) => Outcome::Compared(report),
-            None => Outcome::Keyframe { frame: current.frame },
+            Some(report) if report.is_judged() => Outcome::Compared(report),
+            Some(report) => Outcome::NotJudged(report),
+            // Nothing to compare with: the run's first frame is the
+            // keyframe; any later one says why it restarted it.
+            // (GPA has a keyframe whenever the frame follows the last one.)
+            None if current.first => Outcome::Keyframe { frame: current.frame },
+            None => Outcome::NotJudged(FrameReport::not_judged(current.frame, current.frame, NotJudged::AfterGap)),
         })
     }
 
@@ -299,8 +326,10 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         self.restart();
     }
 
-    /// Forgets the keyframe and the last frame: the next frame starts afresh.
+    /// Forgets the keyframe and the last frame: the next frame starts afresh
+    /// (and, not being the run's first, is reported not judged).
     pub fn restart(&mut self) {
+        self.started = true;
         self.gpa.reset_keyframe();
         self.previous = None;
         self.current = None;
@@ -344,14 +373,19 @@ mod tests {
     }
 
     /// Runs `frames` (index, pose) of a flat grey scene through a pipeline,
-    /// giving up those in `give_up` after one row; the outcome of each
-    /// other, or the error.
+    /// giving up those in `give_up` after one row, and those without a pose
+    /// sample before they begin (as `flatland detect` skips them); the
+    /// outcome of each other, or the error.
     fn run(frames: &[(u32, Option<PoseSample>)], give_up: &[u32]) -> Vec<Result<(Option<Motion>, Outcome), FrameError>> {
         let mut outcomes = Vec::new();
         with_pipeline(true, |pipeline, table| {
             let row = vec![128u8; table.camera_width()];
             let mut line = Line::ZERO;
             for &(frame, pose) in frames {
+                let Some(pose) = pose else {
+                    pipeline.abort();
+                    continue;
+                };
                 let motion = match pipeline.begin(frame, pose) {
                     Ok(motion) => motion,
                     Err(error) => {
@@ -388,7 +422,13 @@ mod tests {
         assert_eq!(motions, [None, motion(20.0), None, motion(20.0)]);
         assert_eq!(outcomes[0].unwrap().1, Outcome::Keyframe { frame: 0 });
         assert!(matches!(outcomes[1].unwrap().1, Outcome::Compared(report) if report.frame == 1 && report.ref_frame == 0));
-        assert_eq!(outcomes[2].unwrap().1, Outcome::Keyframe { frame: 3 }, "a gap restarts the keyframe");
+        assert_eq!(outcomes[2].unwrap().1, after_gap(3), "a gap restarts the keyframe, and says so");
+        assert!(matches!(outcomes[3].unwrap().1, Outcome::Compared(report) if report.ref_frame == 3));
+    }
+
+    /// Frame `frame` restarted the keyframe after a gap: not judged, alarm asserted.
+    fn after_gap(frame: u32) -> Outcome {
+        Outcome::NotJudged(FrameReport::not_judged(frame, frame, NotJudged::AfterGap))
     }
 
     #[test]
@@ -398,17 +438,37 @@ mod tests {
             outcomes[2],
             Err(FrameError::TimeBackwards { frame: 2, t_s: 0.1, previous_frame: 1, previous_t_s: 0.1 })
         );
-        assert_eq!(outcomes[3], Ok((None, Outcome::Keyframe { frame: 3 })));
+        assert_eq!(outcomes[3], Ok((None, after_gap(3))));
     }
 
     #[test]
     fn a_missing_pose_or_a_frame_given_up_restarts() {
         let outcomes = run(&[(0, at(0.0, 0.0)), (1, None), (2, at(0.2, 40.0)), (3, at(0.3, 60.0))], &[]);
         let motions: Vec<_> = outcomes.iter().map(|o| o.as_ref().unwrap().0).collect();
-        assert_eq!(motions, [None, None, None, motion(20.0)]);
+        assert_eq!(motions, [None, None, motion(20.0)], "frames 0, 2 and 3");
+        assert_eq!(outcomes[1].unwrap().1, after_gap(2));
         let outcomes = run(&[(0, at(0.0, 0.0)), (1, at(0.1, 20.0)), (2, at(0.2, 40.0)), (3, at(0.3, 60.0))], &[1]);
-        assert_eq!(outcomes[1], Ok((None, Outcome::Keyframe { frame: 2 })));
+        assert_eq!(outcomes[1], Ok((None, after_gap(2))));
         assert_eq!(outcomes[2].unwrap().0, motion(20.0));
+        // A run whose first frame is given up: the next is not the run's first.
+        let outcomes = run(&[(0, at(0.0, 0.0)), (1, at(0.1, 20.0)), (2, at(0.2, 40.0))], &[0]);
+        assert_eq!(outcomes[0], Ok((None, after_gap(1))));
+    }
+
+    /// A texture-less floor without odometry: the motion cannot be measured,
+    /// so each frame after the first is reported not judged (alarm asserted,
+    /// no obstacle), against the keyframe it tried, and restarts it.
+    #[test]
+    fn a_frame_whose_motion_cannot_be_measured_is_not_judged() {
+        let blind = |t_s: f64| Some(PoseSample { t_s, pose: None, attitude: None });
+        let outcomes = run(&[(0, blind(0.0)), (1, blind(0.1)), (2, blind(0.2))], &[]);
+        assert_eq!(outcomes[0], Ok((None, Outcome::Keyframe { frame: 0 })));
+        for (n, outcome) in outcomes.iter().enumerate().skip(1) {
+            let frame = n as u32;
+            let expected = FrameReport::not_judged(frame, frame - 1, NotJudged::NoMotion);
+            assert!(expected.alarm && expected.nearest_mm.is_none() && expected.left_mm.is_none() && expected.right_mm.is_none());
+            assert_eq!(outcome, &Ok((None, Outcome::NotJudged(expected))), "frame {frame}");
+        }
     }
 
     #[test]
@@ -418,10 +478,10 @@ mod tests {
             let mut line = Line::ZERO;
             assert_eq!(pipeline.push_row(&row, &mut line), Err(FrameError::NotBegun));
             assert_eq!(pipeline.finish(), Err(FrameError::NotBegun));
-            pipeline.begin(0, at(0.0, 0.0)).unwrap();
+            pipeline.begin(0, at(0.0, 0.0).unwrap()).unwrap();
             assert!(matches!(pipeline.push_row(&row[1..], &mut line), Err(FrameError::Remap(RemapError::RowLength { .. }))));
             assert_eq!(pipeline.push_row(&row, &mut line), Err(FrameError::NotBegun), "the frame was given up");
-            pipeline.begin(1, at(0.1, 20.0)).unwrap();
+            pipeline.begin(1, at(0.1, 20.0).unwrap()).unwrap();
             pipeline.push_row(&row, &mut line).unwrap();
             let expected = table.grid_height();
             assert!(matches!(pipeline.finish(), Err(FrameError::MissingRows { got, .. }) if got < expected));

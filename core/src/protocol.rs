@@ -23,10 +23,11 @@ use crate::geometry::{Aoi, Distortion, Intrinsics, Mount, Rig, RigError};
 use crate::limits::MAX_LINE;
 use crate::motion::{Attitude, Pose};
 use crate::pipeline::PoseSample;
-use crate::report::FrameReport;
+use crate::report::{FrameReport, Status};
 
-/// Bumped whenever a message's fields change meaning or count.
-pub const PROTOCOL_VERSION: u32 = 2;
+/// Bumped whenever a message's fields change meaning or count (3: `FLFRM`
+/// ends with the frame's `status`, and a frame not judged is sent too).
+pub const PROTOCOL_VERSION: u32 = 3;
 
 /// One encoded line.
 pub type Line = heapless::String<MAX_LINE>;
@@ -227,7 +228,8 @@ pub enum Message {
     Rig(RigRecord),
     /// Host → firmware: the pose of the next frame. `$FLODO`.
     Odometry(Odometry),
-    /// Firmware → host: one frame's result, the fields of `flatland detect`. `$FLFRM`.
+    /// Firmware → host: one frame's result, the fields of `flatland detect`,
+    /// for every frame judged or not (its `status`; not the run's first). `$FLFRM`.
     Frame(FrameReport),
     /// Firmware → host: counters, sent at the end of the run. `$FLSTA`.
     Stats(LinkStats),
@@ -429,6 +431,7 @@ fn write_body<W: Write>(out: &mut W, message: &Message) -> Result<(), EncodeErro
             write_optional_i32(out, r.obstacle_h_mm)?;
             write!(out, ",{},{},{}", r.dyaw, r.dpitch, r.droll)?;
             write_optional_i32(out, r.odometry_fault.map(i32::from))?;
+            write!(out, ",{}", r.status.as_str())?;
         }
         Message::Stats(s) => write!(
             out,
@@ -521,6 +524,12 @@ impl<'a> Fields<'a> {
             "1" => Ok(Some(true)),
             _ => Err(self.bad()),
         }
+    }
+
+    /// A frame's status: `ok` or a `report::NotJudged` name.
+    fn status(&mut self) -> Result<Status, DecodeError> {
+        let raw = self.next_raw()?;
+        Status::from_name(raw).ok_or(self.bad())
     }
 
     /// How many fields are left.
@@ -647,6 +656,7 @@ fn decode_body(body: &str) -> Result<Message, DecodeError> {
             dpitch: fields.integer()?,
             droll: fields.integer()?,
             odometry_fault: fields.optional_boolean()?,
+            status: fields.status()?,
         }),
         "FLSTA" => Message::Stats(LinkStats {
             frames: fields.integer()?,
@@ -832,7 +842,7 @@ pub mod checks {
         }
     }
 
-    use crate::report::sample_report;
+    use crate::report::{sample_report, NotJudged};
 
     /// Frame 3's odometry message with these sensors' fields.
     fn sample_odometry(pose: Option<Pose>, attitude: Option<Attitude>) -> Odometry {
@@ -886,6 +896,9 @@ pub mod checks {
             Message::Frame(FrameReport::default()),
             // A drop's depth: obstacle_h_mm is signed on the wire (issue 14).
             Message::Frame(FrameReport { obstacle_h_mm: Some(-150), ..sample_report() }),
+            // Frames not judged, each reason (version 3).
+            Message::Frame(FrameReport::not_judged(9, 8, NotJudged::NoMotion)),
+            Message::Frame(FrameReport::not_judged(9, 9, NotJudged::AfterGap)),
             Message::Stats(stats),
             Message::Fault(Fault { code: FaultCode::FrameRead, frame: 12 }),
             Message::End,
@@ -1000,7 +1013,7 @@ pub mod checks {
     }
 
     pub fn malformed_lines_give_typed_errors() -> Check {
-        let cases: [(&[u8], DecodeError); 14] = [
+        let cases: [(&[u8], DecodeError); 18] = [
             (b"$FLEND*00\r\n", DecodeError::BadChecksum),
             (b"$FLEND\r\n", DecodeError::MissingChecksum),
             (b"$FLEND*G1\r\n", DecodeError::MissingChecksum),
@@ -1015,6 +1028,11 @@ pub mod checks {
             (b"$FLODO,x,0,0,0,0*1A\r\n", DecodeError::BadField { index: 1 }),
             (b"$FLODO,1,0,inf,0,0*02\r\n", DecodeError::BadField { index: 3 }),
             (b"$FLRIG,9,1,1,1,1,1,1,,,,,,1,1,1,1,1*72\r\n", DecodeError::UnsupportedVersion),
+            (b"$FLRDY,2*5B\r\n", DecodeError::UnsupportedVersion),
+            // A version-2 frame (no status) is one field short; a status must be a known name.
+            (b"$FLFRM,2,0,0,,,,310,0,12,-4,3,1998,,-250,85,-12,*56\r\n", DecodeError::FieldCount),
+            (b"$FLFRM,2,0,0,,,,310,0,12,-4,3,1998,,-250,85,-12,,late*66\r\n", DecodeError::BadField { index: 18 }),
+            (b"$FLFRM,2,0,0,,,,310,0,12,-4,3,1998,,-250,85,-12,,*7A\r\n", DecodeError::BadField { index: 18 }),
             (b"$FLEN$FLEND*45\r\n", DecodeError::Truncated),
         ];
         for (bytes, expected) in cases {

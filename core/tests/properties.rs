@@ -10,7 +10,7 @@ use flatland_core::limits::MAX_SEARCH_RADIUS;
 use flatland_core::motion::{Attitude, Motion, Pose};
 use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, Odometry, RigRecord};
 use flatland_core::remap::{remap_frame, Line, RemapTable, StreamingRemap};
-use flatland_core::report::{FrameReport, SHIFT_SCALE};
+use flatland_core::report::{FrameReport, NotJudged, Status, SHIFT_SCALE};
 use flatland_core::selftest::xorshift32;
 use proptest::prelude::*;
 
@@ -359,13 +359,17 @@ fn rig_record() -> impl Strategy<Value = RigRecord> {
 }
 
 fn frame_report() -> impl Strategy<Value = FrameReport> {
+    // Judged, or not judged for each reason.
+    let statuses = [Status::Ok, Status::NotJudged(NotJudged::NoMotion), Status::NotJudged(NotJudged::AfterGap)];
     (
         (any::<u32>(), any::<u32>(), any::<bool>(), any::<Option<i32>>(), any::<Option<i32>>(), any::<Option<i32>>()),
         (any::<u32>(), any::<u32>(), any::<i32>(), any::<i32>(), any::<i32>(), any::<i32>(), any::<Option<i32>>()),
+        0..statuses.len(),
     )
-        .prop_map(|((frame, ref_frame, alarm, nearest_mm, left_mm, right_mm), (sad, count50, shift_k, shift_g, tx, tz, obstacle_h_mm))| FrameReport {
+        .prop_map(move |((frame, ref_frame, alarm, nearest_mm, left_mm, right_mm), (sad, count50, shift_k, shift_g, tx, tz, obstacle_h_mm), status)| FrameReport {
             frame, ref_frame, alarm, nearest_mm, left_mm, right_mm, sad, count50, shift_k, shift_g, tx, tz, obstacle_h_mm,
             dyaw: sad as i32, dpitch: count50 as i32, droll: shift_k.wrapping_neg(), odometry_fault: alarm.then_some(tx > 0),
+            status: statuses[status],
         })
 }
 

@@ -16,7 +16,8 @@
 //!
 //! Fail-safe (`flatland_core::health`): the alarm pin is asserted from the
 //! start and released only right after a frame judged clear. A keyframe
-//! restart, a skipped or lost frame, a camera that does not deliver a frame
+//! restart, a frame not judged (sent as `$FLFRM` with its reason in
+//! `status`), a skipped or lost frame, a camera that does not deliver a frame
 //! within 0.5 s, odometry that stops for 0.5 s while the loop waits, and the
 //! end of input all assert it. The loop never blocks on the serial port: it
 //! polls, feeds the watchdog and checks the odometry timer while it waits.
@@ -529,7 +530,9 @@ fn log_bench(frame: u32, read: u32, cycle: u32, timing: &FrameTiming, profile: &
 }
 
 pub(crate) fn log_report(report: &FrameReport) {
-    if report.alarm {
+    if let Err(reason) = report.status.judged() {
+        defmt::warn!("frame {=u32} not judged ({=str}): alarm; new keyframe", report.frame, reason.as_str());
+    } else if report.alarm {
         // Human-readable alarm line; absent distances print as -1, and a
         // drop's height is negative (its depth, -20 mm or lower).
         defmt::warn!(
@@ -669,7 +672,7 @@ fn serve_frame<S, A, C, R, K, W>(
 {
     let frame = odometry.frame;
     let follows = pipeline.follows(frame);
-    if let Err(error) = pipeline.begin(frame, Some(PoseSample::from(odometry))) {
+    if let Err(error) = pipeline.begin(frame, PoseSample::from(odometry)) {
         // The pose cannot be trusted: the frame is skipped and the next one restarts.
         defmt::warn!("frame {=u32} skipped: {}", frame, error);
         guard.monitor.unjudged();
@@ -697,8 +700,16 @@ fn serve_frame<S, A, C, R, K, W>(
                 log_bench(frame, read, cycle, &pipeline.timing(), &pipeline.gpa().profile());
             }
         }
+        Ok(Outcome::NotJudged(report)) => {
+            // Not judged: nothing is known about the path; the pin first,
+            // then the report that says why.
+            guard.monitor.unjudged();
+            guard.alarm.follow(guard.monitor, frame);
+            link.send(&Message::Frame(report));
+            log_report(&report);
+        }
         Ok(Outcome::Keyframe { .. }) => {
-            // No comparison: nothing is known about the path.
+            // The run's first frame: nothing to compare, nothing is known about the path.
             guard.monitor.unjudged();
             guard.alarm.follow(guard.monitor, frame);
             defmt::info!("frame {=u32}: new keyframe, nothing to compare", frame);

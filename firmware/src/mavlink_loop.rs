@@ -4,9 +4,10 @@
 //! - Out: `HEARTBEAT` (component `MAV_COMP_ID_OBSTACLE_AVOIDANCE`) at
 //!   start, on every change of its status, and at most once a second
 //!   between frames; `OBSTACLE_DISTANCE` per frame (the scan, `core::mavlink::obstacle_distance`; every element
-//!   unknown for a frame that only (re)started the keyframe, since nothing
-//!   was compared); `STATUSTEXT` on the rig and on every fault, and the
-//!   counters at the end.
+//!   unknown for a frame that only (re)started the keyframe or was not
+//!   judged, since nothing was compared); `STATUSTEXT` on the rig, on every
+//!   fault and on every frame not judged (`frame N not judged: REASON`,
+//!   a warning), and the counters at the end.
 //! - In: `ODOMETRY`, or `LOCAL_POSITION_NED` with the latest `ATTITUDE`
 //!   (when no `ODOMETRY` has come), each one starting the next camera frame
 //!   with that pose sample; the rig as the line protocol's `$FLRIG` (once,
@@ -337,7 +338,7 @@ fn serve_frame<S, A, C, R, K, W>(
         }
     };
     let time_usec = libm::round(sample.t_s * 1e6).max(0.0) as u64;
-    if let Err(error) = pipeline.begin(frame, Some(sample)) {
+    if let Err(error) = pipeline.begin(frame, sample) {
         defmt::warn!("frame {=u32} skipped: {}", frame, error);
         guard.monitor.unjudged();
         guard.alarm.follow(guard.monitor, frame);
@@ -351,6 +352,16 @@ fn serve_frame<S, A, C, R, K, W>(
             guard.monitor.judged(report.alarm);
             guard.alarm.follow(guard.monitor, frame);
             port.send(&obstacle_distance(pipeline.gpa().scan(), time_usec));
+            log_report(&report);
+        }
+        Ok(Outcome::NotJudged(report)) => {
+            // As a keyframe restart: the alarm, every element unknown (the
+            // detector's scan is the last judged frame's: a stale clear),
+            // and the reason as text.
+            guard.monitor.unjudged();
+            guard.alarm.follow(guard.monitor, frame);
+            port.send(&obstacle_distance(&Scan::new(pipeline.gpa().scan().layout()), time_usec));
+            port.text(MavSeverity::MAV_SEVERITY_WARNING, &short(format_args!("frame {} not judged: {}", frame, report.status)));
             log_report(&report);
         }
         Ok(Outcome::Keyframe { .. }) => {

@@ -232,7 +232,7 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
             let (keyframe, current) = &pairs[n % pairs.len()];
             pipeline.restart();
             for (index, pose, frame) in [keyframe, current] {
-                pipeline.begin(*index, Some(*pose)).map_err(|e| e.to_string())?;
+                pipeline.begin(*index, *pose).map_err(|e| e.to_string())?;
                 push_frame(pipeline, frame, |_, _| {}).map_err(|e| e.to_string())?;
                 black_box(pipeline.finish().map_err(|e| e.to_string())?);
             }

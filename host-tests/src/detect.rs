@@ -16,11 +16,15 @@ use flatland_core::report::FrameReport;
 /// What happened to one frame.
 #[derive(Debug)]
 pub enum FrameOutcome {
-    /// Compared with the keyframe.
+    /// Reported: compared with the keyframe and judged, or not judged and
+    /// why (`report.status`; then the alarm is asserted and the frame
+    /// restarted the keyframe). Every frame after the run's first that was
+    /// not skipped.
     Report { report: FrameReport, kg: Vec<u8> },
-    /// Became the (first) keyframe: nothing to compare with.
+    /// Became the run's first keyframe: nothing to compare with.
     Keyframe { frame: u32, kg: Vec<u8> },
-    /// Could not be used; the next frame restarts the keyframe.
+    /// Could not be used (no row: the stderr line says why); the next frame
+    /// restarts the keyframe and is reported not judged (`after_gap`).
     Skipped { frame: u32, error: RecordingError },
 }
 
@@ -103,13 +107,16 @@ impl Detector {
                         continue;
                     }
                 };
-                let pose = recording.pose(index);
-                if pose.is_none() {
-                    eprintln!("flatland: frame {index}: no row in poses.csv; restarting the keyframe");
-                }
-                if let Err(error) = pipeline.begin(index, pose.map(PoseSample::from)) {
-                    let line = pose.map_or(0, |row| row.line);
-                    let error = RecordingError::Csv { path: recording.dir.join("poses.csv"), line, message: error.to_string() };
+                let Some(pose) = recording.pose(index) else {
+                    // No time, no pose: the frame cannot be placed. Skipped as a
+                    // missing frame is (the firmware never sees it: no `$FLODO`).
+                    pipeline.abort();
+                    let error = RecordingError::NoPose { path: recording.dir.join("poses.csv"), frame: index };
+                    on_frame(FrameOutcome::Skipped { frame: index, error }, pipeline);
+                    continue;
+                };
+                if let Err(error) = pipeline.begin(index, PoseSample::from(pose)) {
+                    let error = RecordingError::Csv { path: recording.dir.join("poses.csv"), line: pose.line, message: error.to_string() };
                     on_frame(FrameOutcome::Skipped { frame: index, error }, pipeline);
                     continue;
                 }
@@ -118,7 +125,7 @@ impl Detector {
                 push_frame(pipeline, &frame, |j, kg_row| kg[j * width..][..width].copy_from_slice(kg_row))
                     .map_err(|e| format!("frame {index}: {e}"))?;
                 let outcome = match pipeline.finish().map_err(|e| format!("frame {index}: {e}"))? {
-                    Outcome::Compared(report) => FrameOutcome::Report { report, kg },
+                    Outcome::Compared(report) | Outcome::NotJudged(report) => FrameOutcome::Report { report, kg },
                     Outcome::Keyframe { frame } => FrameOutcome::Keyframe { frame, kg },
                 };
                 on_frame(outcome, pipeline);

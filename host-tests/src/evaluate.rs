@@ -15,6 +15,9 @@ pub struct Confusion {
     pub grace_wrong: u32,
     /// Frames with truth but no report (skipped, or the first keyframe).
     pub unreported: u32,
+    /// Frames with truth reported not judged (`status` not ok): no verdict
+    /// to score (their alarm is the fail-safe's, not the detector's).
+    pub not_judged: u32,
 }
 
 impl Confusion {
@@ -35,7 +38,8 @@ pub fn reported_hazard(report: &FrameReport) -> Option<Hazard> {
     report.alarm.then(|| if report.obstacle_h_mm.is_some_and(|h| h < 0) { Hazard::Drop } else { Hazard::Obstacle })
 }
 
-/// Scores reports (one per frame at most) against the truth.
+/// Scores reports (one per frame at most) against the truth. A report not
+/// judged is counted apart ([`Confusion::not_judged`]) and has no row.
 pub fn score(truth: &Truth, reports: &[FrameReport]) -> (Confusion, Vec<(u32, bool, bool)>) {
     score_hazard(truth, reports, None)
 }
@@ -52,6 +56,10 @@ pub fn score_hazard(truth: &Truth, reports: &[FrameReport], kind: Option<Hazard>
             confusion.unreported += 1;
             continue;
         };
+        if !report.is_judged() {
+            confusion.not_judged += 1;
+            continue;
+        }
         let alarm = report.alarm && (pair.alarm || of_kind(reported_hazard(report)));
         rows.push((pair.frame, pair.alarm, alarm));
         if is_grace(truth, pair.frame) {

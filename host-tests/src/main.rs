@@ -45,7 +45,9 @@ enum Command {
         #[arg(long)]
         mm_per_px: Option<f64>,
     },
-    /// Detect obstacles (GPA): one csv/json row per frame from frame 1 on.
+    /// Detect obstacles (GPA): one csv/json row per frame after the first,
+    /// judged or saying why not (`status`; a frame that cannot be read is
+    /// said on stderr, and the one after it says `after_gap`).
     #[command(group(clap::ArgGroup::new("frame_pictures").args(["png", "gif"]).multiple(true)))]
     Detect {
         recording: PathBuf,
@@ -315,7 +317,7 @@ fn json_scan(scan: &Scan) -> String {
 fn json_row(report: &FrameReport, scan: &Scan) -> String {
     let optional = |v: Option<i32>| v.map_or("null".to_string(), |v| v.to_string());
     format!(
-        "{{\"frame\":{},\"ref_frame\":{},\"alarm\":{},\"nearest_mm\":{},\"left_mm\":{},\"right_mm\":{},\"sad\":{},\"count50\":{},\"shift_k\":{},\"shift_g\":{},\"tx_mm\":{},\"tz_mm\":{},\"obstacle_h_mm\":{},\"scan\":{}}}",
+        "{{\"frame\":{},\"ref_frame\":{},\"alarm\":{},\"nearest_mm\":{},\"left_mm\":{},\"right_mm\":{},\"sad\":{},\"count50\":{},\"shift_k\":{},\"shift_g\":{},\"tx_mm\":{},\"tz_mm\":{},\"obstacle_h_mm\":{},\"status\":\"{}\",\"scan\":{}}}",
         report.frame,
         report.ref_frame,
         report.alarm,
@@ -329,6 +331,7 @@ fn json_row(report: &FrameReport, scan: &Scan) -> String {
         f64::from(report.tx) / f64::from(MOTION_SCALE),
         f64::from(report.tz) / f64::from(MOTION_SCALE),
         optional(report.obstacle_h_mm),
+        report.status,
         json_scan(scan),
     )
 }
@@ -409,19 +412,27 @@ fn run_detect(
     let result = detector.run_with(&recording, alter, |outcome, pipeline| match outcome {
         FrameOutcome::Report { report, kg } => {
             let gpa = pipeline.gpa();
+            let judged = report.is_judged();
             let line = match format {
                 Format::Csv => {
                     let mut line = String::new();
                     let _ = report.write_csv(&mut line);
                     line
                 }
-                Format::Json => json_row(&report, gpa.scan()),
+                Format::Json if judged => json_row(&report, gpa.scan()),
+                // Nothing compared: every sector unknown (the detector's
+                // scan is the last judged frame's).
+                Format::Json => json_row(&report, &Scan::new(gpa.scan().layout())),
             };
             let _ = writeln!(out, "{line}");
             if verbose {
-                eprintln!("frame {}: {:?}", report.frame, gpa.alarm_source());
+                match report.status.judged() {
+                    Ok(()) => eprintln!("frame {}: {:?}", report.frame, gpa.alarm_source()),
+                    Err(reason) => eprintln!("frame {}: not judged ({}): {reason}", report.frame, report.status),
+                }
             }
-            if let (true, Some(reference), Some(frame)) = (pictures.per_frame(), previous_kg.as_ref(), camera.borrow().as_ref()) {
+            // Pictures are of the frames compared.
+            if let (true, true, Some(reference), Some(frame)) = (judged, pictures.per_frame(), previous_kg.as_ref(), camera.borrow().as_ref()) {
                 let inputs = FrameInputs {
                     name: &name,
                     rig: &recording.rig,
@@ -504,12 +515,14 @@ fn run_scan(path: &Path, sensors: &Sensors) -> ExitCode {
             header = true;
         }
         match outcome {
-            FrameOutcome::Report { .. } => {
+            FrameOutcome::Report { report, .. } if report.is_judged() => {
                 let mut line = String::new();
                 let _ = scan.write_csv(&mut line);
                 let _ = writeln!(out, "{line}");
             }
-            FrameOutcome::Keyframe { .. } => {}
+            // A frame not judged compared nothing: no scan (the csv of
+            // `flatland detect` says why).
+            FrameOutcome::Report { .. } | FrameOutcome::Keyframe { .. } => {}
             FrameOutcome::Skipped { frame, error } => eprintln!("flatland: skipping frame {frame}: {error}"),
         }
     });
@@ -530,7 +543,9 @@ fn print_confusion(truth: &Truth, reports: &[FrameReport]) {
     eprintln!("                 detected alarm   detected clear");
     eprintln!("truth alarm      {:>14}   {:>14}", c.true_alarm, c.missed);
     eprintln!("truth clear      {:>14}   {:>14}", c.false_alarm, c.true_clear);
+    let not_judged: Vec<String> = reports.iter().filter(|r| !r.is_judged() && truth.pair(r.frame).is_some()).map(|r| format!("{}({})", r.frame, r.status)).collect();
     eprintln!("grace frames: {} right, {} wrong; unreported: {}", c.grace_right, c.grace_wrong, c.unreported);
+    eprintln!("not judged (alarm asserted): {}{}", c.not_judged, if not_judged.is_empty() { String::new() } else { format!(" [{}]", not_judged.join(", ")) });
     eprintln!("errors outside grace frames: {}{}", c.errors(), if wrong.is_empty() { String::new() } else { format!(" [{}]", wrong.join(", ")) });
     for (name, kind) in [("obstacles", Hazard::Obstacle), ("drops", Hazard::Drop)] {
         let (c, _) = score_hazard(truth, reports, Some(kind));

@@ -26,6 +26,8 @@ pub enum RecordingError {
     PoseHeader { path: PathBuf, error: PoseHeaderError },
     /// A row of poses.csv is malformed.
     Csv { path: PathBuf, line: usize, message: String },
+    /// poses.csv has no row for a frame that frames/ holds.
+    NoPose { path: PathBuf, frame: u32 },
     /// A frame is not a valid 8-bit binary PGM.
     Pgm { path: PathBuf, error: PgmError },
     /// A frame's size differs from the rig's camera.
@@ -46,6 +48,7 @@ impl fmt::Display for RecordingError {
             RecordingError::Rig { path, line, error } => write!(f, "{}: impossible rig: {error}", at(path, line)),
             RecordingError::PoseHeader { path, error } => write!(f, "{}:1: {error}", path.display()),
             RecordingError::Csv { path, line, message } => write!(f, "{}:{line}: {message}", path.display()),
+            RecordingError::NoPose { path, frame } => write!(f, "{}: no row for frame {frame}", path.display()),
             RecordingError::Pgm { path, error } => write!(f, "{}: {error}", path.display()),
             RecordingError::FrameSize { path, expected, got } => write!(
                 f,

@@ -128,7 +128,7 @@ pub fn run_serial_decode(input: &mut dyn Read, out: &mut dyn Write) -> Result<De
 mod tests {
     use super::*;
     use flatland_core::protocol::{encode_line, FaultCode};
-    use flatland_core::report::FrameReport;
+    use flatland_core::report::{FrameReport, NotJudged};
 
     /// Frame 2 raises the alarm; frame 1 has odometry that agrees, frame 2 none.
     fn report(frame: u32) -> FrameReport {
@@ -163,8 +163,22 @@ mod tests {
             expected += &format!("{row}\n");
         }
         assert_eq!(text, expected);
-        assert!(text.contains("\n1,0,0,900,,,0,0,0.00,0.00,0.0,100.0,,-1.500,0.085,-0.007,0\n"), "{text}");
-        assert!(text.contains("\n2,1,1,900,,,0,0,0.00,0.00,0.0,100.0,,-1.500,0.085,-0.007,\n"), "{text}");
+        assert!(text.contains("\n1,0,0,900,,,0,0,0.00,0.00,0.0,100.0,,-1.500,0.085,-0.007,0,ok\n"), "{text}");
+        assert!(text.contains("\n2,1,1,900,,,0,0,0.00,0.00,0.0,100.0,,-1.500,0.085,-0.007,,ok\n"), "{text}");
+    }
+
+    /// A frame not judged is a row like any other, its reason last.
+    #[test]
+    fn a_frame_not_judged_is_a_row_that_says_why() {
+        let mut stream = encode_line(&Message::Frame(report(1))).unwrap().as_bytes().to_vec();
+        stream.extend_from_slice(encode_line(&Message::Frame(FrameReport::not_judged(2, 1, NotJudged::NoMotion))).unwrap().as_bytes());
+        stream.extend_from_slice(encode_line(&Message::Frame(FrameReport::not_judged(4, 4, NotJudged::AfterGap))).unwrap().as_bytes());
+        let mut out = Vec::new();
+        assert_eq!(run_serial_decode(&mut stream.as_slice(), &mut out).unwrap().rows, 3);
+        let text = String::from_utf8(out).unwrap();
+        let rows: Vec<&str> = text.lines().skip(1).collect();
+        assert_eq!(rows[1], "2,1,1,,,,0,0,0.00,0.00,0.0,0.0,,0.000,0.000,0.000,,no_motion");
+        assert_eq!(rows[2], "4,4,1,,,,0,0,0.00,0.00,0.0,0.0,,0.000,0.000,0.000,,after_gap");
     }
 
     /// firmware/PROTOCOL.md's example session decodes to the csv it shows
@@ -178,7 +192,7 @@ mod tests {
         let (session, csv) = (pieces[1].trim_start(), pieces[3].trim_start());
         let mut out = Vec::new();
         let summary = run_serial_decode(&mut session.as_bytes(), &mut out).unwrap();
-        assert_eq!((summary.rows, summary.stats.map(|s| s.frames)), (2, Some(3)));
+        assert_eq!((summary.rows, summary.stats.map(|s| s.frames)), (3, Some(4)));
         assert_eq!(String::from_utf8(out).unwrap(), csv);
     }
 

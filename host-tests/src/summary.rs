@@ -1,7 +1,8 @@
 //! The picture of a whole run (`flatland detect --summary FILE.png`), drawn
 //! with plotters: over the frames, the alarm against truth.toml's, the
 //! nearest distance against truth's, the seed's statistics (sad, count50),
-//! and the motion and attitude estimated since the reference frame.
+//! and the motion and attitude estimated since the reference frame. A frame
+//! not judged is a grey alarm bar and has no values in the other panels.
 
 use crate::evaluate::{is_grace, score};
 use crate::images::{RgbImage, FONT};
@@ -23,6 +24,8 @@ pub const SUMMARY_SIZE: (usize, usize) = (1100, 1400);
 
 const ALARM: RGBColor = RGBColor(220, 40, 40);
 const CLEAR: RGBColor = RGBColor(150, 205, 160);
+/// A frame not judged (its alarm is the fail-safe's).
+const NOT_JUDGED: RGBColor = RGBColor(150, 150, 150);
 const TRUTH: RGBColor = RGBColor(20, 20, 20);
 const AOI: RGBColor = RGBColor(40, 170, 60);
 const BLUE: RGBColor = RGBColor(30, 100, 220);
@@ -40,8 +43,9 @@ struct Series {
 }
 
 impl Series {
+    /// A frame not judged has no value (its fields are the fail-safe's).
     fn new(colour: RGBColor, reports: &[FrameReport], value: impl Fn(&FrameReport) -> Option<f64>) -> Series {
-        Series { colour, points: reports.iter().map(|r| (f64::from(r.frame), value(r))).collect() }
+        Series { colour, points: reports.iter().map(|r| (f64::from(r.frame), if r.is_judged() { value(r) } else { None })).collect() }
     }
 
     /// Runs of consecutive frames that have values.
@@ -140,7 +144,11 @@ pub fn summary_picture(name: &str, reports: &[FrameReport], truth: Option<&Truth
         let first = reports.first().map_or(0.0, |r| f64::from(r.frame));
         let last = reports.last().map_or(1.0, |r| f64::from(r.frame));
         let frames = (first - 0.7)..(last + 0.7);
-        let mut title = format!("flatland detect {name}: {} frames compared", reports.len());
+        let judged = reports.iter().filter(|r| r.is_judged()).count();
+        let mut title = format!("flatland detect {name}: {judged} frames compared");
+        if judged < reports.len() {
+            title += &format!(", {} not judged", reports.len() - judged);
+        }
         let subtitle = match truth {
             Some(truth) => {
                 let (c, _) = score(truth, reports);
@@ -179,20 +187,22 @@ pub fn summary_picture(name: &str, reports: &[FrameReport], truth: Option<&Truth
                     _ => String::new(),
                 })
                 .draw()?;
-            let bar = |frame: f64, row: f64, alarm: bool| {
-                let colour = if alarm { ALARM } else { CLEAR };
-                Rectangle::new([(frame - 0.42, row + 0.12), (frame + 0.42, row + 0.88)], colour.filled())
-            };
-            chart.draw_series(reports.iter().map(|r| bar(f64::from(r.frame), 1.0, r.alarm)))?;
+            let bar = |frame: f64, row: f64, colour: RGBColor| Rectangle::new([(frame - 0.42, row + 0.12), (frame + 0.42, row + 0.88)], colour.filled());
+            let colour = |alarm: bool| if alarm { ALARM } else { CLEAR };
+            let detected = |r: &FrameReport| if r.is_judged() { colour(r.alarm) } else { NOT_JUDGED };
+            chart.draw_series(reports.iter().map(|r| bar(f64::from(r.frame), 1.0, detected(r))))?;
             if let Some(truth) = truth {
                 let compared = truth.pair.iter().filter(|p| reports.iter().any(|r| r.frame == p.frame));
-                chart.draw_series(compared.clone().map(|p| bar(f64::from(p.frame), 0.0, p.alarm)))?;
+                chart.draw_series(compared.clone().map(|p| bar(f64::from(p.frame), 0.0, colour(p.alarm))))?;
                 let grace = compared.filter(|p| is_grace(truth, p.frame)).map(|p| f64::from(p.frame));
                 chart.draw_series(grace.map(|f| Rectangle::new([(f - 0.46, 0.06), (f + 0.46, 1.94)], BLACK.stroke_width(2))))?;
-                let errors = reports.iter().filter(|r| truth.pair(r.frame).is_some_and(|p| p.alarm != r.alarm) && !is_grace(truth, r.frame));
+                let errors = reports.iter().filter(|r| r.is_judged() && truth.pair(r.frame).is_some_and(|p| p.alarm != r.alarm) && !is_grace(truth, r.frame));
                 chart.draw_series(errors.map(|r| Cross::new((f64::from(r.frame), 1.0), 7, BLACK.stroke_width(3))))?;
             }
             let mut legend = vec![("alarm", ALARM), ("clear", CLEAR)];
+            if judged < reports.len() {
+                legend.push(("not judged (alarm)", NOT_JUDGED));
+            }
             if truth.is_some() {
                 legend.push(("grace frame (outlined)", BLACK));
             }

@@ -1,7 +1,8 @@
 //! The `flatland` CLI on damaged copies of host-tests/data/flat_marks
 //! (issue 7): fatal damage is one line naming the file (and line) with exit
-//! status 2; damage to one frame skips that frame, restarts the keyframe
-//! after it, and every other frame still gets its csv row.
+//! status 2; damage to one frame skips that frame (a stderr line, no row),
+//! restarts the keyframe after it (that frame's row says `after_gap`, alarm
+//! asserted), and every other frame still gets its csv row.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -155,17 +156,21 @@ fn one_bad_frame(test: &str, bad: u32, damage: impl FnOnce(&Path)) {
     assert_eq!(skip_lines.len(), 1, "stderr: {}", run.stderr);
     assert!(skip_lines[0].contains(&format!("skipping frame {bad}:")), "{}", skip_lines[0]);
     let got = rows(&run);
-    // Frame 0 starts the keyframe; the bad frame is skipped and the next one
-    // restarts the keyframe, so neither of those has a row.
-    let expected: Vec<u32> = (1..frames).filter(|&f| f != bad && f != bad + 1 && !(bad == 0 && f == 1)).collect();
+    // Frame 0 starts the keyframe (no row); the bad frame is skipped (no
+    // row: its stderr line says why); the next one restarts the keyframe
+    // and its row says so: not judged, the alarm asserted, no obstacle.
+    let expected: Vec<u32> = (1..frames).filter(|&f| f != bad).collect();
     assert_eq!(got.keys().copied().collect::<Vec<_>>(), expected, "stdout: {}", run.stdout);
     for (frame, row) in &got {
         if *frame < bad {
             // Before the damage, nothing changed.
             assert_eq!(row, &baseline[frame]);
+        } else if *frame == bad + 1 {
+            assert_eq!(row, &format!("{frame},{frame},1,,,,0,0,0.00,0.00,0.0,0.0,,0.000,0.000,0.000,,after_gap"));
         } else {
             // After it, no comparison reaches back across the gap.
             assert!(ref_frame(row) > bad, "frame {frame} compared across the gap: {row}");
+            assert!(row.ends_with(",ok"), "frame {frame} not judged: {row}");
         }
     }
 }

@@ -86,8 +86,10 @@ fn without_odometry(name: &str) {
     let (confusion, reports) = detect_recording(recording, None);
     println!("{name} without odometry: {confusion:?}, {} reports", reports.len());
     assert_eq!(confusion.errors(), 0, "{name} without odometry: {confusion:?}");
-    // A frame without a report (the estimate failed) is no answer either.
+    // A frame without a report, or one not judged (the estimate failed), is no answer either.
     assert_eq!(reports.len() + 1, frames, "{name}: every frame after the first gets a report");
+    let not_judged: Vec<_> = reports.iter().filter(|report| !report.is_judged()).map(|report| (report.frame, report.status)).collect();
+    assert!(not_judged.is_empty(), "{name}: frames not judged: {not_judged:?}");
     assert!(reports.iter().all(|report| report.odometry_fault.is_none()), "{name}: no odometry, no odometry fault");
 }
 

@@ -1,7 +1,8 @@
 //! The firmware's fail-safe in QEMU (issue 15, item 3): the alarm starts
 //! asserted and only a frame judged clear releases it; lost frames, stopped
 //! odometry and serial noise assert it and are reported as `$FLERR`; a
-//! drop asserts it as an obstacle does (issue 14).
+//! drop asserts it as an obstacle does (issue 14); a frame not judged
+//! asserts it and says why in its `$FLFRM` (issue 33).
 //!
 //! QEMU models no GPIO, so the pin's level is read from the log: the loop
 //! logs every change (`alarm: on (...)`, `alarm: off (frame N clear)`).
@@ -12,7 +13,7 @@ use std::time::Duration;
 
 use common::*;
 use flatland_core::protocol::{encode_line, FaultCode, Message, Odometry};
-use flatland_host::qemu::{Continuation, RunOutcome};
+use flatland_host::qemu::{Continuation, RunOutcome, Sensors};
 
 /// One change of the alarm pin, in log order.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -41,7 +42,7 @@ fn alarm_changes(outcome: &RunOutcome) -> Vec<Change> {
 fn check_releases(outcome: &RunOutcome, changes: &[Change]) {
     for change in changes {
         if let Change::Off(frame) = change {
-            let clear = outcome.serial.messages.iter().any(|m| matches!(m, Message::Frame(r) if r.frame == *frame && !r.alarm));
+            let clear = outcome.serial.messages.iter().any(|m| matches!(m, Message::Frame(r) if r.frame == *frame && !r.alarm && r.is_judged()));
             assert!(clear, "alarm released by frame {frame}, which was not reported clear: {changes:?}");
         }
     }
@@ -196,4 +197,57 @@ fn a_drop_asserts_the_alarm_pin() {
     assert_eq!(drops, (10..=19).collect::<Vec<u32>>());
     let changes = alarm_changes(&outcome);
     assert_eq!(changes, [Change::On("start".into()), Change::Off(1), Change::On("frame 10: Ok".into())]);
+}
+
+/// A copy of flat_marks whose frames from `first` on are a uniform gray
+/// floor (nothing for the motion estimate to measure).
+fn textureless_from(first: u32, tag: &str) -> TempRecording {
+    let copy = TempRecording::copy_of("flat_marks", tag);
+    let frames = std::fs::read_dir(copy.dir.join("frames")).unwrap().count() as u32;
+    for frame in first..frames {
+        let mut bytes = b"P5\n256 256\n255\n".to_vec();
+        bytes.resize(bytes.len() + 256 * 256, 128);
+        std::fs::write(copy.frame(frame), bytes).unwrap();
+    }
+    copy
+}
+
+/// The robot without odometry, with the IMU poses.csv has (none on flat_marks).
+const WITHOUT_ODOMETRY: Sensors = Sensors { odometry: false, imu: true };
+
+/// Issue 33: a floor without texture and no odometry. Frames 1-3 are judged
+/// clear and release the alarm; frames 4-7 (uniform gray) cannot be judged:
+/// each `$FLFRM` says `no_motion` with the alarm, the pin is asserted by
+/// frame 4 and never released again (no stale clear), as `flatland detect
+/// --odometry none` reports, row for row.
+#[test]
+fn a_frame_not_judged_asserts_the_alarm_and_says_why() {
+    let copy = textureless_from(4, "failsafe-not-judged");
+    let outcome = run(&copy.dir, script_with(&copy.dir, WITHOUT_ODOMETRY));
+    let (csv, _) = decoded(&outcome);
+    assert_eq!(csv, detect_csv_with(&copy.dir, WITHOUT_ODOMETRY), "the firmware reports what detect reports");
+    let reports: Vec<_> = outcome.serial.messages.iter().filter_map(|m| if let Message::Frame(r) = m { Some(*r) } else { None }).collect();
+    let statuses: Vec<(u32, bool, &str)> = reports.iter().map(|r| (r.frame, r.alarm, r.status.as_str())).collect();
+    assert_eq!(
+        statuses,
+        [(1, false, "ok"), (2, false, "ok"), (3, false, "ok"), (4, true, "no_motion"), (5, true, "no_motion"), (6, true, "no_motion"), (7, true, "no_motion")]
+    );
+    let changes = alarm_changes(&outcome);
+    assert_eq!(changes, [Change::On("start".into()), Change::Off(1), Change::On("frame 4: Starting".into())]);
+    assert!(faults(&outcome).is_empty(), "{:?}", faults(&outcome));
+    assert_eq!(outcome.serial.stats.expect("$FLSTA").frames, 8, "every frame processed");
+}
+
+/// A uniform floor from the first frame, no odometry: nothing is ever
+/// judged, so the alarm is never released; every frame after the first
+/// says why.
+#[test]
+fn a_floor_without_texture_and_no_odometry_never_releases_the_alarm() {
+    let copy = textureless_from(0, "failsafe-blind");
+    let outcome = run(&copy.dir, script_with(&copy.dir, WITHOUT_ODOMETRY));
+    let (csv, _) = decoded(&outcome);
+    assert_eq!(csv, detect_csv_with(&copy.dir, WITHOUT_ODOMETRY));
+    assert_eq!(row_frames(&csv), (1..8).collect::<Vec<u32>>(), "{csv}");
+    assert!(csv.lines().skip(1).all(|l| l.ends_with(",1,,,,0,0,0.00,0.00,0.0,0.0,,0.000,0.000,0.000,,no_motion")), "{csv}");
+    assert_eq!(alarm_changes(&outcome), [Change::On("start".into())]);
 }

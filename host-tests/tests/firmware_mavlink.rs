@@ -86,15 +86,18 @@ fn capture(index: usize) -> &'static Capture {
 }
 
 /// `flatland scan`'s scans (in-process), by frame time in microseconds.
-fn host_scans(dir: &Path) -> (BTreeMap<u64, Scan>, BTreeMap<u64, u32>) {
-    let recording = Recording::open(dir).unwrap();
+fn host_scans(recording: &Recording) -> (BTreeMap<u64, Scan>, BTreeMap<u64, u32>) {
     let times: BTreeMap<u32, u64> = recording.poses.iter().map(|row| (row.frame, (row.t_s * 1e6).round() as u64)).collect();
     let mut detector = Detector::new(&recording.rig, &DetectConfig::default()).unwrap();
     let mut scans = BTreeMap::new();
     detector
-        .run(&recording, |outcome, pipeline| {
-            if let FrameOutcome::Report { report, .. } = outcome {
-                scans.insert(times[&report.frame], *pipeline.gpa().scan());
+        .run(recording, |outcome, pipeline| {
+            // Frames judged have a scan; the others compared nothing.
+            match outcome {
+                FrameOutcome::Report { report, .. } if report.is_judged() => {
+                    scans.insert(times[&report.frame], *pipeline.gpa().scan());
+                }
+                _ => {}
             }
         })
         .unwrap();
@@ -132,8 +135,13 @@ fn obstacle_distances(decoded: &Decoded) -> Vec<&OBSTACLE_DISTANCE_DATA> {
 /// the host's scan field for field (all unknown where the host compared
 /// nothing); returns how many carried a scan.
 fn check_against_host(name: &str, dir: &Path, decoded: &Decoded) -> usize {
+    check_against(name, &Recording::open(dir).unwrap(), decoded)
+}
+
+/// [`check_against_host`] on a recording as opened (sensors left out).
+fn check_against(name: &str, recording: &Recording, decoded: &Decoded) -> usize {
     assert!(decoded.errors.is_empty(), "{name}: {:?}", decoded.errors);
-    let (scans, frames) = host_scans(dir);
+    let (scans, frames) = host_scans(recording);
     let messages = obstacle_distances(decoded);
     assert_eq!(messages.len(), frames.len(), "{name}: one OBSTACLE_DISTANCE per pose");
     let mut compared = 0;
@@ -305,7 +313,7 @@ fn pymavlink_decodes_every_recording_and_agrees_with_flatland_scan() {
         for (kind, count) in type_counts(&decoded) {
             assert_eq!(report.counts.get(&kind), Some(&count), "{name}: {kind}");
         }
-        let (scans, frames) = host_scans(&dir);
+        let (scans, frames) = host_scans(&Recording::open(&dir).unwrap());
         assert_eq!(report.obstacles.len(), frames.len(), "{name}: one OBSTACLE_DISTANCE per pose");
         for message in &report.obstacles {
             let frame = frames[&message.time_usec];
@@ -335,7 +343,7 @@ fn serial_decode_mavlink_prints_the_merged_scan() {
     for (index, name) in RECORDINGS.into_iter().enumerate() {
         let dir = common::data(name);
         let capture = capture(index);
-        let (scans, frames) = host_scans(&dir);
+        let (scans, frames) = host_scans(&Recording::open(&dir).unwrap());
         let mut expected_csv = String::from("frame,angle_start_deg,increment_deg");
         for k in 0..72 {
             expected_csv += &format!(",d{k}_mm");
@@ -420,4 +428,37 @@ fn damaged_and_foreign_frames_are_counted_and_ignored() {
     let expected = format!("end f{poses} g{} c{poses} u{} b0", 7 * poses, 2 * poses);
     assert!(end_text(&decoded).starts_with(&expected), "{} vs {expected}\n{log}", end_text(&decoded));
     assert!(!log.contains("panic"));
+}
+
+/// Issue 33: a floor without texture (frames 4-7 of flat_marks made uniform
+/// gray) and no odometry (ODOMETRY with x, y NaN). Frames 1-3 are judged;
+/// frames 4-7 cannot be: each sends what the fail-safe says, an
+/// OBSTACLE_DISTANCE with every element unknown (not the last judged
+/// frame's scan: no stale clear), a STATUSTEXT warning that says why, and
+/// the status falls back to standby.
+#[test]
+fn a_frame_not_judged_is_unknown_and_says_why() {
+    let copy = common::TempRecording::copy_of("flat_marks", "mavlink-not-judged");
+    for frame in 4..8 {
+        let mut bytes = b"P5\n256 256\n255\n".to_vec();
+        bytes.resize(bytes.len() + 256 * 256, 128);
+        std::fs::write(copy.frame(frame), bytes).unwrap();
+    }
+    let mut recording = Recording::open(&copy.dir).unwrap();
+    recording.ignore_odometry();
+    let (decoded, log) = run(&copy.dir, qemu::mavlink_script(&recording, PoseMessages::Odometry).unwrap());
+    assert_eq!(check_against("textureless", &recording, &decoded), 3, "frames 1-3 carry a scan:\n{log}");
+    let warnings: Vec<String> = decoded
+        .messages
+        .iter()
+        .filter_map(|(_, m)| match m {
+            MavMessage::STATUSTEXT(t) if t.severity == MavSeverity::MAV_SEVERITY_WARNING => t.text.to_str().ok().map(str::to_string),
+            _ => None,
+        })
+        .collect();
+    let expected: Vec<String> = (4..8).map(|frame| format!("frame {frame} not judged: no_motion")).collect();
+    assert_eq!(warnings, expected, "{log}");
+    let mut states = heartbeats(&decoded);
+    states.dedup();
+    assert_eq!(states, [MavState::MAV_STATE_STANDBY, MavState::MAV_STATE_ACTIVE, MavState::MAV_STATE_STANDBY], "{log}");
 }

@@ -18,6 +18,22 @@ fn line(body: &str) -> Vec<u8> {
     format!("${body}*{:02X}\r\n", checksum(body.as_bytes())).into_bytes()
 }
 
+/// The csv rows (frame, status) whose status is not `ok`.
+fn not_judged(csv: &str) -> Vec<(u32, String)> {
+    csv.lines()
+        .skip(1)
+        .filter_map(|l| {
+            let status = l.rsplit(',').next()?;
+            (status != "ok").then(|| (l.split(',').next().unwrap().parse().unwrap(), status.to_string()))
+        })
+        .collect()
+}
+
+/// `frame` restarted the keyframe after a gap: its row says so, alarm asserted.
+fn after_gap_row(frame: u32) -> String {
+    format!("{frame},{frame},1,,,,0,0,0.00,0.00,0.0,0.0,,0.000,0.000,0.000,,after_gap")
+}
+
 #[test]
 fn garbage_truncated_and_oversized_serial_input_is_counted_not_fatal() {
     let dir = data("stool_bags");
@@ -78,8 +94,13 @@ fn frame_source_that_stops_mid_frame_is_abandoned_and_reported() {
     let stats = summary.stats.expect("$FLSTA");
     assert_eq!(stats.aborted, 1, "only frame 3 stopped mid-frame: {stats:?}");
     assert_eq!(stats.frame_gaps, 2, "frames 4 and 6 restart the keyframe: {stats:?}");
-    // Reports before the break stand; the frames after each break restart the keyframe.
-    assert_eq!(row_frames(&csv), [1, 2, 7], "{csv}");
+    // Reports before the break stand; the frames after each break restart
+    // the keyframe, and their rows say so.
+    assert_eq!(row_frames(&csv), [1, 2, 4, 6, 7], "{csv}");
+    for frame in [4, 6] {
+        assert!(csv.lines().any(|l| l == after_gap_row(frame)), "frame {frame}: {csv}");
+    }
+    assert_eq!(not_judged(&csv).len(), 2, "{csv}");
 }
 
 #[test]
@@ -105,9 +126,15 @@ fn gaps_in_frames_poses_or_time_reset_the_keyframe() {
     let stats = summary.stats.expect("$FLSTA");
     assert_eq!(stats.frame_gaps, 3, "frames 11, 21 and 31 restart the keyframe (30 is skipped): {stats:?}");
     let rows = row_frames(&csv);
-    for restarted in [10, 11, 20, 21, 30] {
-        assert!(!rows.contains(&restarted), "frame {restarted} has no keyframe to compare with: {csv}");
+    for lost in [10, 20, 30] {
+        assert!(!rows.contains(&lost), "frame {lost} was not processed: {csv}");
     }
+    // The frames after them had no keyframe to compare with, and say so.
+    for restarted in [11, 21, 31] {
+        assert!(csv.lines().any(|l| l == after_gap_row(restarted)), "frame {restarted}: {csv}");
+    }
+    let expected: Vec<(u32, String)> = [11, 21, 31].map(|frame| (frame, "after_gap".to_string())).to_vec();
+    assert_eq!(not_judged(&csv), expected, "{csv}");
     // After each restart the reference is never older than the gap.
     for line in csv.lines().skip(1) {
         let fields: Vec<u32> = line.split(',').take(2).map(|f| f.parse().unwrap()).collect();
@@ -137,10 +164,15 @@ fn odometry_out_of_sequence_on_the_wire_resets_the_keyframe() {
         }
         let outcome = run(&dir, script);
         let (csv, summary) = decoded(&outcome);
-        // 5 follows 3 and the repeated 6 follows 6: both restart; 7 follows 6 again.
-        assert_eq!(row_frames(&csv), [1, 2, 3, 6, 7], "odometry {odometry}: {csv}");
+        // 5 follows 3 and the repeated 6 follows 6: both restart (and say
+        // so: rows not judged); 7 follows 6 again.
+        assert_eq!(row_frames(&csv), [1, 2, 3, 5, 6, 6, 7], "odometry {odometry}: {csv}");
+        let restarted: Vec<&str> = csv.lines().filter(|l| l.ends_with(",after_gap")).collect();
+        assert_eq!(restarted, [after_gap_row(5), after_gap_row(6)], "odometry {odometry}: {csv}");
+        assert_eq!(not_judged(&csv).len(), 2, "odometry {odometry}: {csv}");
         if odometry {
-            assert!(csv.lines().skip(1).all(|l| l.split(',').nth(2) == Some("0")), "no false alarm: {csv}");
+            let judged = csv.lines().skip(1).filter(|l| l.ends_with(",ok"));
+            assert!(judged.clone().count() == 5 && judged.clone().all(|l| l.split(',').nth(2) == Some("0")), "no false alarm: {csv}");
         }
         let stats = summary.stats.expect("$FLSTA");
         assert_eq!(stats.frame_gaps, 2, "odometry {odometry}: frame 5 and the repeated 6: {stats:?}");

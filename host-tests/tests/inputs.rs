@@ -129,7 +129,8 @@ fn ignoring_a_sensor_is_leaving_its_columns_out() {
 }
 
 /// Without odometry the frames' times still order them: a frame whose time
-/// goes backwards is skipped and the next restarts the keyframe.
+/// goes backwards is skipped and the next restarts the keyframe (its row
+/// says so: not judged, `after_gap`).
 #[test]
 fn time_orders_frames_without_odometry() {
     let dir = with_pose_columns("flat_marks", "time_without_odometry", &["frame", "t_s"]);
@@ -138,7 +139,10 @@ fn time_orders_frames_without_odometry() {
     let (_, stdout, stderr) = flatland(&["detect"], &dir);
     assert!(stderr.contains("skipping frame 4"), "stderr: {stderr}");
     let frames: Vec<&str> = stdout.lines().skip(1).map(|l| l.split(',').next().unwrap()).collect();
-    assert_eq!(frames, ["1", "2", "3", "6", "7"], "{stdout}");
+    assert_eq!(frames, ["1", "2", "3", "5", "6", "7"], "{stdout}");
+    let statuses: Vec<&str> = stdout.lines().skip(1).map(|l| l.rsplit(',').next().unwrap()).collect();
+    assert_eq!(statuses, ["ok", "ok", "ok", "after_gap", "ok", "ok"], "{stdout}");
+    assert!(stdout.contains("\n5,5,1,,,,0,0,0.00,0.00,0.0,0.0,,0.000,0.000,0.000,,after_gap\n"), "{stdout}");
 }
 
 #[test]

@@ -29,17 +29,18 @@ const RECORDINGS: [&str; 13] = [
     "ledge",
 ];
 
-/// Every compared frame's report and scan, and the grid.
+/// Every compared (judged) frame's report and scan, and the grid.
 fn scans(name: &str) -> (Vec<(FrameReport, Scan)>, KgGrid) {
     let recording = Recording::open(data(name)).unwrap();
     let mut detector = Detector::new(&recording.rig, &DetectConfig::default()).unwrap();
     let mut out = Vec::new();
     detector
-        .run(&recording, |outcome, pipeline| {
-            if let FrameOutcome::Report { report, .. } = outcome {
+        .run(&recording, |outcome, pipeline| match outcome {
+            FrameOutcome::Report { report, .. } if report.is_judged() => {
                 assert_eq!(pipeline.gpa().scan().frame(), report.frame);
                 out.push((report, *pipeline.gpa().scan()));
             }
+            _ => {}
         })
         .unwrap();
     (out, detector.grid())

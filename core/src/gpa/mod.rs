@@ -62,7 +62,7 @@ use crate::grid::{KgGrid, MAX_GRID_SIDE};
 use crate::limits::MAX_BLOBS;
 use crate::motion::{Attitude, GroundMotion, Motion};
 use crate::remap::RemapTable;
-use crate::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE, SHIFT_SCALE};
+use crate::report::{FrameReport, NotJudged, Status, ANGLE_SCALE, MOTION_SCALE, SHIFT_SCALE};
 use crate::scan::{Scan, ScanLayout, View};
 use decision::{Alarm, Noise};
 use estimate::{Estimate, Estimator, KeyframeAttitude, Prior, Scene};
@@ -417,7 +417,11 @@ impl<'b> Gpa<'b> {
     }
 
     /// Finishes the frame: measures the motion, compares every row, decides.
-    /// Returns None for a frame that only (re)started the keyframe.
+    /// Returns None for a frame that had no keyframe to compare with (the
+    /// first one, one after [`Gpa::reset_keyframe`]): it only started the
+    /// keyframe. A frame whose motion could not be measured, with no
+    /// odometry either, restarts the keyframe from itself and gets a report
+    /// that says so ([`NotJudged::NoMotion`], the alarm asserted).
     pub fn end_frame(&mut self) -> Option<FrameReport> {
         self.last_step = None;
         self.body_attitude = Attitude::default();
@@ -430,20 +434,18 @@ impl<'b> Gpa<'b> {
             // next one does not follow and restarts the keyframe.
             return None;
         }
-        let report = match self.keyframe.taken_at() {
-            Some(keyframe_frame) => self.compare(keyframe_frame),
-            None => None,
-        };
-        self.last_step = report.is_some().then_some(self.prediction.step);
+        let report = self.keyframe.taken_at().map(|keyframe_frame| self.compare(keyframe_frame));
+        let compared = report.as_ref().is_some_and(FrameReport::is_judged);
+        self.last_step = compared.then_some(self.prediction.step);
         let new_keyframe = self.keyframe.finish(self.frame);
         if new_keyframe {
             self.keyframe_imu = self.imu;
             (self.keyframe_attitude, self.keyframe_chain) = match report {
-                Some(_) => (
+                Some(_) if compared => (
                     self.keyframe_attitude.then(&self.measured.attitude, self.change_sigma),
                     chain_keyframe(&self.keyframe_chain, &self.measured.attitude),
                 ),
-                None => (KeyframeAttitude::NOMINAL, Attitude::default()),
+                _ => (KeyframeAttitude::NOMINAL, Attitude::default()),
             };
         }
         self.prediction.finish(self.frame, new_keyframe);
@@ -476,9 +478,10 @@ impl<'b> Gpa<'b> {
     }
 
     /// Measures the motion, compares the stored rows with the keyframe and
-    /// decides; None when the motion cannot be known (no odometry and a
-    /// ground without texture): the frame restarts the keyframe instead.
-    fn compare(&mut self, keyframe_frame: u32) -> Option<FrameReport> {
+    /// decides; a report not judged ([`NotJudged::NoMotion`]) when the
+    /// motion cannot be known (no odometry and a ground without texture):
+    /// the frame restarts the keyframe instead.
+    fn compare(&mut self, keyframe_frame: u32) -> FrameReport {
         let prior = self.prior();
         let estimate = self.estimate(&prior);
         self.compare_with(keyframe_frame, prior, estimate)
@@ -514,7 +517,7 @@ impl<'b> Gpa<'b> {
     /// The rest of [`Self::compare`]: the frame compared under the
     /// measured motion (or the prior's), and decided.
     #[inline(never)]
-    fn compare_with(&mut self, keyframe_frame: u32, prior: Prior, estimate: Option<Estimate>) -> Option<FrameReport> {
+    fn compare_with(&mut self, keyframe_frame: u32, prior: Prior, estimate: Option<Estimate>) -> FrameReport {
         self.change_sigma = [prior.sigma[3] as f32, prior.sigma[4] as f32];
         if let Some(estimate) = &estimate {
             self.keyframe_attitude = estimate.keyframe_attitude;
@@ -525,9 +528,12 @@ impl<'b> Gpa<'b> {
             (Some(estimate), _) => estimate.motion,
             (None, Some(_)) => prior.motion,
             (None, None) => {
+                // Not judged: the alarm is asserted, and its hold and the
+                // scan keep the last judged frame's hazards (no clear is
+                // decided here).
                 self.keyframe.restart();
                 self.prediction.start_keyframe();
-                return None;
+                return FrameReport::not_judged(self.frame, keyframe_frame, NotJudged::NoMotion);
             }
         };
         self.body_attitude = self.keyframe_chain.then(&measured.attitude);
@@ -553,7 +559,7 @@ impl<'b> Gpa<'b> {
         // Without an estimate the attitude change is the prior's: an IMU's
         // measurement, or without one a guess (level, 1 degree).
         let drops_looked_for = estimate.is_some() || prior.sigma[3].max(prior.sigma[4]) <= self.config.drop_imu_sigma_limit_deg;
-        Some(self.decide(keyframe_frame, &prior.motion.planar, seed_apart, drops_looked_for))
+        self.decide(keyframe_frame, &prior.motion.planar, seed_apart, drops_looked_for)
     }
 
     /// Fills the seed's search (`self.seed`) around the `predicted` motion:
@@ -667,6 +673,7 @@ impl<'b> Gpa<'b> {
             dpitch: angle(self.measured.attitude.pitch_deg),
             droll: angle(self.measured.attitude.roll_deg),
             odometry_fault: self.odometry_fault,
+            status: Status::Ok,
         }
     }
 

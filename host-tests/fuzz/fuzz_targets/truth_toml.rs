@@ -1,7 +1,7 @@
 //! truth.toml reader, and the scoring that consumes it.
 #![no_main]
 
-use flatland_core::report::FrameReport;
+use flatland_core::report::{FrameReport, NotJudged};
 use libfuzzer_sys::fuzz_target;
 use std::path::Path;
 
@@ -11,11 +11,19 @@ fuzz_target!(|data: &[u8]| {
         for obstacle in &truth.obstacle {
             let _ = obstacle.centre_at(1.0);
         }
-        // A report for every truth frame, so scoring visits each one.
-        let reports: Vec<FrameReport> =
-            truth.pair.iter().map(|p| FrameReport { frame: p.frame, alarm: p.frame % 2 == 0, ..Default::default() }).collect();
+        // A report for every truth frame, so scoring visits each one; every
+        // third not judged.
+        let reports: Vec<FrameReport> = truth
+            .pair
+            .iter()
+            .map(|p| match p.frame % 3 {
+                0 => FrameReport::not_judged(p.frame, p.frame, NotJudged::AfterGap),
+                _ => FrameReport { frame: p.frame, alarm: p.frame % 2 == 0, ..Default::default() },
+            })
+            .collect();
         let (confusion, _) = flatland_host::evaluate::score(&truth, &reports);
         let scored = confusion.true_alarm + confusion.missed + confusion.false_alarm + confusion.true_clear;
-        assert_eq!(scored + confusion.grace_right + confusion.grace_wrong + confusion.unreported, truth.pair.len() as u32);
+        let unscored = confusion.grace_right + confusion.grace_wrong + confusion.unreported + confusion.not_judged;
+        assert_eq!(scored + unscored, truth.pair.len() as u32);
     }
 });
