@@ -4,7 +4,9 @@
 //! with overflow checks on, so an accumulator that overflowed would panic;
 //! the worst-case bounds are also computed and checked against the types.
 
-use flatland_core::geometry::{Aoi, Intrinsics, Mount, Rig};
+mod common;
+
+use flatland_core::geometry::Rig;
 use flatland_core::gpa::{Gpa, GpaConfig};
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::kernels::FRAC_BITS;
@@ -12,19 +14,6 @@ use flatland_core::limits::{MAX_GRID_SIDE, MAX_IMAGE_SIDE, MAX_SEARCH_RADIUS};
 use flatland_core::motion::Motion;
 use flatland_core::remap::{Line, RemapTable, StreamingRemap};
 use flatland_core::report::FrameReport;
-
-/// flat_marks' geometry on the largest camera (fx scaled with the side).
-fn largest_rig() -> Rig {
-    let side = MAX_IMAGE_SIDE;
-    let f = 240.0 * f64::from(side) / 256.0;
-    let c = (f64::from(side) - 1.0) / 2.0;
-    Rig::new_checked(
-        Intrinsics { width: side, height: side, fx: f, fy: f, cx: c, cy: c, distortion: None },
-        Mount::level(400.0, 32.0),
-        Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
-    )
-    .expect("largest rig")
-}
 
 /// Margins that make both grid extents exactly 255 pixels of 5 mm:
 /// 2 * (250 + 387.5) = 1275 and (1400 + 265) - (450 - 60) = 1275.
@@ -55,7 +44,7 @@ fn worst_case_sums_fit_their_types() {
 
 #[test]
 fn largest_grid_is_256_square() {
-    let rig = largest_rig();
+    let rig = common::flat_marks_rig(MAX_IMAGE_SIDE);
     let grid = largest_grid(&rig);
     assert_eq!((grid.width(), grid.height()), (MAX_GRID_SIDE, MAX_GRID_SIDE));
 }
@@ -63,7 +52,7 @@ fn largest_grid_is_256_square() {
 /// Streams `value`-filled camera frames through remap and GPA; returns each
 /// frame's report and checks every valid KG pixel equals `value`.
 fn run(frames: &[(u8, Option<Motion>)]) -> Vec<Option<FrameReport>> {
-    let rig = largest_rig();
+    let rig = common::flat_marks_rig(MAX_IMAGE_SIDE);
     let grid = largest_grid(&rig);
     let table = RemapTable::new(&rig, &grid).expect("table");
     let config = GpaConfig { search_radius: MAX_SEARCH_RADIUS, ..GpaConfig::default() };

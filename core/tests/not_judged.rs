@@ -4,27 +4,18 @@
 //! reports it not judged (`no_motion`), alarm asserted, against the
 //! keyframe it tried, and restarts the keyframe from it.
 
-use flatland_core::geometry::{Aoi, Intrinsics, Mount, Rig};
+mod common;
+
 use flatland_core::gpa::{Gpa, GpaConfig};
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::motion::Motion;
 use flatland_core::remap::RemapTable;
 use flatland_core::report::{FrameReport, NotJudged, Status};
 
-/// flat_marks' rig.
-fn rig() -> Rig {
-    Rig::new_checked(
-        Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
-        Mount::level(400.0, 32.0),
-        Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
-    )
-    .expect("flat_marks rig")
-}
-
 /// Uniform gray frames (the KG rows directly) with each frame's odometry;
 /// each frame's report, and whether GPA then has a measured step.
 fn run(odometry: &[Option<Motion>]) -> Vec<(Option<FrameReport>, bool)> {
-    let rig = rig();
+    let rig = common::flat_marks_rig(256);
     let grid = KgGrid::for_rig(&rig, &GridConfig::default()).expect("grid");
     let table = RemapTable::new(&rig, &grid).expect("table");
     let mut images = vec![0u8; Gpa::keyframe_bytes(&grid)];

@@ -3,6 +3,8 @@
 //! against an independent whole-frame reference, the GPA shift search
 //! against a naive SAD, and the serial protocol's encode/decode round trip.
 
+mod common;
+
 use flatland_core::geometry::{Aoi, Distortion, Intrinsics, Mount, Pixel, Rig};
 use flatland_core::gpa::{Gpa, GpaConfig, SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
 use flatland_core::grid::{GridConfig, KgGrid};
@@ -239,15 +241,6 @@ fn texture(phases: &[(f64, f64, f64); 4], i: i64, j: i64) -> u8 {
     (115.0 + 75.0 * sum / 4.0).round() as u8
 }
 
-fn flat_marks_rig() -> Rig {
-    Rig::new_checked(
-        Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
-        Mount::level(400.0, 32.0),
-        Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
-    )
-    .expect("flat_marks rig")
-}
-
 proptest! {
     #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
 
@@ -265,7 +258,7 @@ proptest! {
         patch in (0.2..0.8f64, 0.2..0.8f64, 2usize..6, 55u8..=65),
     ) {
         let (sk, sg) = (shift.0.clamp(-(radius as i64), radius as i64), shift.1.clamp(-(radius as i64), radius as i64));
-        let rig = flat_marks_rig();
+        let rig = common::flat_marks_rig(256);
         let grid = KgGrid::for_rig(&rig, &GridConfig::default()).expect("grid");
         let table = RemapTable::new(&rig, &grid).expect("table");
         let config = GpaConfig { search_radius: radius, ..GpaConfig::default() };
