@@ -203,20 +203,17 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         }
         let first = !core::mem::replace(&mut self.started, true);
         let follows = self.follows(frame);
-        let motion = match self.previous {
-            Some(previous) if follows => match (previous.sample.pose, pose.pose) {
-                (Some(from), Some(to)) => Some(Motion::between(&from, &to)),
-                _ => None,
-            },
-            _ => None,
+        // What the frame just before tells: the odometry and the interval.
+        let (motion, elapsed_s) = match self.previous {
+            Some(previous) if follows => {
+                let odometry = previous.sample.pose.zip(pose.pose).map(|(from, to)| Motion::between(&from, &to));
+                (odometry, Some(pose.t_s - previous.sample.t_s))
+            }
+            _ => (None, None),
         };
         if !follows {
             self.gpa.reset_keyframe();
         }
-        let elapsed_s = match self.previous {
-            Some(previous) if follows => Some(pose.t_s - previous.sample.t_s),
-            _ => None,
-        };
         self.gpa.begin_frame_at(frame, elapsed_s, motion, pose.attitude);
         self.remap.reset();
         self.timing = FrameTiming::default();
