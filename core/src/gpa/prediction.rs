@@ -6,6 +6,11 @@
 
 use crate::motion::Motion;
 
+/// Interval ratios the constant-velocity step is scaled by; beyond them a
+/// time stamp is more likely wrong than the robot's rate so uneven, and the
+/// step is kept as measured (the prior's sigma still widens with the interval).
+const INTERVAL_RATIOS: core::ops::RangeInclusive<f64> = 0.1..=10.0;
+
 pub(super) struct Prediction {
     /// Refined motion keyframe -> last frame (-> this frame once settled).
     to_last: Motion,
@@ -45,7 +50,7 @@ impl Prediction {
                 };
             }
             None => {
-                if let Some(ratio) = interval_ratio.filter(|r| r.is_finite() && (0.1..=10.0).contains(r)) {
+                if let Some(ratio) = interval_ratio.filter(|r| INTERVAL_RATIOS.contains(r)) {
                     self.step = Motion { tx_mm: self.step.tx_mm * ratio, tz_mm: self.step.tz_mm * ratio, dyaw_deg: self.step.dyaw_deg * ratio };
                 }
             }
