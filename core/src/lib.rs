@@ -32,6 +32,8 @@
 //! `defmt::Format` with the `defmt` feature.
 #![cfg_attr(not(test), no_std)]
 #![deny(clippy::unwrap_used, clippy::expect_used)]
+#[cfg(all(feature = "trace", not(test)))]
+extern crate std;
 
 pub mod fusion;
 pub mod geometry;

@@ -515,7 +515,9 @@ fn log_bench(frame: u32, read: u32, cycle: u32, timing: &FrameTiming, profile: &
     defmt::println!("bench: gpa_keyframe_update: {=u32}", profile.keyframe_update);
     defmt::println!("bench: gpa_estimate: {=u32}", profile.estimate);
     defmt::println!("bench: gpa_estimate_coarse: {=u32}", profile.estimate_coarse);
-    defmt::println!("bench: gpa_estimate_blocks: {=u32}", profile.estimate_blocks);
+    defmt::println!("bench: gpa_estimate_align: {=u32}", profile.estimate_align);
+    defmt::println!("bench: gpa_estimate_pyramids: {=u32}", profile.estimate_pyramids);
+    defmt::println!("bench: gpa_estimate_nearest_surface: {=u32}", profile.estimate_nearest_surface);
     defmt::println!("bench: gpa_estimate_lower_level: {=u32}", profile.estimate_lower_level);
     defmt::println!("bench: gpa_seed_search: {=u32}", profile.seed_search);
     defmt::println!("bench: decision: {=u32}", timing.decision);

@@ -276,7 +276,9 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
     let _ = writeln!(out, "gpa_keyframe_update_us_median: {:.1}", gpa_stage(|p| p.keyframe_update));
     let _ = writeln!(out, "gpa_estimate_us_median: {:.1}", gpa_stage(|p| p.estimate));
     let _ = writeln!(out, "gpa_estimate_coarse_us_median: {:.1}", gpa_stage(|p| p.estimate_coarse));
-    let _ = writeln!(out, "gpa_estimate_blocks_us_median: {:.1}", gpa_stage(|p| p.estimate_blocks));
+    let _ = writeln!(out, "gpa_estimate_align_us_median: {:.1}", gpa_stage(|p| p.estimate_align));
+    let _ = writeln!(out, "gpa_estimate_pyramids_us_median: {:.1}", gpa_stage(|p| p.estimate_pyramids));
+    let _ = writeln!(out, "gpa_estimate_nearest_surface_us_median: {:.1}", gpa_stage(|p| p.estimate_nearest_surface));
     let _ = writeln!(out, "gpa_estimate_lower_level_us_median: {:.1}", gpa_stage(|p| p.estimate_lower_level));
     let _ = writeln!(out, "gpa_seed_search_us_median: {:.1}", gpa_stage(|p| p.seed_search));
     let _ = writeln!(out, "decision_us_median: {decision_us:.1}");

@@ -1,67 +1,87 @@
 //! Motion estimation: the camera's whole motion over the ground from the
 //! keyframe to now (Tx, Tz, yaw, and the body's pitch and roll change),
-//! measured between the two KG images. Odometry and IMU are priors.
+//! and the keyframe body's attitude relative to the ground in view,
+//! measured between the two KG images. Odometry, the IMU and the nominal
+//! attitude are priors.
 //!
-//! Coarse to fine, as PX4FLOW does on a downward camera:
-//! 1. [`coarse`](super::coarse): both images box-averaged to cells of
-//!    ~[`COARSE_CELL_MM`]; every yaw and translation within the prior's
-//!    reach is scored (SAD after a global gain match). Needed when there
-//!    is no odometry or the wheels slipped; with good odometry the reach
-//!    is small.
-//! 2. `blocks`: blocks of the current image are matched in the keyframe
-//!    around where the model puts them ([`block_match`](super::block_match)),
-//!    to sub-pixel.
-//! 3. `fit`: the five parameters from the block positions by robust least
-//!    squares (Tukey weights: obstacles, whose blocks move by parallax, are
-//!    outliers) with the priors as extra observations. Blocks are matched
-//!    again around the fitted model, and the fit repeated.
-//! 4. `nearest_surface`: the ground is the surface under the robot. When
-//!    the whole view's fit leaves the nearest third of the blocks
-//!    unexplained (a curb top or a lower level filling most of the view
-//!    won the vote), their own fit replaces it if it explains more of them.
-//! 5. `lower_level`: every row of blocks tried as a drop's edge, with the
-//!    lower level's depth as a sixth unknown ([`super::fit`]); that fit's
-//!    ground replaces one that bent its attitude to take the level in.
+//! 1. [`coarse`](super::coarse): the planar motion on both images
+//!    box-averaged to cells, every yaw and translation within the prior's
+//!    reach scored. Skipped when the prior's 3 sigma lies within the
+//!    alignment's own reach ([`within_alignment_reach`]): with odometry.
+//! 2. [`direct`](super::direct): Gauss-Newton on the gray levels, coarse
+//!    to fine, robust to what is not ground; on its coarse levels only
+//!    the nearest rows take part, so the surface under the robot decides
+//!    before a curb top or a lower level far ahead can.
+//! 3. Trust ([`trusted`]): enough of the pixels agree, the translation is
+//!    pinned, and the residuals are not several times this camera's
+//!    typical ones ([`TypicalMisregistration`]). Else the nearest rows
+//!    alone, then the prior's own start, then the best translation on the
+//!    top level between standing still and the prior with no planar prior
+//!    (wheels that slip).
+//! 4. The nearest surface: the nearest rows' own fit replaces the whole
+//!    view's when it explains them clearly better.
+//! 5. A far level ([`Direct::lower_level`]): every block-row edge tried
+//!    with the far view on a plane of its own, below the ground (a drop)
+//!    or above it (a box or a curb beyond the AOI), which would otherwise
+//!    tilt the ground's fit.
 //!
-//! All of it in `f32` and integers (the M4 has a single-precision FPU):
-//! the model is a [`PixelMap`] homography, the block sums are integers.
+//! The keyframe's attitude is two of the unknowns. Its prior when the
+//! keyframe is taken is [`GroundAttitude`]: the body's attitude relative
+//! to the ground, filtered over the frames from absolute measurements,
+//! never a sum of changes.
 //!
-//! The remap table stays fixed: an attitude change moves the ground in the
-//! KG plane non-uniformly (see [`GroundMotion::to_keyframe`]), which the
-//! model carries into the warp of the comparison.
+//! All of it in `f32` (the M4 has a single-precision FPU).
 
-use super::block_match::{self, Images, BLOCK_PX};
 use super::coarse::{yaw_step, CoarseSearch, COARSE_CELL_MM};
-use super::fit::{capped_chi2, robust_fit, Problem, Surfaces};
-use super::homography::{Params, PixelMap, SinCosMemo};
+use super::direct::{self, Alignment, Direct, Geometry, Images, Schedule};
+use super::homography::{Params, SinCosMemo};
+use super::pyramid::LEVELS;
 use super::warp::Coverage;
+use super::Profiler;
 use crate::grid::KgGrid;
 use crate::kernels;
-use crate::limits::MAX_BLOCK_MATCHES;
 use crate::motion::{Attitude, GroundMotion, Motion};
-use super::Profiler;
 
-/// Fewest inlier blocks that measure all five parameters.
-const MIN_INLIERS: usize = 8;
-/// Finite-difference steps per parameter (mm, mm, deg, deg, deg).
-const STEP: Params = [0.5, 0.5, 0.02, 0.01, 0.01];
-/// A lower level's depth: its finite-difference step and its prior's
-/// sigma (mm; wide, the prior only keeps the system solvable).
-const LOWER_LEVEL_DEPTH_STEP_MM: f32 = 1.0;
-const LOWER_LEVEL_DEPTH_SIGMA_MM: f32 = 1000.0;
-/// A lower level past some row replaces the ground alone when that model
-/// explains the blocks better by this chi-square (capped residuals in the
-/// two-level fit's scale): its depth and its edge row buy it about 5 by
-/// chance, so this is a systematic misfit, not noise.
-const LOWER_LEVEL_CHI2: f32 = 25.0;
-/// Blocks each level needs before it counts as a level.
-const LOWER_LEVEL_MIN_BLOCKS: usize = 6;
+/// A trusted measurement: the fewest pixels its Tukey weights keep, as a
+/// share of those that sampled the keyframe (obstacles and shadows that
+/// moved may take the rest)...
+const MIN_INLIER_SHARE: f32 = 0.3;
+/// ...how far off the typical pixel may still lie (the residuals' scale
+/// over the texture's gradient, grid pixels): an alignment into a wrong
+/// minimum leaves the texture unmatched, about a pixel or more...
+const MAX_MISREGISTRATION_PX: f32 = 1.0;
+/// Once the camera's typical misregistration is known, at most this many
+/// times it (never below [`MIN_MISREGISTRATION_PX`])...
+const TYPICAL_MISREGISTRATION_FACTOR: f32 = 2.5;
+const MIN_MISREGISTRATION_PX: f32 = 0.2;
+/// How fast the typical misregistration follows the trusted alignments.
+const TYPICAL_MISREGISTRATION_RATE: f32 = 0.2;
+/// ...and the largest sigma of its translation, grid pixels.
+const MAX_TRANSLATION_SIGMA_PX: f32 = 1.0;
+/// The nearest rows' own fit replaces the whole view's when it lowers
+/// their misfit (Tukey's loss, a full miss 1) by this much, and by this
+/// share of their pixels: a fit of seven unknowns lowers it by a few by
+/// chance; a far surface that bent the whole view's fit, by tens.
+const NEAR_SURFACE_MISFIT: f32 = 6.0;
+const NEAR_SURFACE_SHARE: f32 = 0.03;
+/// How far the alignment reaches from its start: top-level pixels.
+const ALIGNMENT_REACH_TOP_PX: f32 = 1.5;
+/// A lower level replaces the ground alone when it lowers the chi-square
+/// by this much (in the pixels' residual variance): its depth and its edge
+/// buy a few by chance; a drop the ground alone bent to, tens.
+const LOWER_LEVEL_CHI2: f32 = 3.0;
+/// The planar motion's sigmas from the standing-still start: no prior (mm, mm, deg).
+const UNMOORED_SIGMA: [f32; 3] = [10_000.0, 10_000.0, 90.0];
+/// The coarsest level the nearest rows' own fit starts from.
+const NEAREST_SURFACE_TOP_LEVEL: usize = 1;
+/// The coarse levels that see only the nearest rows: the top two.
+const NEAR_FROM_LEVEL: usize = LEVELS - 2;
 
 fn params(motion: &GroundMotion) -> Params {
     [motion.planar.tx_mm as f32, motion.planar.tz_mm as f32, motion.planar.dyaw_deg as f32, motion.attitude.pitch_deg as f32, motion.attitude.roll_deg as f32]
 }
 
-fn motion(p: &Params) -> GroundMotion {
+fn motion(p: &[f32]) -> GroundMotion {
     GroundMotion {
         planar: Motion { tx_mm: f64::from(p[0]), tz_mm: f64::from(p[1]), dyaw_deg: f64::from(p[2]) },
         attitude: Attitude { pitch_deg: f64::from(p[3]), roll_deg: f64::from(p[4]) },
@@ -76,15 +96,14 @@ pub(super) struct Estimate {
     pub(super) keyframe_attitude: KeyframeAttitude,
     /// One sigma of the motion's attitude change (pitch, roll, degrees).
     pub(super) change_sigma: [f32; 2],
-    /// The brightness of the current frame over the keyframe's (auto
-    /// exposure): the median over the last block matches.
+    /// The brightness of the current frame over the keyframe's (auto exposure).
     pub(super) gain: f32,
 }
 
-/// The keyframe body's attitude relative to the nominal one (pitch, roll,
-/// degrees; see [`crate::motion::GroundMap`]) and how well it is known
-/// (one sigma each). The keyframe's attitude does not change while it is
-/// the keyframe, so each comparison with it adds to what is known.
+/// The keyframe body's attitude relative to the ground in view (pitch,
+/// roll, degrees; see [`crate::motion::GroundMap`]) and how well it is
+/// known (one sigma each). Each comparison with the keyframe adds to what
+/// is known of it; a new keyframe starts from nominal again.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct KeyframeAttitude {
     pub(super) deg: [f32; 2],
@@ -92,23 +111,60 @@ pub(super) struct KeyframeAttitude {
 }
 
 impl KeyframeAttitude {
-    /// A run's first keyframe: the nominal attitude, with room for a body
-    /// that sits a little off it (the fit pulls it the rest of the way
-    /// over the comparisons with the keyframe).
+    /// A keyframe's attitude before any comparison: the nominal one, with
+    /// room for a mount a degree off and a body that sits off it.
     pub(super) const NOMINAL: KeyframeAttitude = KeyframeAttitude { deg: [0.0, 0.0], sigma_deg: [0.3, 0.3] };
 
     pub(super) fn attitude(&self) -> Attitude {
         Attitude { pitch_deg: f64::from(self.deg[0]), roll_deg: f64::from(self.deg[1]) }
     }
+}
 
-    /// The next keyframe's: this one's and the change measured to it (its
-    /// uncertainty added).
-    pub(super) fn then(&self, change: &Attitude, change_sigma: [f32; 2]) -> KeyframeAttitude {
-        let next = self.attitude().then(change);
-        KeyframeAttitude {
-            deg: [next.pitch_deg as f32, next.roll_deg as f32],
-            sigma_deg: core::array::from_fn(|k| kernels::hypotf(self.sigma_deg[k], change_sigma[k])),
+/// How far the body's attitude relative to the ground may wander between
+/// two frames beyond what the filter knows (degrees, one sigma): braking,
+/// a bump, the road's camber changing.
+const GROUND_ATTITUDE_WANDER_DEG: f32 = 0.3;
+
+/// The body's attitude relative to the ground in view, filtered over the
+/// frames (a Kalman filter of a random walk, per axis): a mount a degree
+/// off is learnt in a few frames, and each new keyframe starts from it
+/// instead of from nominal. Its input is each frame's *absolute* attitude
+/// as measured against the ground, never a change, so it cannot drift;
+/// without measurements its sigma grows back to [`KeyframeAttitude::NOMINAL`]'s.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct GroundAttitude {
+    now: KeyframeAttitude,
+}
+
+impl GroundAttitude {
+    pub(super) const NOMINAL: GroundAttitude = GroundAttitude { now: KeyframeAttitude::NOMINAL };
+
+    /// A frame whose attitude was measured: the keyframe's and the change since.
+    pub(super) fn measured(&mut self, estimate: &Estimate) {
+        let change = [estimate.motion.attitude.pitch_deg as f32, estimate.motion.attitude.roll_deg as f32];
+        for k in 0..2 {
+            let variance = self.now.sigma_deg[k] * self.now.sigma_deg[k] + GROUND_ATTITUDE_WANDER_DEG * GROUND_ATTITUDE_WANDER_DEG;
+            let measured = estimate.keyframe_attitude.deg[k] + change[k];
+            let noise = estimate.keyframe_attitude.sigma_deg[k] * estimate.keyframe_attitude.sigma_deg[k] + estimate.change_sigma[k] * estimate.change_sigma[k];
+            let gain = variance / (variance + noise);
+            let nominal = KeyframeAttitude::NOMINAL.sigma_deg[k];
+            self.now.deg[k] = (self.now.deg[k] + gain * (measured - self.now.deg[k])).clamp(-3.0 * nominal, 3.0 * nominal);
+            self.now.sigma_deg[k] = crate::kernels::sqrtf((1.0 - gain) * variance);
         }
+    }
+
+    /// A frame whose attitude was not measured: less is known.
+    pub(super) fn unmeasured(&mut self) {
+        for k in 0..2 {
+            let sigma = crate::kernels::hypotf(self.now.sigma_deg[k], GROUND_ATTITUDE_WANDER_DEG);
+            self.now.sigma_deg[k] = sigma.min(KeyframeAttitude::NOMINAL.sigma_deg[k]);
+        }
+    }
+
+    /// What a keyframe taken now starts from.
+    pub(super) fn keyframe(&self) -> KeyframeAttitude {
+        let wander = |sigma: f32| crate::kernels::hypotf(sigma, GROUND_ATTITUDE_WANDER_DEG).min(KeyframeAttitude::NOMINAL.sigma_deg[0]);
+        KeyframeAttitude { deg: self.now.deg, sigma_deg: self.now.sigma_deg.map(wander) }
     }
 }
 
@@ -132,15 +188,6 @@ impl Start {
     }
 }
 
-/// One block's match: where the current block's centre lies in the keyframe.
-#[derive(Clone, Copy, Debug, Default)]
-pub(super) struct BlockMatch {
-    pub(super) current: (f32, f32),
-    pub(super) keyframe: (f32, f32),
-    /// Mean brightness of the current block over the keyframe's at the match.
-    gain: f32,
-}
-
 /// The two images and their geometry, for one frame's estimate.
 pub(super) struct Scene<'a> {
     pub(super) keyframe: &'a [u8],
@@ -148,91 +195,145 @@ pub(super) struct Scene<'a> {
     pub(super) grid: &'a KgGrid,
     pub(super) coverage: &'a Coverage,
     pub(super) height_mm: f64,
-    /// The keyframe body's attitude: the motion's attitude is the change since.
+    /// What is known of the keyframe body's attitude so far.
     pub(super) keyframe_attitude: KeyframeAttitude,
+    /// This camera's typical misregistration so far.
+    pub(super) typical: TypicalMisregistration,
     pub(super) sin_cos: SinCosMemo,
 }
 
 impl Scene<'_> {
-    /// The map of the motion `p`.
-    fn map(&self, p: &Params) -> PixelMap {
-        self.map_from(p, self.keyframe_attitude.deg, self.height_mm as f32)
-    }
-
-    /// The map of the motion `p` from a keyframe body at `keyframe` (pitch,
-    /// roll, degrees) of a ground `height_mm` below the camera.
-    fn map_from(&self, p: &Params, keyframe: [f32; 2], height_mm: f32) -> PixelMap {
-        PixelMap::with_sin_cos(p, keyframe, height_mm, self.grid, &|degrees| self.sin_cos.sin_cos_deg(degrees))
-    }
-
     fn images(&self) -> Images<'_> {
-        Images { keyframe: self.keyframe, current: self.current, grid: self.grid, coverage: self.coverage }
+        Images {
+            keyframe: self.keyframe,
+            current: self.current,
+            grid: self.grid,
+            seen: self.coverage.current_rows(self.grid.height()),
+            height_mm: self.height_mm as f32,
+            sin_cos: &self.sin_cos,
+        }
     }
 }
 
-/// Steps 2 to 6 and their memory, the block matches (step 1 has its own,
-/// [`CoarseSearch`]: the two are never live at once).
+/// Steps 2 and 3 and their memory (step 1 has its own, [`CoarseSearch`]:
+/// the two are never live at once).
 pub(super) struct Estimator {
-    matches: heapless::Vec<BlockMatch, MAX_BLOCK_MATCHES>,
+    direct: Direct,
+    /// The typical misregistration after this estimate (for the next frame's [`Scene`]).
+    pub(super) typical: TypicalMisregistration,
     /// Its parts' ticks (the `estimate_*` fields).
     pub(super) profiler: Profiler,
 }
 
 impl Estimator {
-    pub(super) const EMPTY: Estimator = Estimator {
-        matches: heapless::Vec::new(),
-        profiler: Profiler::OFF,
-    };
-
-    /// The brightness of the current frame over the keyframe's, the
-    /// median over the block matches; 1 without matches.
-    // Not inlined: its 1 KB of gains would sit in the estimate's frame,
-    // under every block match.
-    #[inline(never)]
-    fn gain(&self) -> f32 {
-        let mut gains = [0f32; MAX_BLOCK_MATCHES];
-        let count = self.matches.len();
-        if count == 0 {
-            return 1.0;
-        }
-        for (gain, m) in gains.iter_mut().zip(&self.matches) {
-            *gain = m.gain;
-        }
-        *gains[..count].select_nth_unstable_by(count / 2, |a, b| a.total_cmp(b)).1
-    }
+    pub(super) const EMPTY: Estimator = Estimator { direct: Direct::EMPTY, typical: TypicalMisregistration(None), profiler: Profiler::OFF };
 
     /// The motion keyframe -> now from `start`, step 1's (see
-    /// [`Self::coarse_start`]), or None when the ground does not show
-    /// enough texture in both images to measure it.
+    /// [`Self::coarse_start`]), or None when no start leads to a
+    /// measurement that can be trusted.
     pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior, start: Params) -> Option<Estimate> {
-        let prior = Start::of(prior);
-        // A coarse start on an alias of the texture leaves too few blocks
-        // agreeing; the prior's own motion is the other start, and standing
-        // still the last (wheels that slip turn while the robot stands,
-        // beyond the coarse search's reach around the odometry).
-        let fitted = self
-            .refine(scene, &prior, start, 0)
-            .or_else(|| self.refine(scene, &prior, prior.p, 0))
-            .or_else(|| self.refine(scene, &prior, [0.0; 5], 0))?;
-        let (chosen, lower_level) = self.nearest_surface(scene, &prior, fitted);
-        let chained = Estimate {
-            motion: motion(&chosen),
-            keyframe_attitude: scene.keyframe_attitude,
-            change_sigma: [prior.sigma[3], prior.sigma[4]],
-            gain: self.gain(),
+        self.typical = scene.typical;
+        let since = self.profiler.now();
+        let images = scene.images();
+        self.direct.prepare(&images);
+        self.profiler.charge(since, |p| &mut p.estimate_pyramids);
+        let prior_start = Start::of(prior);
+        let keyframe = scene.keyframe_attitude;
+        let seven = |p: &Params, keyframe: [f32; 2]| -> Geometry { [p[0], p[1], p[2], p[3], p[4], keyframe[0], keyframe[1]] };
+        let prior7 = direct::Prior { mean: seven(&prior_start.p, keyframe.deg), sigma: seven(&prior_start.sigma, keyframe.sigma_deg) };
+        let schedule = Schedule { near_row: near_row(scene), near_from_level: NEAR_FROM_LEVEL, top_level: LEVELS - 1 };
+        let since = self.profiler.now();
+        // The whole view from a start, and if that cannot be trusted (a
+        // curb top or a lower level filling most of the view), the nearest
+        // rows alone: the ground is the surface under the robot.
+        let near_only = Schedule { near_row: schedule.near_row, near_from_level: 0, top_level: LEVELS - 1 };
+        let typical = scene.typical.0;
+        let attempt = |direct: &mut Direct, p: &Params, prior: &direct::Prior| {
+            let whole = direct.align(&images, prior, seven(p, keyframe.deg), schedule).filter(|a| trusted(a, scene.grid, typical));
+            match whole {
+                Some(whole) => Some((whole, true)),
+                None => direct.align(&images, prior, seven(p, keyframe.deg), near_only).filter(|a| trusted(a, scene.grid, typical)).map(|near| (near, false)),
+            }
         };
-        // Step 6 (not over a lower level, which would bend it).
-        if lower_level {
-            return Some(chained);
+        // Standing still is the hypothesis that the odometry is wrong
+        // (wheels that slip): from there the planar motion has no prior.
+        let mut unmoored = prior7;
+        for k in 0..3 {
+            unmoored.sigma[k] = UNMOORED_SIGMA[k];
         }
-        Some(fit_keyframe_attitude(scene, &self.matches, &chained, &prior).unwrap_or(chained))
+        // Each start once: the coarse search's, the prior's, and the best
+        // translation between standing still and the prior.
+        let direct = &mut self.direct;
+        let mut aligned = attempt(direct, &start, &prior7);
+        if aligned.is_none() && prior_start.p != start {
+            aligned = attempt(direct, &prior_start.p, &prior7);
+        }
+        if aligned.is_none() {
+            let searched = direct.search_translation(&images, &seven(&[0.0; 5], keyframe.deg), &seven(&prior_start.p, keyframe.deg));
+            aligned = attempt(direct, &[searched[0], searched[1], searched[2], searched[3], searched[4]], &unmoored);
+        }
+        self.profiler.charge(since, |p| &mut p.estimate_align);
+        let aligned = match aligned? {
+            (whole, true) => self.nearest_surface(&images, &prior7, whole, schedule.near_row, typical),
+            (near, false) => near,
+        };
+        let since = self.profiler.now();
+        let lower = self.direct.lower_level(&images, &prior7, &aligned);
+        self.profiler.charge(since, |p| &mut p.estimate_lower_level);
+        #[cfg(feature = "trace")]
+        if let Some((two, chi2)) = &lower {
+            std::eprintln!("trace: lower level chi2 {chi2:.1} {:?} p=[{:.1} {:.1} {:.2} {:.2} {:.2} {:.2} {:.2}]", two.lower, two.p[0], two.p[1], two.p[2], two.p[3], two.p[4], two.p[5], two.p[6]);
+        }
+        let aligned = match lower {
+            Some((two, chi2)) if chi2 > LOWER_LEVEL_CHI2 => two,
+            _ => aligned,
+        };
+        self.typical.learn(&aligned);
+        let p = aligned.p;
+        #[cfg(feature = "trace")]
+        std::eprintln!("trace: estimate kf {:.3} {:.3} change {:.3} {:.3} sigma {:.3} {:.3}", p[5], p[6], p[3], p[4], aligned.sigma[5], aligned.sigma[6]);
+        Some(Estimate {
+            motion: motion(&p[..5]),
+            keyframe_attitude: KeyframeAttitude { deg: [p[5], p[6]], sigma_deg: [aligned.sigma[5], aligned.sigma[6]] },
+            change_sigma: [aligned.sigma[3], aligned.sigma[4]],
+            gain: aligned.gain,
+        })
     }
 
-    /// Step 1: where the blocks start from. `prior.sigma` sets the coarse
+    /// Step 3: the ground is the surface under the robot. A lower level
+    /// (a drop) or a curb top that fills the far view bends the whole
+    /// view's fit, its attitude change above all (0.07 degree of pitch
+    /// moves ground at 1.3 m as far as a 25 mm drop's parallax after 100
+    /// mm). The nearest third of the rows aligned on their own, from the
+    /// whole view's fit, replaces it when it explains them clearly better.
+    fn nearest_surface(&mut self, images: &Images, prior: &direct::Prior, whole: Alignment, near_row: usize, typical: Option<f32>) -> Alignment {
+        let since = self.profiler.now();
+        // From the whole view's fit, which is near: the finer levels.
+        let schedule = Schedule { near_row, near_from_level: 0, top_level: NEAREST_SURFACE_TOP_LEVEL };
+        let near = self.direct.align(images, prior, whole.p, schedule).filter(|near| trusted(near, images.grid, typical));
+        let chosen = match near {
+            Some(near) => {
+                let scale = near.scale.min(whole.scale);
+                let (whole_misfit, count) = self.direct.misfit(images, &whole, near_row, scale);
+                let (near_misfit, _) = self.direct.misfit(images, &near, near_row, scale);
+                #[cfg(feature = "trace")]
+                std::eprintln!("trace: nearest surface: misfit whole {whole_misfit:.1} near {near_misfit:.1} of {count}");
+                if whole_misfit - near_misfit > NEAR_SURFACE_MISFIT.max(NEAR_SURFACE_SHARE * count as f32) { near } else { whole }
+            }
+            None => whole,
+        };
+        self.profiler.charge(since, |p| &mut p.estimate_nearest_surface);
+        chosen
+    }
+
+    /// Step 1: where the alignment starts from. `prior.sigma` sets the coarse
     /// search's reach (3 sigma); a reach of more than a few cells is
     /// searched on cells twice as large first.
     pub(super) fn coarse_start(coarse: &mut CoarseSearch, scene: &Scene, prior: &Prior) -> Params {
         let prior = Start::of(prior);
+        if within_alignment_reach(scene.grid, &prior.sigma) {
+            return prior.p;
+        }
         let fine_mm = COARSE_CELL_MM.max(2.0 * scene.grid.mm_per_px as f32);
         let reach = |sigma: f32, unit: f32| 3.0 * sigma / unit;
         let mut p = prior.p;
@@ -259,147 +360,62 @@ impl Estimator {
             p = coarse.search(scene, &p, &sigma, fine_mm).p;
         }
         // The coarse search moves level images: its translation is the one
-        // that best explains the attitude change too, so the blocks start
-        // from it level (the fit then splits the two, with the prior).
-        p[3] = 0.0;
-        p[4] = 0.0;
+        // that best explains the attitude change too, so the alignment
+        // starts from it level (the prior's attitude change, if any).
+        p[3] = prior.p[3];
+        p[4] = prior.p[4];
         p
     }
-
-    /// Steps 2 and 3 from `start`, twice, on the blocks whose centres lie
-    /// from `from_row` on.
-    fn refine(&mut self, scene: &Scene, prior: &Start, start: Params, from_row: usize) -> Option<Fit> {
-        let mut p = start;
-        let mut fitted = None;
-        for _ in 0..2 {
-            self.match_blocks(scene, &p, from_row);
-            let fit = fit(scene, &self.matches, &p, prior)?;
-            p = fit.p;
-            fitted = Some(fit);
-        }
-        fitted
-    }
-
-    /// Step 4: the ground is the surface the robot stands on. A curb top
-    /// or a lower level that fills most of the view wins the vote of the
-    /// whole view, or bends its fit. The blocks nearest the robot fitted
-    /// on their own (from the prior, then from the whole view's fit)
-    /// replace it when that fit explains clearly more of them.
-    /// Also says whether a lower level was taken (step 5).
-    fn nearest_surface(&mut self, scene: &Scene, prior: &Start, fitted: Fit) -> (Params, bool) {
-        let near_row = near_row(scene);
-        let near = self.refine(scene, prior, prior.p, near_row).or_else(|| self.refine(scene, prior, fitted.p, near_row));
-        let chosen = match near {
-            Some(near) => {
-                // One yardstick for both: the tighter fit's.
-                let within = 3.0 * near.scale.min(fitted.scale);
-                let near_agreeing = agreeing(scene, &self.matches, &near.p, within);
-                let fitted_agreeing = agreeing(scene, &self.matches, &fitted.p, within);
-                let clearly_more = fitted_agreeing + (MIN_INLIERS / 2).max(fitted_agreeing / 4);
-                if near_agreeing >= clearly_more { near.p } else { fitted.p }
-            }
-            None => fitted.p,
-        };
-        // Every block again, around the choice: the gain is their median.
-        self.match_blocks(scene, &chosen, 0);
-        let since = self.profiler.now();
-        let lower_level = self.lower_level(scene, prior, &chosen);
-        self.profiler.charge(since, |p| &mut p.estimate_lower_level);
-        match lower_level {
-            Some(ground) => {
-                self.match_blocks(scene, &ground, 0);
-                (ground, true)
-            }
-            None => (chosen, false),
-        }
-    }
-
-    /// Step 5: whether the far part of the view is a level of its own
-    /// below the ground (a drop's lower level), which the ground-only fit
-    /// explains almost entirely by bending its attitude: at 1.3 m, 0.07
-    /// deg of pitch moves the ground as far as a 25 mm drop's parallax
-    /// after 100 mm. Each row of blocks is tried as the edge; the ground's
-    /// motion of the best two-level fit replaces `chosen` when that fit is
-    /// clearly the better explanation ([`LOWER_LEVEL_CHI2`]).
-    #[inline(never)]
-    fn lower_level(&self, scene: &Scene, prior: &Start, chosen: &Params) -> Option<Params> {
-        let ground_only = Surfaces::ground(scene.map(chosen));
-        let mut best: Option<(f32, Params)> = None;
-        // Rows of block centres, far to near (the matches are in that order).
-        let mut previous_row = None;
-        for (k, m) in self.matches.iter().enumerate() {
-            let row = m.current.1;
-            if previous_row == Some(row) {
-                continue;
-            }
-            previous_row = Some(row);
-            if k < LOWER_LEVEL_MIN_BLOCKS || self.matches.len() - k < LOWER_LEVEL_MIN_BLOCKS {
-                continue;
-            }
-            // The edge lies between this row of blocks and the one before it.
-            let edge = row - 0.5 * BLOCK_PX as f32;
-            let Some((two, depth)) = fit_two_levels(scene, &self.matches, chosen, prior, edge) else { continue };
-            let gain = capped_chi2(&self.matches, &ground_only, two.scale) - capped_chi2(&self.matches, &two_levels(scene, &two.p, edge, depth), two.scale);
-            if depth > 0.0 && gain > LOWER_LEVEL_CHI2 && best.is_none_or(|(g, _)| gain > g) {
-                best = Some((gain, two.p));
-            }
-        }
-        best.map(|(_, ground)| ground)
-    }
-
-    /// Step 2: every textured block of the current image whose centre
-    /// lies from `from_row` on, matched in the keyframe around where `p`
-    /// puts it.
-    fn match_blocks(&mut self, scene: &Scene, p: &Params, from_row: usize) {
-        let since = self.profiler.now();
-        let map = scene.map(p);
-        self.match_blocks_from(scene, &map, from_row);
-        self.profiler.charge(since, |p| &mut p.estimate_blocks);
-    }
-
-    // Not inlined: its blocks' patches and sums (4 KB) would sit under the
-    // map's sines and cosines, the estimate's deepest stack.
-    #[inline(never)]
-    fn match_blocks_from(&mut self, scene: &Scene, map: &PixelMap, from_row: usize) {
-        self.matches.clear();
-        let images = scene.images();
-        let (w, h) = (scene.grid.width(), scene.grid.height());
-        let half = (BLOCK_PX / 2) as f32;
-        let mut scratch = block_match::Scratch::new();
-        let mut bj = 0;
-        while bj + BLOCK_PX <= h {
-            let centre_row = bj as f32 + half - 0.5;
-            let mut bi = 0;
-            while centre_row >= from_row as f32 && bi + BLOCK_PX <= w {
-                if let Some(found) = block_match::match_block(&images, map, bi, bj, &mut scratch) {
-                    let centre = (bi as f32 + half - 0.5, centre_row);
-                    if self.matches.push(BlockMatch { current: centre, keyframe: found.keyframe, gain: found.gain }).is_err() {
-                        return;
-                    }
-                }
-                bi += BLOCK_PX;
-            }
-            bj += BLOCK_PX;
-        }
-    }
 }
 
-/// A fitted motion and the robust scale of its block residuals (KG px).
-#[derive(Clone, Copy, Debug)]
-struct Fit {
-    p: Params,
-    scale: f32,
+/// Whether the prior's 3 sigma lies within the alignment's own reach
+/// (its top level's pixel), so the coarse search has nothing to add.
+pub(super) fn within_alignment_reach(grid: &KgGrid, sigma: &Params) -> bool {
+    let reach_px = ALIGNMENT_REACH_TOP_PX * super::pyramid::SCALES[LEVELS - 1] as f32;
+    let reach_mm = reach_px * grid.mm_per_px as f32;
+    let far_px = kernels::hypotf(grid.x_left_mm as f32, grid.z_far_mm as f32) / grid.mm_per_px as f32;
+    let reach_deg = (reach_px / far_px.max(1.0)).to_degrees();
+    3.0 * sigma[0].max(sigma[1]) <= reach_mm && 3.0 * sigma[2] <= reach_deg
 }
 
-/// How far the model `map` puts a block from where it was found, KG px.
-fn residual(map: &PixelMap, m: &BlockMatch) -> Option<f32> {
-    Surfaces::ground(*map).residual(m)
+/// Whether an alignment is a measurement: most of the ground agrees with
+/// it, and its translation is pinned to a fraction of a grid pixel. Both
+/// in the grid's own units, so the same test holds on every camera.
+fn trusted(aligned: &Alignment, grid: &KgGrid, typical: Option<f32>) -> bool {
+    let per_px = 1.0 / grid.mm_per_px as f32;
+    let inliers = aligned.inliers as f32 >= MIN_INLIER_SHARE * aligned.sampled as f32 && aligned.inliers >= direct::MIN_POINTS;
+    let misregistration = aligned.scale / aligned.texture;
+    let allowed = match typical {
+        Some(typical) => (TYPICAL_MISREGISTRATION_FACTOR * typical).clamp(MIN_MISREGISTRATION_PX, MAX_MISREGISTRATION_PX),
+        None => MAX_MISREGISTRATION_PX,
+    };
+    let pinned = aligned.sigma[0] * per_px <= MAX_TRANSLATION_SIGMA_PX && aligned.sigma[1] * per_px <= MAX_TRANSLATION_SIGMA_PX && misregistration <= allowed;
+    #[cfg(feature = "trace")]
+    std::eprintln!(
+        "trace: mmpp {:.1} p=[{:.1} {:.1} {:.2} {:.2} {:.2} {:.2} {:.2}] sigma_px=[{:.2} {:.2}] sigma_deg=[{:.3} {:.2} {:.2} {:.2} {:.2}] scale={:.1} texture={:.1} off_px={:.2}/{:.2} sampled={} inliers={} gain={:.3} -> {}",
+        grid.mm_per_px, aligned.p[0], aligned.p[1], aligned.p[2], aligned.p[3], aligned.p[4], aligned.p[5], aligned.p[6],
+        aligned.sigma[0] * per_px, aligned.sigma[1] * per_px, aligned.sigma[2], aligned.sigma[3], aligned.sigma[4], aligned.sigma[5], aligned.sigma[6],
+        aligned.scale, aligned.texture, misregistration, allowed, aligned.sampled, aligned.inliers, aligned.gain, inliers && pinned
+    );
+    inliers && pinned
 }
 
-/// How many of the `matches` the motion `p` puts within `within` KG px.
-fn agreeing(scene: &Scene, matches: &[BlockMatch], p: &Params, within: f32) -> usize {
-    let map = scene.map(p);
-    matches.iter().filter(|m| residual(&map, m).is_some_and(|r| r < within)).count()
+/// The misregistration (residual scale over texture, grid pixels) this
+/// camera's trusted alignments leave, smoothed over the frames: what a
+/// right alignment looks like depends on the camera (0.05 px on a clean
+/// rendering, 0.45 on a street at 10 frames/s), a wrong minimum leaves
+/// several times its camera's typical value.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(super) struct TypicalMisregistration(pub(super) Option<f32>);
+
+impl TypicalMisregistration {
+    fn learn(&mut self, aligned: &Alignment) {
+        let value = aligned.scale / aligned.texture;
+        self.0 = Some(match self.0 {
+            Some(typical) => typical + TYPICAL_MISREGISTRATION_RATE * (value - typical),
+            None => value,
+        });
+    }
 }
 
 /// The first row of the nearest third of the rows the camera sees.
@@ -408,69 +424,6 @@ fn near_row(scene: &Scene) -> usize {
     let first = (0..rows).find(|&j| scene.coverage.seen(j).is_some()).unwrap_or(0);
     let last = (0..rows).rev().find(|&j| scene.coverage.seen(j).is_some()).unwrap_or(0);
     last - (last - first) / 3
-}
-
-/// Step 3: the parameters that put the blocks where they were found,
-/// robustly (Tukey), with the prior as five more observations.
-fn fit(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start) -> Option<Fit> {
-    let surfaces = |p: &Params| Surfaces::ground(scene.map(p));
-    let problem = Problem { surfaces: &surfaces, step: STEP, prior: prior.p, sigma: prior.sigma, min_inliers: MIN_INLIERS };
-    let solution = robust_fit(matches, *start, &problem)?;
-    Some(Fit { p: solution.p, scale: solution.scale })
-}
-
-/// The model of a lower level past `edge_row` `depth_mm` below the ground
-/// moved by `p`.
-fn two_levels(scene: &Scene, p: &Params, edge_row: f32, depth_mm: f32) -> Surfaces {
-    let height_mm = scene.height_mm as f32;
-    let lower = scene.map_from(p, scene.keyframe_attitude.deg, height_mm + depth_mm);
-    Surfaces::two_levels(scene.map(p), lower, scene.grid, height_mm, edge_row, depth_mm)
-}
-
-/// Step 6: the keyframe body's attitude as two more unknowns, what was
-/// known of it before as their prior. It shows only through how the motion
-/// moves tilted ground (about a T z / H per radian: 1 px at 1.4 m for 0.2
-/// degree after 100 mm), so a short baseline leaves it to the prior.
-/// Starts from the `chained` estimate (the keyframe's attitude held) and
-/// keeps its gain.
-#[inline(never)]
-fn fit_keyframe_attitude(scene: &Scene, matches: &[BlockMatch], chained: &Estimate, prior: &Start) -> Option<Estimate> {
-    let five = |p: &[f32; 7]| -> Params { [p[0], p[1], p[2], p[3], p[4]] };
-    let surfaces = |p: &[f32; 7]| Surfaces::ground(scene.map_from(&five(p), [p[5], p[6]], scene.height_mm as f32));
-    let seven = |p: &Params, keyframe: [f32; 2]| -> [f32; 7] { [p[0], p[1], p[2], p[3], p[4], keyframe[0], keyframe[1]] };
-    let keyframe = scene.keyframe_attitude;
-    let problem = Problem {
-        surfaces: &surfaces,
-        step: seven(&STEP, [STEP[3], STEP[4]]),
-        prior: seven(&prior.p, keyframe.deg),
-        sigma: seven(&prior.sigma, keyframe.sigma_deg),
-        min_inliers: MIN_INLIERS,
-    };
-    let fit = robust_fit(matches, seven(&params(&chained.motion), keyframe.deg), &problem)?;
-    let (p, sigma) = (fit.p, fit.variance()?.map(kernels::sqrtf));
-    Some(Estimate {
-        motion: motion(&five(&p)),
-        keyframe_attitude: KeyframeAttitude { deg: [p[5], p[6]], sigma_deg: [sigma[5], sigma[6]] },
-        change_sigma: [sigma[3], sigma[4]],
-        ..*chained
-    })
-}
-
-/// A lower level past `edge_row` fitted with the ground: the ground's
-/// motion and residual scale, and the level's depth below the ground (mm).
-fn fit_two_levels(scene: &Scene, matches: &[BlockMatch], start: &Params, prior: &Start, edge_row: f32) -> Option<(Fit, f32)> {
-    let ground = |p: &[f32; 6]| -> Params { [p[0], p[1], p[2], p[3], p[4]] };
-    let surfaces = |p: &[f32; 6]| two_levels(scene, &ground(p), edge_row, p[5]);
-    let six = |five: &Params, sixth: f32| -> [f32; 6] { [five[0], five[1], five[2], five[3], five[4], sixth] };
-    let problem = Problem {
-        surfaces: &surfaces,
-        step: six(&STEP, LOWER_LEVEL_DEPTH_STEP_MM),
-        prior: six(&prior.p, 0.0),
-        sigma: six(&prior.sigma, LOWER_LEVEL_DEPTH_SIGMA_MM),
-        min_inliers: MIN_INLIERS,
-    };
-    let fit = robust_fit(matches, six(start, 0.0), &problem)?;
-    Some((Fit { p: ground(&fit.p), scale: fit.scale }, fit.p[5]))
 }
 
 #[cfg(test)]
@@ -532,7 +485,7 @@ mod tests {
     fn estimate_between(keyframe: &[u8], current: &[u8], prior: &Prior) -> GroundMotion {
         let grid = grid();
         let coverage = Coverage::full(&grid);
-        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: KeyframeAttitude::NOMINAL, sin_cos: SinCosMemo::new() };
+        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: KeyframeAttitude::NOMINAL, typical: TypicalMisregistration::default(), sin_cos: SinCosMemo::new() };
         estimate(&scene, prior).expect("a textured floor is measured").motion
     }
 
@@ -656,7 +609,7 @@ mod tests {
         for tz_mm in [40.0, 80.0, 120.0, 160.0] {
             let change = Attitude { pitch_deg: 0.1, roll_deg: 0.05 };
             let current = render(&GroundMotion { planar: Motion { tx_mm: 5.0, tz_mm, dyaw_deg: 0.5 }, attitude: sitting.then(&change) }, |_, _| false);
-            let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: known, sin_cos: SinCosMemo::new() };
+            let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: known, typical: TypicalMisregistration::default(), sin_cos: SinCosMemo::new() };
             let prior = Prior { motion: GroundMotion { planar: Motion { tx_mm: 0.0, tz_mm, dyaw_deg: 0.0 }, attitude: Attitude::default() }, sigma: [12.0, 12.0, 1.0, 1.0, 1.0] };
             let estimate = estimate(&scene, &prior).expect("a textured floor is measured");
             let found = estimate.keyframe_attitude;
@@ -670,13 +623,5 @@ mod tests {
             let error = libm::fabsf(found - truth);
             assert!(error < 2.0 * sigma && error < libm::fabsf(truth) / 3.0, "{known:?}");
         }
-    }
-
-    #[test]
-    fn a_new_keyframe_is_as_sure_as_the_last_and_the_change_to_it() {
-        let last = KeyframeAttitude { deg: [0.5, -0.2], sigma_deg: [0.03, 0.04] };
-        let next = last.then(&Attitude { pitch_deg: 0.25, roll_deg: 0.1 }, [0.04, 0.03]);
-        assert!((next.deg[0] - 0.75).abs() < 1e-3 && (next.deg[1] + 0.1).abs() < 1e-3, "{next:?}");
-        assert!((next.sigma_deg[0] - 0.05).abs() < 1e-6 && (next.sigma_deg[1] - 0.05).abs() < 1e-6, "{next:?}");
     }
 }

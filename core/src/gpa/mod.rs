@@ -28,18 +28,18 @@
 //! every stage borrows only what it reads and writes.
 
 mod band;
-mod block_match;
 mod coarse;
 mod config;
 mod decision;
+mod direct;
 mod estimate;
-mod fit;
 mod homography;
 mod keyframe;
 mod layout;
 mod obstacles;
 mod parallax;
 mod prediction;
+mod pyramid;
 mod residue;
 mod row;
 #[cfg(test)]
@@ -65,7 +65,7 @@ use crate::remap::RemapTable;
 use crate::report::{FrameReport, NotJudged, Status, ANGLE_SCALE, MOTION_SCALE, SHIFT_SCALE};
 use crate::scan::{Scan, ScanLayout, View};
 use decision::{Alarm, Noise};
-use estimate::{Estimate, Estimator, KeyframeAttitude, Prior, Scene};
+use estimate::{Estimate, Estimator, GroundAttitude, KeyframeAttitude, Prior, Scene, TypicalMisregistration};
 use homography::SinCosMemo;
 use keyframe::Keyframe;
 use layout::{Layout, MAX_CELL_PX};
@@ -111,14 +111,18 @@ pub struct GpaProfile {
     pub shift_search: u32,
     /// Copying the row into the new keyframe.
     pub keyframe_update: u32,
-    /// The motion estimate (coarse search, block matches, fits), and the
+    /// The motion estimate (coarse search, pyramids, alignment), and the
     /// parts of it below.
     pub estimate: u32,
     /// Its coarse search (step 1).
     pub estimate_coarse: u32,
-    /// Its block matches (step 2, every time the blocks are matched).
-    pub estimate_blocks: u32,
-    /// Its search for a lower level (step 5, the two-level fits).
+    /// Its image pyramids.
+    pub estimate_pyramids: u32,
+    /// Its alignments (step 2, every start tried).
+    pub estimate_align: u32,
+    /// Its check of the surface under the robot (step 3).
+    pub estimate_nearest_surface: u32,
+    /// Its search for a lower level (step 4).
     pub estimate_lower_level: u32,
     /// The seed's search around the prediction, when the estimate differs from it.
     pub seed_search: u32,
@@ -134,7 +138,7 @@ struct Profiler {
 impl Profiler {
     const OFF: Profiler = Profiler {
         clock: None,
-        profile: GpaProfile { warp: 0, residue: 0, parallax: 0, shift_search: 0, keyframe_update: 0, estimate: 0, estimate_coarse: 0, estimate_blocks: 0, estimate_lower_level: 0, seed_search: 0 },
+        profile: GpaProfile { warp: 0, residue: 0, parallax: 0, shift_search: 0, keyframe_update: 0, estimate: 0, estimate_coarse: 0, estimate_pyramids: 0, estimate_align: 0, estimate_nearest_surface: 0, estimate_lower_level: 0, seed_search: 0 },
     };
 
     #[inline(always)]
@@ -174,8 +178,11 @@ pub struct Gpa<'b> {
     /// nominal; a keyframe that follows no comparison is too), refined by
     /// each comparison with it.
     keyframe_attitude: KeyframeAttitude,
-    /// One sigma of this frame's measured attitude change (degrees).
-    change_sigma: [f32; 2],
+    /// The body's attitude relative to the ground, filtered over frames:
+    /// where each new keyframe's starts.
+    ground_attitude: GroundAttitude,
+    /// What a trusted alignment leaves on this camera (the estimate's test).
+    typical_misregistration: TypicalMisregistration,
     /// The keyframe body's attitude as the measured changes chain it,
     /// leaking back to nominal ([`chain_keyframe`]): smooth from frame to
     /// frame, for GTI's tracks.
@@ -243,7 +250,8 @@ impl<'b> Gpa<'b> {
         imu: None,
         keyframe_imu: None,
         keyframe_attitude: KeyframeAttitude::NOMINAL,
-        change_sigma: [0.0, 0.0],
+        ground_attitude: GroundAttitude::NOMINAL,
+        typical_misregistration: TypicalMisregistration(None),
         keyframe_chain: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
         body_attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
         measured: GroundMotion {
@@ -321,6 +329,8 @@ impl<'b> Gpa<'b> {
         self.parallax.hypotheses = Hypotheses::NONE;
         self.parallax.clear();
         self.noise = Noise::new(&config);
+        self.typical_misregistration = TypicalMisregistration::default();
+        self.ground_attitude = GroundAttitude::NOMINAL;
         self.alarm = Alarm::NONE;
         self.blobs = heapless::Vec::new();
         self.scan = Scan::new(scan_layout(&self.layout));
@@ -440,12 +450,13 @@ impl<'b> Gpa<'b> {
         let new_keyframe = self.keyframe.finish(self.frame);
         if new_keyframe {
             self.keyframe_imu = self.imu;
-            (self.keyframe_attitude, self.keyframe_chain) = match report {
-                Some(_) if compared => (
-                    self.keyframe_attitude.then(&self.measured.attitude, self.change_sigma),
-                    chain_keyframe(&self.keyframe_chain, &self.measured.attitude),
-                ),
-                _ => (KeyframeAttitude::NOMINAL, Attitude::default()),
+            // The new keyframe's attitude relative to the ground starts
+            // from the filtered one (GroundAttitude), never from a sum of
+            // changes, which drifts, nor from a failed frame's.
+            self.keyframe_attitude = self.ground_attitude.keyframe();
+            self.keyframe_chain = match compared {
+                true => chain_keyframe(&self.keyframe_chain, &self.measured.attitude),
+                false => Attitude::default(),
             };
         }
         self.prediction.finish(self.frame, new_keyframe);
@@ -499,6 +510,7 @@ impl<'b> Gpa<'b> {
             coverage: &self.coverage,
             height_mm: self.layout.camera_height_mm,
             keyframe_attitude: self.keyframe_attitude,
+            typical: self.typical_misregistration,
             sin_cos: SinCosMemo::new(),
         };
         let since = self.profiler.now();
@@ -507,10 +519,12 @@ impl<'b> Gpa<'b> {
         let estimator = self.workspace.estimator();
         estimator.profiler = Profiler { clock: self.profiler.clock, profile: GpaProfile::default() };
         let estimate = estimator.estimate(&scene, prior, start);
+        self.typical_misregistration = estimator.typical;
         let parts = estimator.profiler.profile;
         self.profiler.charge(since, |p| &mut p.estimate);
         let profile = &mut self.profiler.profile;
-        (profile.estimate_blocks, profile.estimate_lower_level) = (parts.estimate_blocks, parts.estimate_lower_level);
+        (profile.estimate_pyramids, profile.estimate_align, profile.estimate_nearest_surface, profile.estimate_lower_level) =
+            (parts.estimate_pyramids, parts.estimate_align, parts.estimate_nearest_surface, parts.estimate_lower_level);
         estimate
     }
 
@@ -518,10 +532,11 @@ impl<'b> Gpa<'b> {
     /// measured motion (or the prior's), and decided.
     #[inline(never)]
     fn compare_with(&mut self, keyframe_frame: u32, prior: Prior, estimate: Option<Estimate>) -> FrameReport {
-        self.change_sigma = [prior.sigma[3] as f32, prior.sigma[4] as f32];
         if let Some(estimate) = &estimate {
             self.keyframe_attitude = estimate.keyframe_attitude;
-            self.change_sigma = estimate.change_sigma;
+            self.ground_attitude.measured(estimate);
+        } else {
+            self.ground_attitude.unmeasured();
         }
         self.velocity_known = estimate.is_some();
         let measured = match (estimate, self.odometry) {

@@ -300,6 +300,11 @@ impl Coverage {
         Coverage { current: rows, reference: rows }
     }
 
+    /// Seen columns `(first, end)` of the first `rows` current rows.
+    pub(super) fn current_rows(&self, rows: usize) -> &[(u16, u16)] {
+        &self.current[..rows]
+    }
+
     /// Columns of current row `j` that the camera sees, or None.
     pub(super) fn seen(&self, j: usize) -> Option<Range<usize>> {
         let (lo, hi) = self.current[j];

@@ -1,9 +1,8 @@
-//! One compare's scratch memory, in turns. The coarse search's images are
-//! live only in step 1 of the motion estimate; the block matches from step
-//! 2 until the frame's gain is read; the row stages' sums (band, residue,
-//! both shift searches) from the comparison of the rows until the frame
-//! is decided. So the coarse images take turns with the other two in one
-//! place, which saves ~13 KB of the board's RAM.
+//! One compare's scratch memory, in turns: the coarse search's images in
+//! step 1 of the motion estimate, the alignment's pyramids in step 2, the
+//! row stages' sums (band, residue, both shift searches) from the
+//! comparison of the rows until the frame is decided. None of them is
+//! live while another is, so they share one place in the board's RAM.
 
 use super::band::Band;
 use super::coarse::CoarseSearch;
@@ -22,17 +21,8 @@ pub(super) struct RowStages {
     pub(super) seed: ShiftSearch,
 }
 
-/// What follows step 1.
-pub(super) struct Fine {
-    pub(super) estimator: Estimator,
-    pub(super) rows: RowStages,
-}
-
-impl Fine {
-    const EMPTY: Fine = Fine {
-        estimator: Estimator::EMPTY,
-        rows: RowStages { band: Band::EMPTY, residue: Residue::EMPTY, search: ShiftSearch::EMPTY, seed: ShiftSearch::EMPTY },
-    };
+impl RowStages {
+    const EMPTY: RowStages = RowStages { band: Band::EMPTY, residue: Residue::EMPTY, search: ShiftSearch::EMPTY, seed: ShiftSearch::EMPTY };
 }
 
 /// Whichever holds the memory now.
@@ -41,51 +31,55 @@ impl Fine {
 #[allow(clippy::large_enum_variant)]
 pub(super) enum Workspace {
     Coarse(CoarseSearch),
-    Fine(Fine),
+    Estimate(Estimator),
+    Rows(RowStages),
 }
 
 impl Workspace {
-    pub(super) const EMPTY: Workspace = Workspace::Fine(Fine::EMPTY);
+    pub(super) const EMPTY: Workspace = Workspace::Rows(RowStages::EMPTY);
 
-    /// Step 1's images; the block matches and row sums are gone once they
-    /// have the memory.
+    /// Step 1's images; whatever held the memory before is gone.
     pub(super) fn coarse(&mut self) -> &mut CoarseSearch {
-        if let Workspace::Fine(_) = self {
+        if !matches!(self, Workspace::Coarse(_)) {
             *self = Workspace::Coarse(CoarseSearch::EMPTY);
         }
         match self {
             Workspace::Coarse(coarse) => coarse,
             // Just made.
-            Workspace::Fine(_) => unreachable!(),
+            _ => unreachable!(),
         }
     }
 
-    /// The block matches and row sums as last left, or empty after step 1.
-    pub(super) fn fine(&mut self) -> &mut Fine {
-        if let Workspace::Coarse(_) = self {
+    /// The alignment's pyramids; whatever held the memory before is gone.
+    pub(super) fn estimator(&mut self) -> &mut Estimator {
+        if !matches!(self, Workspace::Estimate(_)) {
+            *self = Workspace::Estimate(Estimator::EMPTY);
+        }
+        match self {
+            Workspace::Estimate(estimator) => estimator,
+            // Just made.
+            _ => unreachable!(),
+        }
+    }
+
+    /// The row sums as last left, or empty after the estimate.
+    pub(super) fn rows(&mut self) -> &mut RowStages {
+        if !matches!(self, Workspace::Rows(_)) {
             *self = Workspace::EMPTY;
         }
         match self {
-            Workspace::Fine(fine) => fine,
+            Workspace::Rows(rows) => rows,
             // Just made.
-            Workspace::Coarse(_) => unreachable!(),
+            _ => unreachable!(),
         }
     }
 
-    pub(super) fn estimator(&mut self) -> &mut Estimator {
-        &mut self.fine().estimator
-    }
-
-    pub(super) fn rows(&mut self) -> &mut RowStages {
-        &mut self.fine().rows
-    }
-
-    /// The row stages, read-only; None while step 1 has the memory.
+    /// The row stages, read-only; None while the estimate has the memory.
     #[cfg(test)]
     pub(super) fn rows_ref(&self) -> Option<&RowStages> {
         match self {
-            Workspace::Fine(fine) => Some(&fine.rows),
-            Workspace::Coarse(_) => None,
+            Workspace::Rows(rows) => Some(rows),
+            _ => None,
         }
     }
 }
