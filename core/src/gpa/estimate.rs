@@ -26,9 +26,9 @@
 //!    tilt the ground's fit.
 //!
 //! The keyframe's attitude is two of the unknowns. Its prior when the
-//! keyframe is taken is [`GroundAttitude`]: the body's attitude relative
-//! to the ground, filtered over the frames from absolute measurements,
-//! never a sum of changes.
+//! keyframe is taken is [`GroundAttitude`]: the last keyframe's attitude
+//! plus the change measured since, corrected by every alignment's own
+//! measurement of it against the ground.
 //!
 //! All of it in `f32` (the M4 has a single-precision FPU).
 
@@ -120,17 +120,20 @@ impl KeyframeAttitude {
     }
 }
 
-/// How far the body's attitude relative to the ground may wander between
-/// two frames beyond what the filter knows (degrees, one sigma): braking,
-/// a bump, the road's camber changing.
-const GROUND_ATTITUDE_WANDER_DEG: f32 = 0.3;
+/// How far the ground in view may turn under the body between two
+/// keyframes beyond what the measured change says (degrees, one sigma):
+/// a road's grade or camber changing, the change's own model error.
+const GROUND_ATTITUDE_WANDER_DEG: f32 = 0.1;
 
-/// The body's attitude relative to the ground in view, filtered over the
-/// frames (a Kalman filter of a random walk, per axis): a mount a degree
-/// off is learnt in a few frames, and each new keyframe starts from it
-/// instead of from nominal. Its input is each frame's *absolute* attitude
-/// as measured against the ground, never a change, so it cannot drift;
-/// without measurements its sigma grows back to [`KeyframeAttitude::NOMINAL`]'s.
+/// The body's attitude relative to the ground in view, frame by frame: the
+/// keyframe's attitude as the last alignment measured it (its prior
+/// included) plus the change since, which the alignment pins far better
+/// (a few hundredths of a degree) than a single pair pins the absolute
+/// attitude (a few tenths). Each keyframe starts from it, so a body that
+/// rocks from frame to frame is followed; every alignment also measures
+/// the keyframe's attitude against the ground itself, so errors of the
+/// changes do not add up without limit, and the prior's sigma never
+/// exceeds [`KeyframeAttitude::NOMINAL`]'s.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct GroundAttitude {
     now: KeyframeAttitude,
@@ -142,23 +145,18 @@ impl GroundAttitude {
     /// A frame whose attitude was measured: the keyframe's and the change since.
     pub(super) fn measured(&mut self, estimate: &Estimate) {
         let change = [estimate.motion.attitude.pitch_deg as f32, estimate.motion.attitude.roll_deg as f32];
+        let nominal = KeyframeAttitude::NOMINAL.sigma_deg;
         for k in 0..2 {
-            let variance = self.now.sigma_deg[k] * self.now.sigma_deg[k] + GROUND_ATTITUDE_WANDER_DEG * GROUND_ATTITUDE_WANDER_DEG;
-            let measured = estimate.keyframe_attitude.deg[k] + change[k];
-            let noise = estimate.keyframe_attitude.sigma_deg[k] * estimate.keyframe_attitude.sigma_deg[k] + estimate.change_sigma[k] * estimate.change_sigma[k];
-            let gain = variance / (variance + noise);
-            let nominal = KeyframeAttitude::NOMINAL.sigma_deg[k];
-            self.now.deg[k] = (self.now.deg[k] + gain * (measured - self.now.deg[k])).clamp(-3.0 * nominal, 3.0 * nominal);
-            self.now.sigma_deg[k] = crate::kernels::sqrtf((1.0 - gain) * variance);
+            let deg = estimate.keyframe_attitude.deg[k] + change[k];
+            self.now.deg[k] = deg.clamp(-3.0 * nominal[k], 3.0 * nominal[k]);
+            self.now.sigma_deg[k] = crate::kernels::hypotf(estimate.keyframe_attitude.sigma_deg[k], estimate.change_sigma[k]).min(nominal[k]);
         }
     }
 
-    /// A frame whose attitude was not measured: less is known.
+    /// A frame whose attitude was not measured: nothing is known of it,
+    /// and the next keyframe starts from nominal (never from a stale value).
     pub(super) fn unmeasured(&mut self) {
-        for k in 0..2 {
-            let sigma = crate::kernels::hypotf(self.now.sigma_deg[k], GROUND_ATTITUDE_WANDER_DEG);
-            self.now.sigma_deg[k] = sigma.min(KeyframeAttitude::NOMINAL.sigma_deg[k]);
-        }
+        self.now = KeyframeAttitude::NOMINAL;
     }
 
     /// What a keyframe taken now starts from.

@@ -451,8 +451,7 @@ impl<'b> Gpa<'b> {
         if new_keyframe {
             self.keyframe_imu = self.imu;
             // The new keyframe's attitude relative to the ground starts
-            // from the filtered one (GroundAttitude), never from a sum of
-            // changes, which drifts, nor from a failed frame's.
+            // from GroundAttitude's, never from a failed frame's.
             self.keyframe_attitude = self.ground_attitude.keyframe();
             self.keyframe_chain = match compared {
                 true => chain_keyframe(&self.keyframe_chain, &self.measured.attitude),
