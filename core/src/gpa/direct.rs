@@ -612,6 +612,8 @@ fn level_mean(level: &Level) -> f32 {
 
 /// Most candidates of the top level's translation search, each way.
 const SEARCH_STEPS: usize = 15;
+/// Most steps of the top level's attitude search either side of its start.
+const ATTITUDE_SEARCH_STEPS: usize = 4;
 
 impl Direct {
     /// The translation that best explains the top level, searched on a
@@ -641,6 +643,41 @@ impl Direct {
             for b in 0..nz {
                 let mut p = *to;
                 (p[0], p[1]) = (x0 + a as f32 * dx, z0 + b as f32 * dz);
+                let (sampled, scale) = points.residuals(images, &keyframe, top, &State { p, gain, offset: 128.0 * gain, lower: None });
+                if sampled >= MIN_POINTS && scale < best.0 {
+                    best = (scale, p);
+                }
+            }
+        }
+        best.1
+    }
+
+    /// The attitude change that best explains the top level, searched on
+    /// a grid around `start`'s within `reach_deg` each way (pitch and roll,
+    /// the rest as in `start`), scored as [`Self::search_translation`]
+    /// scores. A body that pitched a degree or more moves the far ground
+    /// by several top-level pixels: beyond the alignment's own reach.
+    pub(super) fn search_attitude(&mut self, images: &Images, start: &Geometry, reach_deg: f32) -> Geometry {
+        let top = LEVELS - 1;
+        let current = self.current.level(top, images.current, images.seen);
+        let keyframe = self.keyframe.level(top, images.keyframe, images.seen);
+        let points = &mut self.points;
+        points.select(&current, &self.chosen[top], 0);
+        // The step that moves the farthest ground by about a top-level
+        // pixel: dz/dpitch = (z^2 + h^2) / h.
+        let grid = images.grid;
+        let (h, far) = (images.height_mm, grid.z_far_mm as f32);
+        let pixel_deg = (pyramid::scale(top) as f32 * grid.mm_per_px as f32 * h / (far * far + h * h)).to_degrees();
+        let steps = ((reach_deg / pixel_deg).ceil() as usize).clamp(1, ATTITUDE_SEARCH_STEPS);
+        let step = reach_deg / steps as f32;
+        let gain = level_mean(&current) / level_mean(&keyframe).max(1.0);
+        let mut best = (f32::INFINITY, *start);
+        let span = 2 * steps + 1;
+        for a in 0..span {
+            for b in 0..span {
+                let mut p = *start;
+                p[3] += (a as f32 - steps as f32) * step;
+                p[4] += (b as f32 - steps as f32) * step;
                 let (sampled, scale) = points.residuals(images, &keyframe, top, &State { p, gain, offset: 128.0 * gain, lower: None });
                 if sampled >= MIN_POINTS && scale < best.0 {
                     best = (scale, p);

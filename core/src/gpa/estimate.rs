@@ -70,6 +70,8 @@ const ALIGNMENT_REACH_TOP_PX: f32 = 1.5;
 /// by this much (in the pixels' residual variance): its depth and its edge
 /// buy a few by chance; a drop the ground alone bent to, tens.
 const LOWER_LEVEL_CHI2: f32 = 3.0;
+/// An attitude prior whose 3 sigma is within this needs no search (degrees).
+const ATTITUDE_WITHIN_REACH_DEG: f32 = 0.3;
 /// The planar motion's sigmas from the standing-still start: no prior (mm, mm, deg).
 const UNMOORED_SIGMA: [f32; 3] = [10_000.0, 10_000.0, 90.0];
 /// The coarsest level the nearest rows' own fit starts from.
@@ -246,29 +248,48 @@ impl Estimator {
         // rows alone: the ground is the surface under the robot.
         let near_only = Schedule { near_row: schedule.near_row, near_from_level: 0, top_level: LEVELS - 1 };
         let typical = scene.typical.0;
-        let attempt = |direct: &mut Direct, p: &Params, prior: &direct::Prior| {
-            let whole = direct.align(&images, prior, seven(p, keyframe.deg), schedule).filter(|a| trusted(a, scene.grid, typical));
-            match whole {
-                Some(whole) => Some((whole, true)),
-                None => direct.align(&images, prior, seven(p, keyframe.deg), near_only).filter(|a| trusted(a, scene.grid, typical)).map(|near| (near, false)),
-            }
+        let whole = |direct: &mut Direct, p: &Params, prior: &direct::Prior| {
+            direct.align(&images, prior, seven(p, keyframe.deg), schedule).filter(|a| trusted(a, scene.grid, typical)).map(|a| (a, true))
         };
+        let near = |direct: &mut Direct, p: &Params, prior: &direct::Prior| {
+            direct.align(&images, prior, seven(p, keyframe.deg), near_only).filter(|a| trusted(a, scene.grid, typical)).map(|a| (a, false))
+        };
+        let five = |g: Geometry| -> Params { [g[0], g[1], g[2], g[3], g[4]] };
         // Standing still is the hypothesis that the odometry is wrong
         // (wheels that slip): from there the planar motion has no prior.
         let mut unmoored = prior7;
         for k in 0..3 {
             unmoored.sigma[k] = UNMOORED_SIGMA[k];
         }
-        // Each start once: the coarse search's, the prior's, and the best
-        // translation between standing still and the prior.
+        // The whole view first: from step 1's start, the prior's, and the
+        // best attitude change on the top level (a body that pitched
+        // beyond the alignment's reach). Then the nearest rows alone from
+        // the first two. Last, the best translation between standing
+        // still and the prior, with no prior on the planar motion.
         let direct = &mut self.direct;
-        let mut aligned = attempt(direct, &start, &prior7);
-        if aligned.is_none() && prior_start.p != start {
-            aligned = attempt(direct, &prior_start.p, &prior7);
+        let other_start = (prior_start.p != start).then_some(prior_start.p);
+        let attitude_reach = 3.0 * prior_start.sigma[3].max(prior_start.sigma[4]);
+        let mut aligned = whole(direct, &start, &prior7);
+        if aligned.is_none() {
+            if let Some(p) = other_start {
+                aligned = whole(direct, &p, &prior7);
+            }
+        }
+        if aligned.is_none() && attitude_reach > ATTITUDE_WITHIN_REACH_DEG {
+            let searched = five(direct.search_attitude(&images, &seven(&start, keyframe.deg), attitude_reach));
+            aligned = whole(direct, &searched, &prior7);
         }
         if aligned.is_none() {
-            let searched = direct.search_translation(&images, &seven(&[0.0; 5], keyframe.deg), &seven(&prior_start.p, keyframe.deg));
-            aligned = attempt(direct, &[searched[0], searched[1], searched[2], searched[3], searched[4]], &unmoored);
+            aligned = near(direct, &start, &prior7);
+        }
+        if aligned.is_none() {
+            if let Some(p) = other_start {
+                aligned = near(direct, &p, &prior7);
+            }
+        }
+        if aligned.is_none() {
+            let searched = five(direct.search_translation(&images, &seven(&[0.0; 5], keyframe.deg), &seven(&prior_start.p, keyframe.deg)));
+            aligned = whole(direct, &searched, &unmoored).or_else(|| near(direct, &searched, &unmoored));
         }
         self.profiler.charge(since, |p| &mut p.estimate_align);
         let aligned = match aligned? {
