@@ -106,8 +106,9 @@ impl Alarm {
     /// The hazard of this frame from its evidence: parallax first (it
     /// measures height and footprint directly), then residue. A frame at
     /// `baseline_mm` from its keyframe shows too little parallax to clear
-    /// an alarm when the baseline is short (under half the keyframe
-    /// travel); a drop's parallax is smaller still (T*d/(H+d), under T
+    /// an alarm when the baseline is short (under 0.6 of the keyframe
+    /// travel: a frame at half of it, the keyframe's own step, must not
+    /// clear or hold by a millimetre of estimate noise); a drop's parallax is smaller still (T*d/(H+d), under T
     /// however deep), so a drop is held through baselines under three
     /// quarters of the travel, and through frames that could not look for
     /// drops at all (`drops_looked_for` false: the attitude change is
@@ -130,7 +131,7 @@ impl Alarm {
         let found = parallax.map(|(footprint, height)| (footprint, Some(height))).or(residue.map(|footprint| (footprint, None)));
         let cannot_clear = |held: &Hazard| {
             let is_drop = held.1.is_some_and(|h| h < 0);
-            let needed = if is_drop { 0.75 } else { 0.5 } * config.keyframe_travel_mm;
+            let needed = if is_drop { 0.75 } else { 0.6 } * config.keyframe_travel_mm;
             baseline_mm < needed || (is_drop && !drops_looked_for)
         };
         let hazard = match (found, self.previous) {
