@@ -668,7 +668,7 @@ impl Direct {
         let grid = images.grid;
         let (h, far) = (images.height_mm, grid.z_far_mm as f32);
         let pixel_deg = (pyramid::scale(top) as f32 * grid.mm_per_px as f32 * h / (far * far + h * h)).to_degrees();
-        let steps = ((reach_deg / pixel_deg).ceil() as usize).clamp(1, ATTITUDE_SEARCH_STEPS);
+        let steps = (libm::ceilf(reach_deg / pixel_deg) as usize).clamp(1, ATTITUDE_SEARCH_STEPS);
         let step = reach_deg / steps as f32;
         let gain = level_mean(&current) / level_mean(&keyframe).max(1.0);
         let mut best = (f32::INFINITY, *start);
