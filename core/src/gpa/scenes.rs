@@ -77,7 +77,10 @@ fn drive(profile: Profile) -> std::vec::Vec<FrameReport> {
         for (j, row) in image.chunks_exact(grid.width()).enumerate() {
             gpa.on_kg_row(j, row);
         }
-        reports.extend(gpa.end_frame());
+        let report = gpa.end_frame();
+        #[cfg(feature = "trace")]
+        std::eprintln!("trace: report {report:?}");
+        reports.extend(report);
     }
     reports
 }
