@@ -811,15 +811,12 @@ impl Direct {
             state.lower = Some(Lower { edge_row, depth_mm });
             let (_, scale) = points.residuals(images, &keyframe, 0, &state);
             let (mut normal, _) = points.accumulate(Loss::Tukey, scale);
-            // Refined, the keyframe's attitude is free again: the far level
-            // has its own plane now, and held at its prior it never learns
-            // (the prior chains each keyframe's measured change, so an error
-            // held here walks on from keyframe to keyframe).
             add_priors(&mut normal, &state, prior, scale);
+            hold_keyframe_attitude(&mut normal);
             let mut border = Border::default();
             for (k, point) in points.points.iter().enumerate() {
                 if to_grid(0, point.j) < edge_row && !points.residuals[k].is_nan() {
-                    border.add(point, points.residuals[k], points.samples[k], scale, false);
+                    border.add(point, points.residuals[k], points.samples[k], scale, true);
                 }
             }
             border.dd += scale * scale * CORRELATION / (DEPTH_SIGMA_MM * DEPTH_SIGMA_MM);

@@ -301,7 +301,7 @@ impl Estimator {
         self.profiler.charge(since, |p| &mut p.estimate_lower_level);
         #[cfg(feature = "trace")]
         if let Some((two, chi2)) = &lower {
-            std::eprintln!("trace: lower level (z_far {:.0}) chi2 {chi2:.1} {:?} p=[{:.1} {:.1} {:.2} {:.2} {:.2} {:.2} {:.2}]", scene.grid.z_far_mm, two.lower, two.p[0], two.p[1], two.p[2], two.p[3], two.p[4], two.p[5], two.p[6]);
+            std::eprintln!("trace: lower level chi2 {chi2:.1} {:?} p=[{:.1} {:.1} {:.2} {:.2} {:.2} {:.2} {:.2}]", two.lower, two.p[0], two.p[1], two.p[2], two.p[3], two.p[4], two.p[5], two.p[6]);
         }
         let aligned = match lower {
             Some((two, chi2)) if chi2 > LOWER_LEVEL_CHI2 => two,

@@ -77,10 +77,7 @@ fn drive(profile: Profile) -> std::vec::Vec<FrameReport> {
         for (j, row) in image.chunks_exact(grid.width()).enumerate() {
             gpa.on_kg_row(j, row);
         }
-        let report = gpa.end_frame();
-        #[cfg(feature = "trace")]
-        std::eprintln!("trace: report {report:?}");
-        reports.extend(report);
+        reports.extend(gpa.end_frame());
     }
     reports
 }
