@@ -753,9 +753,10 @@ impl Direct {
     /// the bordered system from `aligned`, whose decrease of chi-square is
     /// exact for the linearised model (prefix sums over the rows make each
     /// edge a 10 x 10 solve). The best edge with a level below the ground
-    /// is then refined. Returns it and its decrease of chi-square (in
-    /// pixels' residual variance, [`CORRELATION`] included), or None.
-    pub(super) fn lower_level(&mut self, images: &Images, prior: &Prior, aligned: &Alignment) -> Option<(Alignment, f32)> {
+    /// is then refined if its decrease of chi-square (in pixels' residual
+    /// variance, [`CORRELATION`] included) exceeds `adopted_from_chi2`.
+    /// Returns it and that decrease, or None.
+    pub(super) fn lower_level(&mut self, images: &Images, prior: &Prior, aligned: &Alignment, adopted_from_chi2: f32) -> Option<(Alignment, f32)> {
         let current = self.current.level(0, images.current, images.seen);
         let keyframe = self.keyframe.level(0, images.keyframe, images.seen);
         let points = &mut self.points;
@@ -797,6 +798,10 @@ impl Direct {
             border.add(point, points.residuals[k], points.samples[k], scale, true);
         }
         let (chi2, edge_row, mut step) = best?;
+        // Refined only when it could be adopted: the refinement is most of the cost.
+        if chi2 <= adopted_from_chi2 {
+            return None;
+        }
         let mut depth_mm = 0.0;
         for _ in 0..LOWER_LEVEL_ITERATIONS {
             for k in 0..GEOMETRY {

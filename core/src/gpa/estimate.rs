@@ -297,7 +297,7 @@ impl Estimator {
             (near, false) => near,
         };
         let since = self.profiler.now();
-        let lower = self.direct.lower_level(&images, &prior7, &aligned);
+        let lower = self.direct.lower_level(&images, &prior7, &aligned, LOWER_LEVEL_CHI2);
         self.profiler.charge(since, |p| &mut p.estimate_lower_level);
         #[cfg(feature = "trace")]
         if let Some((two, chi2)) = &lower {
