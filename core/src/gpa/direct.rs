@@ -531,8 +531,8 @@ impl Points {
             for a in 0..UNKNOWNS {
                 let wa = weight * j[a];
                 normal.g[a] += wa * r;
-                for b in a..UNKNOWNS {
-                    normal.h[a][b] += wa * j[b];
+                for (h, &jb) in normal.h[a][a..].iter_mut().zip(&j[a..]) {
+                    *h += wa * jb;
                 }
             }
         }
@@ -616,19 +616,35 @@ const SEARCH_STEPS: usize = 15;
 const ATTITUDE_SEARCH_STEPS: usize = 4;
 
 impl Direct {
-    /// The translation that best explains the top level, searched on a
-    /// grid of its pixels over the box from `from` to `to` and a pixel
-    /// beyond (yaw, attitude and the keyframe's attitude as in `to`): the
-    /// median absolute difference of the chosen pixels after a brightness
-    /// match. Wheels that slip leave the truth anywhere between standing
-    /// still and the odometry, beyond the alignment's reach of both.
-    pub(super) fn search_translation(&mut self, images: &Images, from: &Geometry, to: &Geometry) -> Geometry {
+    /// Of the `candidates` (the rest of the geometry as in `fallback`),
+    /// the one that best explains the top level: the median absolute
+    /// difference of its chosen pixels after a brightness match by the
+    /// levels' means (an exposure step). `fallback` when none samples
+    /// enough of the keyframe.
+    fn best_on_top_level(&mut self, images: &Images, fallback: &Geometry, candidates: impl Iterator<Item = Geometry>) -> Geometry {
         let top = LEVELS - 1;
         let current = self.current.level(top, images.current, images.seen);
         let keyframe = self.keyframe.level(top, images.keyframe, images.seen);
         let points = &mut self.points;
         points.select(&current, &self.chosen[top], 0);
-        let step_mm = pyramid::scale(top) as f32 * images.grid.mm_per_px as f32;
+        let gain = level_mean(&current) / level_mean(&keyframe).max(1.0);
+        let mut best = (f32::INFINITY, *fallback);
+        for p in candidates {
+            let (sampled, scale) = points.residuals(images, &keyframe, top, &State { p, gain, offset: 128.0 * gain, lower: None });
+            if sampled >= MIN_POINTS && scale < best.0 {
+                best = (scale, p);
+            }
+        }
+        best.1
+    }
+
+    /// The translation that best explains the top level, searched on a
+    /// grid of its pixels over the box from `from` to `to` and a pixel
+    /// beyond (yaw, attitude and the keyframe's attitude as in `to`).
+    /// Wheels that slip leave the truth anywhere between standing still
+    /// and the odometry, beyond the alignment's reach of both.
+    pub(super) fn search_translation(&mut self, images: &Images, from: &Geometry, to: &Geometry) -> Geometry {
+        let step_mm = pyramid::scale(LEVELS - 1) as f32 * images.grid.mm_per_px as f32;
         let axis = |k: usize| {
             let (lo, hi) = (from[k].min(to[k]) - step_mm, from[k].max(to[k]) + step_mm);
             let steps = (((hi - lo) / step_mm) as usize + 1).min(SEARCH_STEPS);
@@ -636,55 +652,36 @@ impl Direct {
         };
         let (x0, dx, nx) = axis(0);
         let (z0, dz, nz) = axis(1);
-        // Brightness matched by the levels' means (an exposure step).
-        let gain = level_mean(&current) / level_mean(&keyframe).max(1.0);
-        let mut best = (f32::INFINITY, *to);
-        for a in 0..nx {
-            for b in 0..nz {
-                let mut p = *to;
-                (p[0], p[1]) = (x0 + a as f32 * dx, z0 + b as f32 * dz);
-                let (sampled, scale) = points.residuals(images, &keyframe, top, &State { p, gain, offset: 128.0 * gain, lower: None });
-                if sampled >= MIN_POINTS && scale < best.0 {
-                    best = (scale, p);
-                }
-            }
-        }
-        best.1
+        let candidates = (0..nx).flat_map(|a| (0..nz).map(move |b| (a, b))).map(|(a, b)| {
+            let mut p = *to;
+            (p[0], p[1]) = (x0 + a as f32 * dx, z0 + b as f32 * dz);
+            p
+        });
+        self.best_on_top_level(images, to, candidates)
     }
 
     /// The attitude change that best explains the top level, searched on
     /// a grid around `start`'s within `reach_deg` each way (pitch and roll,
-    /// the rest as in `start`), scored as [`Self::search_translation`]
-    /// scores. A body that pitched a degree or more moves the far ground
-    /// by several top-level pixels: beyond the alignment's own reach.
+    /// the rest as in `start`). A body that pitched a degree or more moves
+    /// the far ground by several top-level pixels: beyond the alignment's
+    /// own reach.
     pub(super) fn search_attitude(&mut self, images: &Images, start: &Geometry, reach_deg: f32) -> Geometry {
-        let top = LEVELS - 1;
-        let current = self.current.level(top, images.current, images.seen);
-        let keyframe = self.keyframe.level(top, images.keyframe, images.seen);
-        let points = &mut self.points;
-        points.select(&current, &self.chosen[top], 0);
         // The step that moves the farthest ground by about a top-level
         // pixel: dz/dpitch = (z^2 + h^2) / h.
         let grid = images.grid;
         let (h, far) = (images.height_mm, grid.z_far_mm as f32);
-        let pixel_deg = (pyramid::scale(top) as f32 * grid.mm_per_px as f32 * h / (far * far + h * h)).to_degrees();
+        let pixel_deg = (pyramid::scale(LEVELS - 1) as f32 * grid.mm_per_px as f32 * h / (far * far + h * h)).to_degrees();
         let steps = (libm::ceilf(reach_deg / pixel_deg) as usize).clamp(1, ATTITUDE_SEARCH_STEPS);
         let step = reach_deg / steps as f32;
-        let gain = level_mean(&current) / level_mean(&keyframe).max(1.0);
-        let mut best = (f32::INFINITY, *start);
+        let offset = move |k: usize| (k as f32 - steps as f32) * step;
         let span = 2 * steps + 1;
-        for a in 0..span {
-            for b in 0..span {
-                let mut p = *start;
-                p[3] += (a as f32 - steps as f32) * step;
-                p[4] += (b as f32 - steps as f32) * step;
-                let (sampled, scale) = points.residuals(images, &keyframe, top, &State { p, gain, offset: 128.0 * gain, lower: None });
-                if sampled >= MIN_POINTS && scale < best.0 {
-                    best = (scale, p);
-                }
-            }
-        }
-        best.1
+        let candidates = (0..span).flat_map(|a| (0..span).map(move |b| (a, b))).map(|(a, b)| {
+            let mut p = *start;
+            p[3] += offset(a);
+            p[4] += offset(b);
+            p
+        });
+        self.best_on_top_level(images, start, candidates)
     }
 
     /// How badly `aligned` explains the finest level's pixels from grid
@@ -804,13 +801,13 @@ impl Direct {
         }
         let mut depth_mm = 0.0;
         for _ in 0..LOWER_LEVEL_ITERATIONS {
-            for k in 0..GEOMETRY {
-                state.p[k] -= step[k];
+            for (p, s) in state.p.iter_mut().zip(&step[..GEOMETRY]) {
+                *p -= s;
             }
             state.gain -= step[GEOMETRY];
             state.offset -= step[GEOMETRY + 1];
             depth_mm -= step[UNKNOWNS];
-            if !(depth_mm > -0.8 * images.height_mm && depth_mm < 4.0 * images.height_mm) || !state.p.iter().all(|v| v.is_finite()) {
+            if !(depth_mm > -0.8 * images.height_mm && depth_mm < 4.0 * images.height_mm && state.p.iter().all(|v| v.is_finite())) {
                 return None;
             }
             state.lower = Some(Lower { edge_row, depth_mm });
@@ -928,7 +925,8 @@ fn cholesky(h: &[[f32; UNKNOWNS]; UNKNOWNS]) -> Option<([[f32; UNKNOWNS]; UNKNOW
 fn cholesky_n<const N: usize>(h: &[[f32; N]; N]) -> Option<([[f32; N]; N], [f32; N])> {
     let mut scales = [0.0; N];
     for k in 0..N {
-        if !(h[k][k] > 0.0) {
+        // Not positive, or NaN.
+        if h[k][k].is_nan() || h[k][k] <= 0.0 {
             return None;
         }
         scales[k] = 1.0 / crate::kernels::sqrtf(h[k][k]);
@@ -937,11 +935,12 @@ fn cholesky_n<const N: usize>(h: &[[f32; N]; N]) -> Option<([[f32; N]; N], [f32;
     for r in 0..N {
         for c in 0..=r {
             let mut sum = h[c][r] * scales[r] * scales[c];
-            for k in 0..c {
-                sum -= l[r][k] * l[c][k];
+            for (a, b) in l[r][..c].iter().zip(&l[c][..c]) {
+                sum -= a * b;
             }
             if r == c {
-                if !(sum > 1e-9) {
+                // Not positive, or NaN.
+                if sum.is_nan() || sum <= 1e-9 {
                     return None;
                 }
                 l[r][r] = crate::kernels::sqrtf(sum);
@@ -993,12 +992,14 @@ mod tests {
 
     #[test]
     fn the_solver_inverts_a_symmetric_system() {
-        let mut h = [[0.0f32; UNKNOWNS]; UNKNOWNS];
-        for r in 0..UNKNOWNS {
-            for c in r..UNKNOWNS {
-                h[r][c] = if r == c { 10.0 + r as f32 * 100.0 } else { 1.0 + (r + c) as f32 * 0.1 };
-            }
-        }
+        // The upper triangle, as `accumulate` fills it.
+        let h: [[f32; UNKNOWNS]; UNKNOWNS] = core::array::from_fn(|r| {
+            core::array::from_fn(|c| match c.cmp(&r) {
+                core::cmp::Ordering::Equal => 10.0 + r as f32 * 100.0,
+                core::cmp::Ordering::Greater => 1.0 + (r + c) as f32 * 0.1,
+                core::cmp::Ordering::Less => 0.0,
+            })
+        });
         let truth: [f32; UNKNOWNS] = core::array::from_fn(|k| k as f32 - 3.0);
         let g: [f32; UNKNOWNS] = core::array::from_fn(|r| (0..UNKNOWNS).map(|c| if c >= r { h[r][c] } else { h[c][r] } * truth[c]).sum());
         let x = solve(&h, &g).unwrap();

@@ -258,9 +258,7 @@ impl Estimator {
         // Standing still is the hypothesis that the odometry is wrong
         // (wheels that slip): from there the planar motion has no prior.
         let mut unmoored = prior7;
-        for k in 0..3 {
-            unmoored.sigma[k] = UNMOORED_SIGMA[k];
-        }
+        unmoored.sigma[..3].copy_from_slice(&UNMOORED_SIGMA);
         // The whole view first: from step 1's start, the prior's, and the
         // best attitude change on the top level (a body that pitched
         // beyond the alignment's reach). Then the nearest rows alone from
