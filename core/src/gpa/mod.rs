@@ -573,7 +573,7 @@ impl<'b> Gpa<'b> {
         // Without an estimate the attitude change is the prior's: an IMU's
         // measurement, or without one a guess (level, 1 degree).
         let drops_looked_for = estimate.is_some() || prior.sigma[3].max(prior.sigma[4]) <= self.config.drop_imu_sigma_limit_deg;
-        self.decide(keyframe_frame, &prior.motion.planar, seed_apart, drops_looked_for)
+        self.decide(keyframe_frame, &prior.motion.planar, seed_apart, drops_looked_for, estimate.is_some())
     }
 
     /// Fills the seed's search (`self.seed`) around the `predicted` motion:
@@ -653,8 +653,8 @@ impl<'b> Gpa<'b> {
     /// around it apart from the measured motion's (else they are one).
     /// `drops_looked_for`: the attitude change was measured (else drops,
     /// whose parallax an attitude error mimics, are not looked for).
-    fn decide(&mut self, keyframe_frame: u32, predicted: &Motion, seed_apart: bool, drops_looked_for: bool) -> FrameReport {
-        let (seed_sum, seed_count, seed_fit) = self.settle_searches(predicted, seed_apart);
+    fn decide(&mut self, keyframe_frame: u32, predicted: &Motion, seed_apart: bool, drops_looked_for: bool, estimated: bool) -> FrameReport {
+        let (seed_sum, seed_count, seed_fit) = self.settle_searches(predicted, seed_apart, estimated);
         let (shift_k, shift_g) = (seed_fit.shift_k, seed_fit.shift_g);
         let rows = self.workspace.rows();
         let baseline_mm = self.prediction.predicted.distance_mm();
@@ -697,11 +697,15 @@ impl<'b> Gpa<'b> {
     /// differences) and shift from the seed's.
     // Not inlined: its two 1 KB histograms stay off the obstacle search's stack.
     #[inline(never)]
-    fn settle_searches(&mut self, predicted: &Motion, seed_apart: bool) -> (u32, u32, shift_search::ShiftFit) {
+    fn settle_searches(&mut self, predicted: &Motion, seed_apart: bool, estimated: bool) -> (u32, u32, shift_search::ShiftFit) {
         let measured = self.prediction.predicted;
         let rows = self.workspace.rows();
         let fit = rows.search.fit(self.config.search_radius, &measured, &self.layout);
-        self.prediction.settle(fit.refined, self.layout.grid.mm_per_px);
+        // The estimate's motion stands: it modelled what is not ground (a
+        // drop's lower level, a box) that the search's one shift over the
+        // AOI averages in. Without one, the search refines the prior.
+        let refined = if estimated { Some(measured) } else { fit.refined };
+        self.prediction.settle(refined, self.layout.grid.mm_per_px);
         self.noise.update(&rows.search.histogram(), &self.config);
         let seed = if seed_apart { &rows.seed } else { &rows.search };
         let (sum, count) = kernels::seed_statistics(&seed.histogram());
