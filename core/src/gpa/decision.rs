@@ -4,6 +4,7 @@
 //! baseline is too short to see the obstacle again.
 
 use super::config::GpaConfig;
+use super::keyframe;
 use super::obstacles::Footprint;
 use crate::motion::Motion;
 
@@ -87,8 +88,8 @@ pub(super) type Hazard = (Footprint, Option<i32>);
 pub(super) struct Alarm {
     source: AlarmSource,
     /// The last decided hazard, held through frames whose baseline is too
-    /// short to see it.
-    previous: Option<Hazard>,
+    /// short to see it, and the baseline it was found at (mm).
+    previous: Option<(Hazard, f64)>,
 }
 
 impl Alarm {
@@ -108,7 +109,11 @@ impl Alarm {
     /// `baseline_mm` from its keyframe shows too little parallax to clear
     /// an alarm when the baseline is short (under 0.6 of the keyframe
     /// travel: a frame at half of it, the keyframe's own step, must not
-    /// clear or hold by a millimetre of estimate noise); a drop's parallax is smaller still (T*d/(H+d), under T
+    /// clear or hold by a millimetre of estimate noise), nor when it is
+    /// shorter than the baseline the hazard was found at (up to the
+    /// keyframe travel): parallax grows with the baseline, so a shorter
+    /// one may show too little of what a longer one just saw (a box at
+    /// the AOI's far edge). A drop's parallax is smaller still (T*d/(H+d), under T
     /// however deep), so a drop is held through baselines under three
     /// quarters of the travel, and through frames that could not look for
     /// drops at all (`drops_looked_for` false: the attitude change is
@@ -129,14 +134,16 @@ impl Alarm {
             (None, None) => AlarmSource::None,
         };
         let found = parallax.map(|(footprint, height)| (footprint, Some(height))).or(residue.map(|footprint| (footprint, None)));
-        let cannot_clear = |held: &Hazard| {
+        let travel = config.keyframe_travel_mm;
+        let cannot_clear = |(held, found_at): &(Hazard, f64)| {
             let is_drop = held.1.is_some_and(|h| h < 0);
-            let needed = if is_drop { 0.75 } else { 0.6 } * config.keyframe_travel_mm;
+            let needed = (if is_drop { 0.75 } else { 0.6 } * travel).max(found_at.min(keyframe::full_baseline_mm(config)));
             baseline_mm < needed || (is_drop && !drops_looked_for)
         };
-        let hazard = match (found, self.previous) {
-            (Some(found), _) => Some(found),
-            (None, Some(held)) if cannot_clear(&held) => {
+        let (hazard, found_at) = match (found, self.previous) {
+            (Some(found), _) => (Some(found), baseline_mm),
+            (None, Some(previous)) if cannot_clear(&previous) => {
+                let (held, found_at) = previous;
                 self.source = AlarmSource::Held;
                 let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
                 let (footprint, height) = held;
@@ -145,11 +152,11 @@ impl Alarm {
                     left_mm: moved(footprint.left_mm, step.tx_mm),
                     right_mm: moved(footprint.right_mm, step.tx_mm),
                 };
-                Some((moved_footprint, height))
+                (Some((moved_footprint, height)), found_at)
             }
-            _ => None,
+            _ => (None, 0.0),
         };
-        self.previous = hazard;
+        self.previous = hazard.map(|hazard| (hazard, found_at));
         hazard
     }
 }

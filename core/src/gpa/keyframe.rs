@@ -126,10 +126,14 @@ pub(super) fn is_due(predicted: &Motion, step: &Motion, config: &GpaConfig) -> b
     // The measured travel is good to a fraction of a pixel: a robot whose
     // steps add up to the baseline exactly must not have its schedule
     // flip on that noise.
-    let slack = KEYFRAME_SLACK * config.keyframe_travel_mm;
     let turn_slack = KEYFRAME_SLACK * config.keyframe_yaw_deg;
-    travel >= config.keyframe_travel_mm - slack
+    travel >= full_baseline_mm(config)
         || turn >= config.keyframe_yaw_deg - turn_slack
         || travel + step_travel >= 1.5 * config.keyframe_travel_mm
         || turn + step_turn >= 1.5 * config.keyframe_yaw_deg
+}
+
+/// The shortest travel at which a keyframe is due (see [`is_due`]): a full baseline.
+pub(super) fn full_baseline_mm(config: &GpaConfig) -> f64 {
+    config.keyframe_travel_mm - KEYFRAME_SLACK * config.keyframe_travel_mm
 }
