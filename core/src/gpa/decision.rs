@@ -196,4 +196,18 @@ mod tests {
         assert_eq!(alarm.decide(None, None, 40.0, false, &config, &STEP), Some((at(750), Some(120))));
         assert_eq!(alarm.decide(None, None, 100.0, false, &config, &STEP), None);
     }
+
+    /// An obstacle found at a full baseline is held through a longer-than-
+    /// short one that shows less of its parallax, and cleared by a full one;
+    /// one found at a short baseline is cleared from 0.6 of the travel.
+    #[test]
+    fn an_obstacle_is_cleared_only_by_a_baseline_as_long_as_it_was_found_at() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        alarm.decide(Some((at(1300), 80)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(None, None, 80.0, true, &config, &STEP), Some((at(1250), Some(80))));
+        assert_eq!(alarm.decide(None, None, 100.0, true, &config, &STEP), None);
+        alarm.decide(Some((at(1300), 80)), None, 40.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(None, None, 60.0, true, &config, &STEP), None);
+    }
 }
