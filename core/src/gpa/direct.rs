@@ -23,6 +23,7 @@
 //!   ground shows little texture along some direction.
 
 use super::homography::{PixelMap, SinCosMemo};
+use super::hazard_mask::MovedMask;
 use super::pyramid::{self, Level, Pyramid, Seen, LEVELS};
 use crate::grid::KgGrid;
 
@@ -72,6 +73,8 @@ pub(super) struct Images<'a> {
     /// Seen columns of each grid row (both images: one camera).
     pub(super) seen: &'a [Seen],
     pub(super) height_mm: f32,
+    /// Pixels that may show a hazard the last frame saw: left out.
+    pub(super) hazards: Option<MovedMask<'a>>,
     pub(super) sin_cos: &'a SinCosMemo,
 }
 
@@ -338,6 +341,22 @@ fn choose(level: &Level, chosen: &mut Chosen) {
     }
 }
 
+/// Leaves out the chosen pixels that may show a hazard, unless that would
+/// leave fewer than [`MIN_GROUND_SHARE_PERCENT`] of them: a view that is mostly
+/// hazard (or mistaken for it) is aligned as a whole, as before.
+fn leave_out(level: usize, chosen: &mut Chosen, hazards: &MovedMask) -> bool {
+    let ground = |&(i, j): &(u8, u8)| !hazards.covers(to_grid(level, u16::from(i)), to_grid(level, u16::from(j)));
+    let kept = chosen.pixels.iter().filter(|p| ground(p)).count();
+    let leave = kept < chosen.pixels.len() && kept * 100 >= MIN_GROUND_SHARE_PERCENT * chosen.pixels.len();
+    if leave {
+        chosen.pixels.retain(|p| ground(p));
+    }
+    leave
+}
+
+/// The share of a level's chosen pixels the hazard mask must leave (percent).
+const MIN_GROUND_SHARE_PERCENT: usize = 25;
+
 /// Level-0 coordinate of a level's pixel centre.
 #[inline(always)]
 fn to_grid(level: usize, index: u16) -> f32 {
@@ -361,6 +380,17 @@ impl Direct {
         for (level, chosen) in self.chosen.iter_mut().enumerate() {
             choose(&self.current.level(level, images.current, images.seen), chosen);
         }
+    }
+
+    /// Leaves the pixels that may show a hazard the last frame saw out of
+    /// every later alignment of this frame; whether any were.
+    pub(super) fn leave_out_hazards(&mut self, images: &Images) -> bool {
+        let Some(hazards) = &images.hazards else { return false };
+        let mut any = false;
+        for (level, chosen) in self.chosen.iter_mut().enumerate() {
+            any |= leave_out(level, chosen, hazards);
+        }
+        any
     }
 
     /// Aligns from `start` under `prior`; None when too few pixels sample

@@ -33,6 +33,7 @@
 //! All of it in `f32` (the M4 has a single-precision FPU).
 
 use super::coarse::{yaw_step, CoarseSearch, COARSE_CELL_MM};
+use super::hazard_mask::MovedMask;
 use super::direct::{self, Alignment, Direct, Geometry, Images, Schedule};
 use super::homography::{Params, SinCosMemo};
 use super::pyramid::LEVELS;
@@ -199,6 +200,8 @@ pub(super) struct Scene<'a> {
     pub(super) keyframe_attitude: KeyframeAttitude,
     /// This camera's typical misregistration so far.
     pub(super) typical: TypicalMisregistration,
+    /// Where the last frame saw hazards, if it was the one before.
+    pub(super) hazards: Option<MovedMask<'a>>,
     pub(super) sin_cos: SinCosMemo,
 }
 
@@ -210,6 +213,7 @@ impl Scene<'_> {
             grid: self.grid,
             seen: self.coverage.current_rows(self.grid.height()),
             height_mm: self.height_mm as f32,
+            hazards: self.hazards,
             sin_cos: &self.sin_cos,
         }
     }
@@ -284,6 +288,12 @@ impl Estimator {
             if let Some(p) = other_start {
                 aligned = near(direct, &p, &prior7);
             }
+        }
+        // An obstacle the last frame found may hold most of the contrast
+        // (a view it fills): the whole view and the nearest rows again
+        // without it.
+        if aligned.is_none() && direct.leave_out_hazards(&images) {
+            aligned = whole(direct, &start, &prior7).or_else(|| near(direct, &start, &prior7));
         }
         if aligned.is_none() {
             let searched = five(direct.search_translation(&images, &seven(&[0.0; 5], keyframe.deg), &seven(&prior_start.p, keyframe.deg)));

@@ -33,6 +33,7 @@ mod config;
 mod decision;
 mod direct;
 mod estimate;
+mod hazard_mask;
 mod homography;
 mod keyframe;
 mod layout;
@@ -66,6 +67,7 @@ use crate::report::{FrameReport, NotJudged, Status, ANGLE_SCALE, MOTION_SCALE, S
 use crate::scan::{Scan, ScanLayout, View};
 use decision::{Alarm, Noise};
 use estimate::{Estimate, Estimator, GroundAttitude, KeyframeAttitude, Prior, Scene, TypicalMisregistration};
+use hazard_mask::HazardMask;
 use homography::SinCosMemo;
 use keyframe::Keyframe;
 use layout::{Layout, MAX_CELL_PX};
@@ -183,6 +185,8 @@ pub struct Gpa<'b> {
     ground_attitude: GroundAttitude,
     /// What a trusted alignment leaves on this camera (the estimate's test).
     typical_misregistration: TypicalMisregistration,
+    /// Where the last judged frame saw hazards: the estimate leaves them out.
+    hazard_mask: HazardMask,
     /// The keyframe body's attitude as the measured changes chain it,
     /// leaking back to nominal ([`chain_keyframe`]): smooth from frame to
     /// frame, for GTI's tracks.
@@ -252,6 +256,7 @@ impl<'b> Gpa<'b> {
         keyframe_attitude: KeyframeAttitude::NOMINAL,
         ground_attitude: GroundAttitude::NOMINAL,
         typical_misregistration: TypicalMisregistration(None),
+        hazard_mask: HazardMask::EMPTY,
         keyframe_chain: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
         body_attitude: Attitude { pitch_deg: 0.0, roll_deg: 0.0 },
         measured: GroundMotion {
@@ -330,6 +335,7 @@ impl<'b> Gpa<'b> {
         self.parallax.clear();
         self.noise = Noise::new(&config);
         self.typical_misregistration = TypicalMisregistration::default();
+        self.hazard_mask.forget();
         self.ground_attitude = GroundAttitude::NOMINAL;
         self.alarm = Alarm::NONE;
         self.blobs = heapless::Vec::new();
@@ -360,6 +366,7 @@ impl<'b> Gpa<'b> {
         self.frame_active = false;
         self.alarm.forget();
         self.scan.forget();
+        self.hazard_mask.forget();
     }
 
     /// Frame the current keyframe was taken at (if any).
@@ -510,6 +517,7 @@ impl<'b> Gpa<'b> {
             height_mm: self.layout.camera_height_mm,
             keyframe_attitude: self.keyframe_attitude,
             typical: self.typical_misregistration,
+            hazards: self.hazard_mask.moved(self.frame, self.prediction.step.tz_mm / self.layout.grid.mm_per_px),
             sin_cos: SinCosMemo::new(),
         };
         let since = self.profiler.now();
@@ -665,6 +673,7 @@ impl<'b> Gpa<'b> {
         self.blobs = obstacles::residue_blobs(layout, &rows.residue, config);
         let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &rows.residue, config);
         let hazard = self.alarm.decide(parallax, residue, baseline_mm, drops_looked_for, config, &self.prediction.step);
+        self.hazard_mask.record(self.frame, layout.cells, &self.parallax.height, &rows.residue, config);
         let obstacle = hazard.map(|(footprint, _)| footprint);
         self.finish_scan(obstacle);
         let motion = self.prediction.to_last();
