@@ -119,6 +119,8 @@ impl Alarm {
     /// drops at all (`drops_looked_for` false: the attitude change is
     /// unmeasured), else a drop seen on the last frame would
     /// turn into a stale clear. A held hazard is moved by the odometry `step`.
+    /// Residue from a held drop's edge on is that drop (its lower level
+    /// lags the floor), so it does not replace it.
     pub(super) fn decide(
         &mut self,
         parallax: Option<(Footprint, i32)>,
@@ -140,21 +142,32 @@ impl Alarm {
             let needed = (if is_drop { 0.75 } else { 0.6 } * travel).max(found_at.min(keyframe::full_baseline_mm(config)));
             baseline_mm < needed || (is_drop && !drops_looked_for)
         };
-        let (hazard, found_at) = match (found, self.previous) {
-            (Some(found), _) => (Some(found), baseline_mm),
-            (None, Some(previous)) if cannot_clear(&previous) => {
-                let (held, found_at) = previous;
+        let held = self.previous.filter(cannot_clear).map(|((footprint, height), found_at)| {
+            let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
+            let moved_footprint = Footprint {
+                near_mm: moved(footprint.near_mm, step.tz_mm),
+                left_mm: moved(footprint.left_mm, step.tx_mm),
+                right_mm: moved(footprint.right_mm, step.tx_mm),
+            };
+            ((moved_footprint, height), found_at)
+        });
+        // A drop's lower level lags the floor, so it leaves residue from
+        // its edge on: residue that starts there (within a cell, what a
+        // footprint is good to) is the held drop seen without its depth,
+        // not a new hazard.
+        let explained_by_held_drop = |found: &Hazard| {
+            found.1.is_none()
+                && held.is_some_and(|((drop, height), _)| {
+                    height.is_some_and(|h| h < 0) && f64::from(found.0.near_mm) >= f64::from(drop.near_mm) - config.cell_mm
+                })
+        };
+        let (hazard, found_at) = match (found, held) {
+            (Some(found), _) if !explained_by_held_drop(&found) => (Some(found), baseline_mm),
+            (_, Some((held, found_at))) => {
                 self.source = AlarmSource::Held;
-                let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
-                let (footprint, height) = held;
-                let moved_footprint = Footprint {
-                    near_mm: moved(footprint.near_mm, step.tz_mm),
-                    left_mm: moved(footprint.left_mm, step.tx_mm),
-                    right_mm: moved(footprint.right_mm, step.tx_mm),
-                };
-                (Some((moved_footprint, height)), found_at)
+                (Some(held), found_at)
             }
-            _ => (None, 0.0),
+            (found, None) => (found, baseline_mm),
         };
         self.previous = hazard.map(|hazard| (hazard, found_at));
         hazard
@@ -184,6 +197,20 @@ mod tests {
         assert_eq!(blind, Some((at(950), Some(-150))));
         assert_eq!(alarm.source(), AlarmSource::Held);
         assert_eq!(alarm.decide(None, None, 100.0, true, &config, &STEP), None);
+    }
+
+    /// A drop held through a frame blind to drops explains the residue its
+    /// lower level leaves from its edge on: the drop, with its depth, is
+    /// reported; residue nearer than its edge is a hazard of its own.
+    #[test]
+    fn residue_beyond_a_held_drop_is_the_drop() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        alarm.decide(Some((at(1000), -80)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(None, Some(at(960)), 150.0, false, &config, &STEP), Some((at(950), Some(-80))));
+        assert_eq!(alarm.source(), AlarmSource::Held);
+        assert_eq!(alarm.decide(None, Some(at(700)), 150.0, false, &config, &STEP), Some((at(700), None)));
+        assert_eq!(alarm.source(), AlarmSource::Residue);
     }
 
     /// An obstacle standing up is seen whatever the attitude: blindness to

@@ -512,7 +512,7 @@ mod tests {
     fn estimate_between(keyframe: &[u8], current: &[u8], prior: &Prior) -> GroundMotion {
         let grid = grid();
         let coverage = Coverage::full(&grid);
-        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: KeyframeAttitude::NOMINAL, typical: TypicalMisregistration::default(), sin_cos: SinCosMemo::new() };
+        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, hazards: None, keyframe_attitude: KeyframeAttitude::NOMINAL, typical: TypicalMisregistration::default(), sin_cos: SinCosMemo::new() };
         estimate(&scene, prior).expect("a textured floor is measured").motion
     }
 
@@ -636,7 +636,7 @@ mod tests {
         for tz_mm in [40.0, 80.0, 120.0, 160.0] {
             let change = Attitude { pitch_deg: 0.1, roll_deg: 0.05 };
             let current = render(&GroundMotion { planar: Motion { tx_mm: 5.0, tz_mm, dyaw_deg: 0.5 }, attitude: sitting.then(&change) }, |_, _| false);
-            let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0, keyframe_attitude: known, typical: TypicalMisregistration::default(), sin_cos: SinCosMemo::new() };
+            let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0, hazards: None, keyframe_attitude: known, typical: TypicalMisregistration::default(), sin_cos: SinCosMemo::new() };
             let prior = Prior { motion: GroundMotion { planar: Motion { tx_mm: 0.0, tz_mm, dyaw_deg: 0.0 }, attitude: Attitude::default() }, sigma: [12.0, 12.0, 1.0, 1.0, 1.0] };
             let estimate = estimate(&scene, &prior).expect("a textured floor is measured");
             let found = estimate.keyframe_attitude;
