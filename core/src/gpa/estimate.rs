@@ -145,13 +145,14 @@ pub(super) struct GroundAttitude {
 impl GroundAttitude {
     pub(super) const NOMINAL: GroundAttitude = GroundAttitude { now: KeyframeAttitude::NOMINAL };
 
-    /// A frame whose attitude was measured: the keyframe's and the change since.
-    pub(super) fn measured(&mut self, estimate: &Estimate) {
+    /// A frame whose attitude was measured: the keyframe's and the change
+    /// since, within `bound_deg` of nominal (the body's largest attitude).
+    pub(super) fn measured(&mut self, estimate: &Estimate, bound_deg: f32) {
         let change = [estimate.motion.attitude.pitch_deg as f32, estimate.motion.attitude.roll_deg as f32];
         let nominal = KeyframeAttitude::NOMINAL.sigma_deg;
         for k in 0..2 {
             let deg = estimate.keyframe_attitude.deg[k] + change[k];
-            self.now.deg[k] = deg.clamp(-3.0 * nominal[k], 3.0 * nominal[k]);
+            self.now.deg[k] = deg.clamp(-bound_deg, bound_deg);
             self.now.sigma_deg[k] = crate::kernels::hypotf(estimate.keyframe_attitude.sigma_deg[k], estimate.change_sigma[k]).min(nominal[k]);
         }
     }

@@ -541,7 +541,7 @@ impl<'b> Gpa<'b> {
     fn compare_with(&mut self, keyframe_frame: u32, prior: Prior, estimate: Option<Estimate>) -> FrameReport {
         if let Some(estimate) = &estimate {
             self.keyframe_attitude = estimate.keyframe_attitude;
-            self.ground_attitude.measured(estimate);
+            self.ground_attitude.measured(estimate, self.config.max_attitude_change_deg as f32);
         } else {
             self.ground_attitude.unmeasured();
         }
