@@ -3,12 +3,10 @@
 //! themselves. No features are matched, so no block's search window
 //! limits the capture range and every textured pixel of the grid counts.
 //!
-//! The residual of a current pixel x is r = a(x) K(W(x; p)) + b - C(x): K
+//! The residual of a current pixel x is r = a K(W(x; p)) + b - C(x): K
 //! the keyframe, W the ground's [`PixelMap`] under the seven geometric
 //! unknowns `p` (tx, tz, yaw, the pitch and roll change, and the keyframe
-//! body's pitch and roll relative to the ground), a(x) and b the exposure,
-//! the gain linear across the view (a lens's vignetting shows a ground
-//! point darker where it has moved towards the image's corners).
+//! body's pitch and roll relative to the ground), a and b the exposure.
 //!
 //! - Coarse to fine over a masked [`Pyramid`], [`LEVELS`] levels.
 //! - On each level only the strongest-gradient pixel of each block is
@@ -34,10 +32,7 @@ use crate::grid::KgGrid;
 pub(super) const GEOMETRY: usize = 7;
 pub(super) type Geometry = [f32; GEOMETRY];
 /// And the exposure's gain and offset.
-/// The geometry, then the exposure: a gain, an offset, and the gain's
-/// slope across the view and along it (vignetting: a ground point seen
-/// at another place in the image is darker or brighter).
-const UNKNOWNS: usize = GEOMETRY + 4;
+const UNKNOWNS: usize = GEOMETRY + 2;
 /// Most pixels one level uses.
 pub(super) const MAX_POINTS: usize = 512;
 /// Fewest pixels that measure the unknowns at all.
@@ -66,8 +61,6 @@ const CORRELATION: f32 = 4.0;
 /// Priors of the exposure: gain about 1, offset about mid-gray (wide).
 const GAIN_SIGMA: f32 = 0.3;
 const OFFSET_SIGMA: f32 = 40.0;
-/// Prior of the gain's slope, per view width (and depth).
-const SLOPE_SIGMA: f32 = 0.3;
 /// Tuning constants of the robust losses (95 % efficiency on Gaussian noise).
 const HUBER: f32 = 1.345;
 const TUKEY: f32 = 4.685;
@@ -193,8 +186,8 @@ pub(super) struct Alignment {
     /// levels per pixel): `scale / texture` is how far off, in pixels,
     /// the typical pixel still lies.
     pub(super) texture: f32,
-    /// The exposure as fitted (for [`Direct::misfit`]): gain, offset, slope.
-    exposure: (f32, f32, [f32; 2]),
+    /// The exposure as fitted (for [`Direct::misfit`]).
+    exposure: (f32, f32),
     /// The lower level the motion was fitted with, if any.
     pub(super) lower: Option<Lower>,
 }
@@ -211,8 +204,6 @@ struct Point {
     jacobian: Geometry,
     /// d r / d (depth of a lower level there), when asked for.
     depth: f32,
-    /// Where it lies in the view, across and along, -0.5 to 0.5.
-    at: [f32; 2],
 }
 
 #[derive(Clone, Copy)]
@@ -252,17 +243,7 @@ struct State {
     gain: f32,
     /// Brightness at keyframe level 128.
     offset: f32,
-    /// The gain's slope across and along the view.
-    slope: [f32; 2],
     lower: Option<Lower>,
-}
-
-impl State {
-    /// The keyframe's gray level `value` as the current image would show it at `at`.
-    #[inline(always)]
-    fn brightness(&self, value: f32, at: [f32; 2]) -> f32 {
-        (self.gain + self.slope[0] * at[0] + self.slope[1] * at[1]) * (value - 128.0) + self.offset
-    }
 }
 
 /// One iteration's normal equations (upper triangle, row by row).
@@ -415,7 +396,7 @@ impl Direct {
     /// Aligns from `start` under `prior`; None when too few pixels sample
     /// both images or the equations are singular.
     pub(super) fn align(&mut self, images: &Images, prior: &Prior, start: Geometry, schedule: Schedule) -> Option<Alignment> {
-        let mut state = State { p: start, gain: 1.0, offset: 128.0, slope: [0.0; 2], lower: None };
+        let mut state = State { p: start, gain: 1.0, offset: 128.0, lower: None };
         let mut first = true;
         let mut finest = None;
         for level in (0..=schedule.top_level.min(LEVELS - 1)).rev() {
@@ -476,8 +457,7 @@ impl Points {
             let c = f32::from(level.at(usize::from(i), usize::from(j)));
             let gradient = crate::kernels::hypotf(gx, gy);
             // Capacity: `chosen` holds at most MAX_POINTS.
-            let at = [(f32::from(i) + 0.5) / level.width as f32 - 0.5, (f32::from(j) + 0.5) / level.height as f32 - 0.5];
-            let _ = self.points.push(Point { i, j, c, gradient, jacobian, depth: 0.0, at });
+            let _ = self.points.push(Point { i, j, c, gradient, jacobian, depth: 0.0 });
         }
     }
 
@@ -535,7 +515,7 @@ impl Points {
                 .and_then(|(u, v)| keyframe.sample((u - offset) * inverse, (v - offset) * inverse));
             match sample {
                 Some(value) => {
-                    let r = state.brightness(value, point.at) - point.c;
+                    let r = state.gain * (value - 128.0) + state.offset - point.c;
                     self.residuals[k] = r;
                     self.samples[k] = value;
                     histogram[((r.abs() * 4.0) as usize).min(255)] += 1;
@@ -576,11 +556,8 @@ impl Points {
             kept += 1;
             let mut j = [0.0f32; UNKNOWNS];
             j[..GEOMETRY].copy_from_slice(&point.jacobian);
-            let centred = self.samples[k] - 128.0;
-            j[GEOMETRY] = centred;
+            j[GEOMETRY] = self.samples[k] - 128.0;
             j[GEOMETRY + 1] = 1.0;
-            j[GEOMETRY + 2] = point.at[0] * centred;
-            j[GEOMETRY + 3] = point.at[1] * centred;
             for a in 0..UNKNOWNS {
                 let wa = weight * j[a];
                 normal.g[a] += wa * r;
@@ -614,8 +591,6 @@ impl Points {
         }
         state.gain -= step[GEOMETRY];
         state.offset -= step[GEOMETRY + 1];
-        state.slope[0] -= step[GEOMETRY + 2];
-        state.slope[1] -= step[GEOMETRY + 3];
         if !state.p.iter().all(|v| v.is_finite()) || !(0.2..5.0).contains(&state.gain) {
             return None;
         }
@@ -649,7 +624,7 @@ impl Points {
             let column = cholesky_solve(&factor, &unit);
             crate::kernels::sqrtf((column[k] * variance).max(0.0))
         });
-        Some(Alignment { p: state.p, gain, sigma, scale, sampled, inliers, texture, exposure: (state.gain, state.offset, state.slope), lower: state.lower })
+        Some(Alignment { p: state.p, gain, sigma, scale, sampled, inliers, texture, exposure: (state.gain, state.offset), lower: state.lower })
     }
 }
 
@@ -685,7 +660,7 @@ impl Direct {
         let gain = level_mean(&current) / level_mean(&keyframe).max(1.0);
         let mut best = (f32::INFINITY, *fallback);
         for p in candidates {
-            let (sampled, scale) = points.residuals(images, &keyframe, top, &State { p, gain, offset: 128.0 * gain, slope: [0.0; 2], lower: None });
+            let (sampled, scale) = points.residuals(images, &keyframe, top, &State { p, gain, offset: 128.0 * gain, lower: None });
             if sampled >= MIN_POINTS && scale < best.0 {
                 best = (scale, p);
             }
@@ -748,7 +723,7 @@ impl Direct {
         let keyframe = self.keyframe.level(0, images.keyframe, images.seen);
         let points = &mut self.points;
         points.select(&current, &self.chosen[0], near_row);
-        let state = State { p: aligned.p, gain: aligned.exposure.0, offset: aligned.exposure.1, slope: aligned.exposure.2, lower: aligned.lower };
+        let state = State { p: aligned.p, gain: aligned.exposure.0, offset: aligned.exposure.1, lower: aligned.lower };
         points.residuals(images, &keyframe, 0, &state);
         let (mut sum, mut count) = (0.0, 0);
         for &r in &points.residuals[..points.points.len()] {
@@ -816,7 +791,7 @@ impl Direct {
         points.jacobians_with(images, 0, &aligned.p, true);
         // The keyframe's attitude held at its prior: with it free, a single
         // plane bends far enough to mimic most of a lower level.
-        let mut state = State { p: aligned.p, gain: aligned.exposure.0, offset: aligned.exposure.1, slope: aligned.exposure.2, lower: None };
+        let mut state = State { p: aligned.p, gain: aligned.exposure.0, offset: aligned.exposure.1, lower: None };
         state.p[5] = prior.mean[5];
         state.p[6] = prior.mean[6];
         let (sampled, scale) = points.residuals(images, &keyframe, 0, &state);
@@ -861,8 +836,6 @@ impl Direct {
             }
             state.gain -= step[GEOMETRY];
             state.offset -= step[GEOMETRY + 1];
-            state.slope[0] -= step[GEOMETRY + 2];
-            state.slope[1] -= step[GEOMETRY + 3];
             depth_mm -= step[UNKNOWNS];
             if !(depth_mm > -0.8 * images.height_mm && depth_mm < 4.0 * images.height_mm && state.p.iter().all(|v| v.is_finite())) {
                 return None;
@@ -881,7 +854,7 @@ impl Direct {
             border.dd += scale * scale * CORRELATION / (DEPTH_SIGMA_MM * DEPTH_SIGMA_MM);
             step = solve_bordered(&normal, &border)?;
         }
-        Some((Alignment { p: state.p, exposure: (state.gain, state.offset, state.slope), lower: state.lower, ..*aligned }, chi2))
+        Some((Alignment { p: state.p, exposure: (state.gain, state.offset), lower: state.lower, ..*aligned }, chi2))
     }
 }
 
@@ -919,8 +892,6 @@ impl Border {
         }
         self.h[GEOMETRY] += wd * (sample - 128.0);
         self.h[GEOMETRY + 1] += wd;
-        self.h[GEOMETRY + 2] += wd * point.at[0] * (sample - 128.0);
-        self.h[GEOMETRY + 3] += wd * point.at[1] * (sample - 128.0);
         self.dd += wd * point.depth;
         self.g += wd * r;
     }
@@ -972,8 +943,6 @@ fn add_priors(normal: &mut Normal, state: &State, prior: &Prior, scale: f32) {
     }
     add(GEOMETRY, state.gain, 1.0, GAIN_SIGMA);
     add(GEOMETRY + 1, state.offset, 128.0, OFFSET_SIGMA);
-    add(GEOMETRY + 2, state.slope[0], 0.0, SLOPE_SIGMA);
-    add(GEOMETRY + 3, state.slope[1], 0.0, SLOPE_SIGMA);
 }
 
 /// The Cholesky factor of the symmetric `h` (upper triangle given) after
