@@ -134,6 +134,12 @@ impl Alarm {
     /// A held hazard is moved by the odometry `step`.
     /// Residue from a held drop's edge on is that drop (its lower level
     /// lags the floor), so it does not replace it.
+    ///
+    /// A drop's lower level shows its depth only where its texture changes
+    /// along the drive, so a frame finds its edge at the first such row past
+    /// it, never nearer: a drop found again where the last frame's drop was
+    /// (overlapping it sideways) keeps the nearer of the two edges, the last
+    /// one moved by the step.
     pub(super) fn decide(
         &mut self,
         parallax: Option<(Footprint, i32)>,
@@ -166,6 +172,19 @@ impl Alarm {
             ((moved_footprint, height), found_at)
         });
         let held = self.previous.filter(cannot_clear).and(moved_previous);
+        // The drop found again: the nearer edge.
+        let is_drop = |hazard: &Hazard| hazard.1.is_some_and(|h| h < 0);
+        let found = found.map(|(footprint, height)| match moved_previous {
+            Some(((last, last_height), _))
+                if is_drop(&(footprint, height))
+                    && is_drop(&(last, last_height))
+                    && footprint.left_mm <= last.right_mm
+                    && footprint.right_mm >= last.left_mm =>
+            {
+                (Footprint { near_mm: footprint.near_mm.min(last.near_mm), ..footprint }, height)
+            }
+            _ => (footprint, height),
+        });
         // A drop's lower level lags the floor, so it leaves residue from
         // its edge on: residue that starts there (within a cell, what a
         // footprint is good to) is the held drop seen without its depth,
@@ -245,6 +264,22 @@ mod tests {
         alarm.decide(Some((at(1000), -80)), None, 150.0, true, &config, &STEP);
         alarm.sees_drops_from(36.0);
         assert_eq!(alarm.decide(None, None, 100.0, true, &config, &STEP), None);
+    }
+
+    /// A drop found again beyond the last frame's edge (moved by the step)
+    /// keeps that edge; one beside it, or nearer, keeps its own.
+    #[test]
+    fn a_drop_found_again_keeps_the_nearer_edge() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        alarm.decide(Some((at(1000), -30)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(Some((at(1010), -32)), None, 100.0, true, &config, &STEP), Some((at(950), Some(-32))));
+        assert_eq!(alarm.decide(Some((at(880), -32)), None, 100.0, true, &config, &STEP), Some((at(880), Some(-32))));
+        let beside = Footprint { near_mm: 900, left_mm: 200, right_mm: 300 };
+        assert_eq!(alarm.decide(Some((beside, -32)), None, 100.0, true, &config, &STEP), Some((beside, Some(-32))));
+        // An obstacle standing up is where it is found.
+        alarm.decide(Some((at(1000), -30)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(Some((at(1000), 80)), None, 100.0, true, &config, &STEP), Some((at(1000), Some(80))));
     }
 
     /// An obstacle standing up is seen whatever the attitude: blindness to
