@@ -90,10 +90,20 @@ pub(super) struct Alarm {
     /// The last decided hazard, held through frames whose baseline is too
     /// short to see it, and the baseline it was found at (mm).
     previous: Option<(Hazard, f64)>,
+    /// The shallowest drop (mm) the frame being decided tells from the
+    /// ground ([`Self::sees_drops_from`]).
+    shallowest_drop_mm: f64,
 }
 
 impl Alarm {
-    pub(super) const NONE: Alarm = Alarm { source: AlarmSource::None, previous: None };
+    pub(super) const NONE: Alarm = Alarm { source: AlarmSource::None, previous: None, shallowest_drop_mm: 0.0 };
+
+    /// The next frame to decide tells drops from `shallowest_mm` deep on
+    /// from the ground (its baseline, against its ground tolerance): a held
+    /// drop shallower than that is beyond what it can clear.
+    pub(super) fn sees_drops_from(&mut self, shallowest_mm: f64) {
+        self.shallowest_drop_mm = shallowest_mm;
+    }
 
     pub(super) fn source(&self) -> AlarmSource {
         self.source
@@ -118,9 +128,18 @@ impl Alarm {
     /// quarters of the travel, and through frames that could not look for
     /// drops at all (`drops_looked_for` false: the attitude change is
     /// unmeasured), else a drop seen on the last frame would
-    /// turn into a stale clear. A held hazard is moved by the odometry `step`.
+    /// turn into a stale clear, and through frames whose baseline shows its
+    /// depth no more than the ground's tolerance does (a drop just past
+    /// the limit lags the floor by about that much after a full baseline).
+    /// A held hazard is moved by the odometry `step`.
     /// Residue from a held drop's edge on is that drop (its lower level
     /// lags the floor), so it does not replace it.
+    ///
+    /// A drop's lower level shows its depth only where its texture changes
+    /// along the drive, so a frame finds its edge at the first such row past
+    /// it, never nearer: a drop found again where the last frame's drop was
+    /// (overlapping it sideways) keeps the nearer of the two edges, the last
+    /// one moved by the step.
     pub(super) fn decide(
         &mut self,
         parallax: Option<(Footprint, i32)>,
@@ -140,9 +159,10 @@ impl Alarm {
         let cannot_clear = |(held, found_at): &(Hazard, f64)| {
             let is_drop = held.1.is_some_and(|h| h < 0);
             let needed = (if is_drop { 0.75 } else { 0.6 } * travel).max(found_at.min(keyframe::full_baseline_mm(config)));
-            baseline_mm < needed || (is_drop && !drops_looked_for)
+            let unseen_depth = held.1.is_some_and(|h| f64::from(-h) < self.shallowest_drop_mm);
+            baseline_mm < needed || (is_drop && (!drops_looked_for || unseen_depth))
         };
-        let held = self.previous.filter(cannot_clear).map(|((footprint, height), found_at)| {
+        let moved_previous = self.previous.map(|((footprint, height), found_at)| {
             let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
             let moved_footprint = Footprint {
                 near_mm: moved(footprint.near_mm, step.tz_mm),
@@ -150,6 +170,20 @@ impl Alarm {
                 right_mm: moved(footprint.right_mm, step.tx_mm),
             };
             ((moved_footprint, height), found_at)
+        });
+        let held = self.previous.filter(cannot_clear).and(moved_previous);
+        // The drop found again: the nearer edge.
+        let is_drop = |hazard: &Hazard| hazard.1.is_some_and(|h| h < 0);
+        let found = found.map(|(footprint, height)| match moved_previous {
+            Some(((last, last_height), _))
+                if is_drop(&(footprint, height))
+                    && is_drop(&(last, last_height))
+                    && footprint.left_mm <= last.right_mm
+                    && footprint.right_mm >= last.left_mm =>
+            {
+                (Footprint { near_mm: footprint.near_mm.min(last.near_mm), ..footprint }, height)
+            }
+            _ => (footprint, height),
         });
         // A drop's lower level lags the floor, so it leaves residue from
         // its edge on: residue that starts there (within a cell, what a
@@ -211,6 +245,41 @@ mod tests {
         assert_eq!(alarm.source(), AlarmSource::Held);
         assert_eq!(alarm.decide(None, Some(at(700)), 150.0, false, &config, &STEP), Some((at(700), None)));
         assert_eq!(alarm.source(), AlarmSource::Residue);
+    }
+
+    /// A shallow drop is held through a full baseline whose ground
+    /// tolerance swallows its lag (the frame sees drops from 36 mm on),
+    /// and cleared by a longer one that shows it (from 23 mm on).
+    #[test]
+    fn a_shallow_drop_is_held_through_a_baseline_too_short_for_its_depth() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        alarm.decide(Some((at(1000), -27)), None, 150.0, true, &config, &STEP);
+        alarm.sees_drops_from(36.0);
+        assert_eq!(alarm.decide(None, None, 100.0, true, &config, &STEP), Some((at(950), Some(-27))));
+        assert_eq!(alarm.source(), AlarmSource::Held);
+        alarm.sees_drops_from(23.0);
+        assert_eq!(alarm.decide(None, None, 150.0, true, &config, &STEP), None);
+        // A deeper one is cleared at the full baseline.
+        alarm.decide(Some((at(1000), -80)), None, 150.0, true, &config, &STEP);
+        alarm.sees_drops_from(36.0);
+        assert_eq!(alarm.decide(None, None, 100.0, true, &config, &STEP), None);
+    }
+
+    /// A drop found again beyond the last frame's edge (moved by the step)
+    /// keeps that edge; one beside it, or nearer, keeps its own.
+    #[test]
+    fn a_drop_found_again_keeps_the_nearer_edge() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        alarm.decide(Some((at(1000), -30)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(Some((at(1010), -32)), None, 100.0, true, &config, &STEP), Some((at(950), Some(-32))));
+        assert_eq!(alarm.decide(Some((at(880), -32)), None, 100.0, true, &config, &STEP), Some((at(880), Some(-32))));
+        let beside = Footprint { near_mm: 900, left_mm: 200, right_mm: 300 };
+        assert_eq!(alarm.decide(Some((beside, -32)), None, 100.0, true, &config, &STEP), Some((beside, Some(-32))));
+        // An obstacle standing up is where it is found.
+        alarm.decide(Some((at(1000), -30)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(Some((at(1000), 80)), None, 100.0, true, &config, &STEP), Some((at(1000), Some(80))));
     }
 
     /// An obstacle standing up is seen whatever the attitude: blindness to

@@ -52,6 +52,9 @@ pub(super) struct Hypotheses {
     /// Ranks (hypotheses ordered by displacement) whose displacement the
     /// odometry error could explain: they all stand for the ground.
     ground_like: Range<usize>,
+    /// The shallowest drop (mm) whose lag this frame tells from the ground
+    /// (infinite when none: too short a baseline).
+    pub(super) shallowest_drop_mm: f64,
 }
 
 impl Hypotheses {
@@ -61,6 +64,7 @@ impl Hypotheses {
         usable: 0,
         full_tolerance: (false, false),
         ground_like: GROUND_RANK..GROUND_RANK + 1,
+        shallowest_drop_mm: f64::INFINITY,
     };
 
     /// The hypotheses of a frame at `predicted` from the keyframe, `step`
@@ -89,7 +93,14 @@ impl Hypotheses {
         let above = (GROUND_RANK + 1..HYPOTHESES).take_while(explained).count();
         let below = (0..GROUND_RANK).rev().take_while(explained).count();
         let ground_like = GROUND_RANK - below..GROUND_RANK + 1 + above;
-        Hypotheses { offset, displacement, usable: HEIGHT_FRACTIONS.len(), full_tolerance, ground_like }
+        // A drop d deep lags the floor by T*d/(H+d). Displacements up to the
+        // tolerance count as ground, and each such hypothesis matches a lag
+        // up to half a pixel beyond it as well as the ground's own residue
+        // does: a lag within both is ground to this frame.
+        let hidden_lag_mm = tolerance_mm + half_px;
+        let shallowest_drop_mm =
+            if baseline > hidden_lag_mm { camera_height_mm * hidden_lag_mm / (baseline - hidden_lag_mm) } else { f64::INFINITY };
+        Hypotheses { offset, displacement, usable: HEIGHT_FRACTIONS.len(), full_tolerance, ground_like, shallowest_drop_mm }
     }
 
     /// The hypotheses this frame compares besides the ground.
