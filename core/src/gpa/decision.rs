@@ -93,16 +93,28 @@ pub(super) struct Alarm {
     /// The shallowest drop (mm) the frame being decided tells from the
     /// ground ([`Self::sees_drops_from`]).
     shallowest_drop_mm: f64,
+    /// An obstacle the frame being decided sees just beyond the AOI
+    /// ([`Self::sees_beyond_the_aoi`]).
+    beyond: Option<Footprint>,
 }
 
 impl Alarm {
-    pub(super) const NONE: Alarm = Alarm { source: AlarmSource::None, previous: None, shallowest_drop_mm: 0.0 };
+    pub(super) const NONE: Alarm = Alarm { source: AlarmSource::None, previous: None, shallowest_drop_mm: 0.0, beyond: None };
 
     /// The next frame to decide tells drops from `shallowest_mm` deep on
     /// from the ground (its baseline, against its ground tolerance): a held
     /// drop shallower than that is beyond what it can clear.
     pub(super) fn sees_drops_from(&mut self, shallowest_mm: f64) {
         self.shallowest_drop_mm = shallowest_mm;
+    }
+
+    /// The next frame to decide sees an obstacle whose footprint lies just
+    /// beyond the AOI's far edge: where it overlaps a held obstacle
+    /// sideways, that one is seen again, its footprint a cell or so off
+    /// (heights are measured to their hypotheses' spacing), and is not
+    /// cleared.
+    pub(super) fn sees_beyond_the_aoi(&mut self, beyond: Option<Footprint>) {
+        self.beyond = beyond;
     }
 
     pub(super) fn source(&self) -> AlarmSource {
@@ -160,7 +172,8 @@ impl Alarm {
             let is_drop = held.1.is_some_and(|h| h < 0);
             let needed = (if is_drop { 0.75 } else { 0.6 } * travel).max(found_at.min(keyframe::full_baseline_mm(config)));
             let unseen_depth = held.1.is_some_and(|h| f64::from(-h) < self.shallowest_drop_mm);
-            baseline_mm < needed || (is_drop && (!drops_looked_for || unseen_depth))
+            let seen_again = held.1.is_some_and(|h| h > 0) && self.beyond.is_some_and(|b| b.left_mm <= held.0.right_mm && b.right_mm >= held.0.left_mm);
+            baseline_mm < needed || (is_drop && (!drops_looked_for || unseen_depth)) || seen_again
         };
         let moved_previous = self.previous.map(|((footprint, height), found_at)| {
             let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
@@ -305,5 +318,20 @@ mod tests {
         assert_eq!(alarm.decide(None, None, 100.0, true, &config, &STEP), None);
         alarm.decide(Some((at(1300), 80)), None, 40.0, true, &config, &STEP);
         assert_eq!(alarm.decide(None, None, 60.0, true, &config, &STEP), None);
+    }
+
+    /// An obstacle found at a full baseline, then seen again only a little
+    /// beyond the AOI's far edge by a full baseline's footprint, is held;
+    /// one that nothing beyond the AOI overlaps sideways is cleared.
+    #[test]
+    fn an_obstacle_seen_again_just_beyond_the_aoi_is_held() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        alarm.decide(Some((at(1390), 80)), None, 100.0, true, &config, &STEP);
+        alarm.sees_beyond_the_aoi(Some(Footprint { near_mm: 1440, left_mm: 50, right_mm: 150 }));
+        assert_eq!(alarm.decide(None, None, 100.0, true, &config, &STEP), Some((at(1340), Some(80))));
+        assert_eq!(alarm.source(), AlarmSource::Held);
+        alarm.sees_beyond_the_aoi(Some(Footprint { near_mm: 1440, left_mm: 150, right_mm: 250 }));
+        assert_eq!(alarm.decide(None, None, 100.0, true, &config, &STEP), None);
     }
 }

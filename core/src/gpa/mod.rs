@@ -669,7 +669,9 @@ impl<'b> Gpa<'b> {
         let short_baseline = baseline_mm < 0.5 * self.config.keyframe_travel_mm;
         let (layout, config) = (&self.layout, &self.config);
         self.scan.begin(self.frame);
-        let parallax = obstacles::parallax_obstacle(layout, &self.parallax.height, &rows.residue, config, short_baseline, drops_looked_for, &mut self.scan);
+        let evidence = obstacles::parallax_obstacle(layout, &self.parallax.height, &rows.residue, config, short_baseline, drops_looked_for, &mut self.scan);
+        let parallax = evidence.hazard;
+        self.alarm.sees_beyond_the_aoi(evidence.beyond);
         self.blobs = obstacles::residue_blobs(layout, &rows.residue, config);
         let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &rows.residue, config);
         self.alarm.sees_drops_from(self.parallax.hypotheses.shallowest_drop_mm);

@@ -127,9 +127,18 @@ struct Wanted {
     short_baseline: bool,
 }
 
-/// The nearest parallax hazard inside the AOI, obstacle or drop, and its
-/// signed height (mm; a drop's is minus its depth); drops only when `drops`.
-/// See [`parallax_group`], which also fills `scan`.
+/// What the parallax cells show: the nearest hazard inside the AOI,
+/// obstacle or drop, and its signed height (mm; a drop's is minus its
+/// depth); and the nearest obstacle that stands just beyond the AOI's far
+/// edge by its footprint (which the heights place to a cell or so: it may
+/// be one seen inside before).
+pub(super) struct ParallaxEvidence {
+    pub(super) hazard: Option<(Footprint, i32)>,
+    pub(super) beyond: Option<Footprint>,
+}
+
+/// The frame's [`ParallaxEvidence`]; drops only when `drops`. See
+/// [`parallax_group`], which also fills `scan`.
 pub(super) fn parallax_obstacle(
     layout: &Layout,
     heights: &CellHeights,
@@ -138,8 +147,8 @@ pub(super) fn parallax_obstacle(
     short_baseline: bool,
     drops: bool,
     scan: &mut Scan,
-) -> Option<(Footprint, i32)> {
-    let drop = if drops { parallax_group(layout, (heights, residue), config, Wanted { side: Side::Below, first_row: 0, short_baseline }, scan) } else { None };
+) -> ParallaxEvidence {
+    let drop = if drops { parallax_group(layout, (heights, residue), config, Wanted { side: Side::Below, first_row: 0, short_baseline }, scan).0 } else { None };
     // Past a drop's edge the floor is gone: what stands there is reached
     // only after the drop, and cells that seem to stand up there are the
     // lower level's blur, which can fake an obstacle nearer than the edge.
@@ -148,16 +157,17 @@ pub(super) fn parallax_obstacle(
         let centre_z = |r: usize| layout.grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1;
         (0..cells.high).find(|&r| centre_z(r) < f64::from(edge.near_mm)).unwrap_or(cells.high)
     });
-    let obstacle = parallax_group(layout, (heights, residue), config, Wanted { side: Side::Above, first_row: first_before_edge, short_baseline }, scan);
-    match (obstacle, drop) {
+    let (obstacle, beyond) = parallax_group(layout, (heights, residue), config, Wanted { side: Side::Above, first_row: first_before_edge, short_baseline }, scan);
+    let hazard = match (obstacle, drop) {
         (Some(o), Some(d)) if d.0.near_mm < o.0.near_mm => Some(d),
         (o, d) => o.or(d),
-    }
+    };
+    ParallaxEvidence { hazard, beyond }
 }
 
 /// Groups cells whose parallax height (`heights`, mm) reaches the obstacle
 /// height on `side` of the ground; returns the nearest footprint inside
-/// the AOI and its height (mm). A `short_baseline` measures heights
+/// the AOI and its height (mm), and the nearest beyond its far edge. A `short_baseline` measures heights
 /// coarsely: only a large group counts. Cell rows above `first_row` are
 /// left out. Every cell of a group that counts goes to `scan` at its
 /// footprint, none nearer than the group's `nearest` (the odd cell whose
@@ -174,7 +184,7 @@ fn parallax_group(
     config: &GpaConfig,
     wanted: Wanted,
     scan: &mut Scan,
-) -> Option<(Footprint, i32)> {
+) -> (Option<(Footprint, i32)>, Option<Footprint>) {
     let Wanted { side, first_row, short_baseline } = wanted;
     let (grid, cells, camera_height_mm) = (&layout.grid, &layout.cells, layout.camera_height_mm);
     let (w, h) = (cells.wide, cells.high);
@@ -191,11 +201,12 @@ fn parallax_group(
     // many cells (though, far and seen at a grazing angle, in scattered
     // ones; the groups in front mark its edge).
     if side == Side::Below && (0..h * w).filter(|&cell| member(cell)).count() < LARGE_GROUP_CELLS {
-        return None;
+        return (None, None);
     }
     let aoi = layout.aoi_mm();
     let mut seen = CellSet::EMPTY;
     let mut best: Option<(f64, f64, f64, f64)> = None;
+    let mut beyond: Option<(f64, f64, f64)> = None;
     for start in 0..h * w {
         if seen.contains(start) || !member(start) {
             continue;
@@ -286,17 +297,20 @@ fn parallax_group(
         // not beyond it.
         let cell_mm = cells.px as f64 * grid.mm_per_px;
         let near_enough = side == Side::Below || nearest >= aoi.near - cell_mm;
-        let inside = nearest <= aoi.far + 0.5 * cell_mm && near_enough && right >= -aoi.half_width && left <= aoi.half_width;
+        let across = right >= -aoi.half_width && left <= aoi.half_width;
+        let inside = nearest <= aoi.far + 0.5 * cell_mm && near_enough && across;
         if inside && best.is_none_or(|b| nearest < b.0) {
             best = Some((nearest, left.max(-aoi.half_width), right.min(aoi.half_width), height));
+        } else if side == Side::Above && across && nearest > aoi.far && beyond.is_none_or(|b| nearest < b.0) {
+            beyond = Some((nearest, left.max(-aoi.half_width), right.min(aoi.half_width)));
         }
     }
-    best.map(|(z, left, right, height)| {
+    let mm = |v: f64| libm::round(v) as i32;
+    let hazard = best.map(|(z, left, right, height)| {
         let z = z.clamp(aoi.near, aoi.far);
-        let footprint =
-            Footprint { near_mm: libm::round(z) as i32, left_mm: libm::round(left) as i32, right_mm: libm::round(right) as i32 };
-        (footprint, libm::round(height) as i32)
-    })
+        (Footprint { near_mm: mm(z), left_mm: mm(left), right_mm: mm(right) }, mm(height))
+    });
+    (hazard, beyond.map(|(z, left, right)| Footprint { near_mm: mm(z), left_mm: mm(left), right_mm: mm(right) }))
 }
 
 /// Labels the cells active with residue into blobs (at most [`MAX_BLOBS`]).
