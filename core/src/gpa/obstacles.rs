@@ -198,10 +198,14 @@ fn parallax_group(
     // Heights are whole mm, so |h| >= min_height exactly when |h| >= ceil(min_height):
     // an integer compare per cell instead of a soft-float one on the M4.
     let min_height = libm::ceil(config.min_obstacle_height_mm) as i32;
-    let member = |cell: usize| cell >= first_row * w && match side {
-        Side::Above => i32::from(heights.get(cell)) >= min_height,
-        Side::Below => i32::from(heights.get(cell)) <= -min_height,
+    let on_side = |height: i16| match side {
+        Side::Above => i32::from(height) >= min_height,
+        Side::Below => i32::from(height) <= -min_height,
     };
+    let member = |cell: usize| cell >= first_row * w && on_side(heights.get(cell));
+    // Hysteresis, as for edges: a weak height does not count, but it joins
+    // measured cells across it, a surface whose contrast is low in places.
+    let reaches = |cell: usize| cell >= first_row * w && on_side(heights.any(cell));
     // A drop must show over an area: its parallax is at most T*d/(H+d),
     // so an odometry or heading error fakes a small shallow patch more
     // easily, and a hole a wheel can fall into shows its lower level over
@@ -218,7 +222,8 @@ fn parallax_group(
     // feature or two), possibly many rows apart: above the ground, cells in
     // neighbouring columns whose footprints agree to a cell are one face.
     let cell_mm = cells.px as f64 * grid.mm_per_px;
-    let same_face = |a: usize, b: usize| libm::fabs(footprint(a) - footprint(b)) <= cell_mm;
+    let measured = |cell: usize| !heights.is_weak(cell);
+    let same_face = |a: usize, b: usize| measured(a) && measured(b) && libm::fabs(footprint(a) - footprint(b)) <= cell_mm;
     let linked: Option<&dyn Fn(usize, usize) -> bool> = match side {
         Side::Above => Some(&same_face),
         Side::Below => None,
@@ -241,7 +246,10 @@ fn parallax_group(
         let mut spans: heapless::Vec<CellSpan, MAX_BLOB_CELLS> = heapless::Vec::new();
         let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
         let mut group = 0usize;
-        flood_cells((w, h), side.bridge(), start, &mut seen, member, linked, |cell, r, c| {
+        flood_cells((w, h), side.bridge(), start, &mut seen, reaches, linked, |cell, r, c| {
+            if heights.is_weak(cell) {
+                return;
+            }
             group += 1;
             with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
             let height = f64::from(heights.get(cell));
