@@ -28,7 +28,8 @@ pub struct GpaConfig {
     /// Parallax test: a cell is elevated when its best height hypothesis
     /// lowers the cell's SAD by this percentage of the ground hypothesis...
     pub parallax_gain_percent: u32,
-    /// ...and by at least this many gray levels per pixel (or the noise level, if higher).
+    /// ...and by at least this many gray levels per pixel (or the noise level, if higher);
+    /// one that wins by less only joins elevated cells into groups.
     pub parallax_min_gain: f64,
     /// Obstacles are at least this tall (mm), drops at least this deep;
     /// lower bumps and shallower dips are ground.

@@ -40,13 +40,16 @@ pub(super) struct Footprint {
 /// Visits the cells connected to `start` (neighbours within `radius` cells,
 /// in a grid of `size` = (columns, rows) cells stored row by row)
 /// for which `member` holds, marking them in `seen`; `visit` gets (cell,
-/// row, column). The work stack is bounded: a full one truncates the growth.
+/// row, column). With `linked`, a member cell further along its columns
+/// (any row, columns within `radius`) also joins when `linked(cell, it)`.
+/// The work stack is bounded: a full one truncates the growth.
 fn flood_cells(
     size: (usize, usize),
     radius: i32,
     start: usize,
     seen: &mut CellSet,
     member: impl Fn(usize) -> bool,
+    linked: Option<&dyn Fn(usize, usize) -> bool>,
     mut visit: impl FnMut(usize, usize, usize),
 ) {
     let (w, h) = size;
@@ -57,14 +60,18 @@ fn flood_cells(
         let cell = usize::from(cell);
         let (r, c) = (cell / w, cell % w);
         visit(cell, r, c);
-        for dr in -radius..=radius {
+        let rows = if linked.is_some() { -(r as i32)..=(h - 1 - r) as i32 } else { -radius..=radius };
+        for dr in rows {
             for dc in -radius..=radius {
                 let (nr, nc) = (r as i32 + dr, c as i32 + dc);
                 if nr < 0 || nc < 0 || nr as usize >= h || nc as usize >= w {
                     continue;
                 }
                 let neighbour = nr as usize * w + nc as usize;
-                if !seen.contains(neighbour) && member(neighbour) {
+                if seen.contains(neighbour) || !member(neighbour) {
+                    continue;
+                }
+                if dr.abs() <= radius || linked.is_some_and(|linked| linked(cell, neighbour)) {
                     seen.insert(neighbour);
                     let _ = stack.push(neighbour as u16);
                 }
@@ -191,10 +198,14 @@ fn parallax_group(
     // Heights are whole mm, so |h| >= min_height exactly when |h| >= ceil(min_height):
     // an integer compare per cell instead of a soft-float one on the M4.
     let min_height = libm::ceil(config.min_obstacle_height_mm) as i32;
-    let member = |cell: usize| cell >= first_row * w && match side {
-        Side::Above => i32::from(heights.get(cell)) >= min_height,
-        Side::Below => i32::from(heights.get(cell)) <= -min_height,
+    let on_side = |height: i16| match side {
+        Side::Above => i32::from(height) >= min_height,
+        Side::Below => i32::from(height) <= -min_height,
     };
+    let member = |cell: usize| cell >= first_row * w && on_side(heights.get(cell));
+    // Hysteresis, as for edges: a weak height does not count, but it joins
+    // measured cells across it, a surface whose contrast is low in places.
+    let reaches = |cell: usize| cell >= first_row * w && on_side(heights.any(cell));
     // A drop must show over an area: its parallax is at most T*d/(H+d),
     // so an odometry or heading error fakes a small shallow patch more
     // easily, and a hole a wheel can fall into shows its lower level over
@@ -203,6 +214,20 @@ fn parallax_group(
     if side == Side::Below && (0..h * w).filter(|&cell| member(cell)).count() < LARGE_GROUP_CELLS {
         return (None, None);
     }
+    // Above: where a cell stands (mm ahead), from its height at its centre.
+    let centre_z = |cell: usize| grid.pixel_to_ground(0.0, ((cell / w) as f64 + 0.5) * cells.px as f64 - 0.5).1;
+    let footprint = |cell: usize| centre_z(cell) * (camera_height_mm - f64::from(heights.get(cell))) / camera_height_mm;
+    // Every cell of a vertical face points at the face's footprint, but a
+    // plain face shows parallax only where it has texture (its top edge, a
+    // feature or two), possibly many rows apart: above the ground, cells in
+    // neighbouring columns whose footprints agree to a cell are one face.
+    let cell_mm = cells.px as f64 * grid.mm_per_px;
+    let measured = |cell: usize| !heights.is_weak(cell);
+    let same_face = |a: usize, b: usize| measured(a) && measured(b) && libm::fabs(footprint(a) - footprint(b)) <= cell_mm;
+    let linked: Option<&dyn Fn(usize, usize) -> bool> = match side {
+        Side::Above => Some(&same_face),
+        Side::Below => None,
+    };
     let aoi = layout.aoi_mm();
     let mut seen = CellSet::EMPTY;
     let mut best: Option<(f64, f64, f64, f64)> = None;
@@ -221,7 +246,10 @@ fn parallax_group(
         let mut spans: heapless::Vec<CellSpan, MAX_BLOB_CELLS> = heapless::Vec::new();
         let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
         let mut group = 0usize;
-        flood_cells((w, h), side.bridge(), start, &mut seen, member, |cell, r, c| {
+        flood_cells((w, h), side.bridge(), start, &mut seen, reaches, linked, |cell, r, c| {
+            if heights.is_weak(cell) {
+                return;
+            }
             group += 1;
             with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
             let height = f64::from(heights.get(cell));
@@ -295,7 +323,6 @@ fn parallax_group(
         // one measured a little beyond the far edge may stand on it. A hole
         // reaches on from its edge, so it is in the AOI while the edge is
         // not beyond it.
-        let cell_mm = cells.px as f64 * grid.mm_per_px;
         let near_enough = side == Side::Below || nearest >= aoi.near - cell_mm;
         let across = right >= -aoi.half_width && left <= aoi.half_width;
         let inside = nearest <= aoi.far + 0.5 * cell_mm && near_enough && across;
@@ -327,7 +354,7 @@ pub(super) fn residue_blobs(layout: &Layout, residue: &Residue, config: &GpaConf
         }
         let (sr, sc) = ((start / w) as u8, (start % w) as u8);
         let mut blob = Blob { cell_left: sc, cell_right: sc, cell_top: sr, cell_bottom: sr, cells: 0, pixels: 0, peak_percent: 0 };
-        flood_cells((w, h), 1, start, &mut label, active, |cell, r, c| {
+        flood_cells((w, h), 1, start, &mut label, active, None, |cell, r, c| {
             blob.cells += 1;
             blob.pixels += u32::from(residue.cell_residue[cell]);
             blob.peak_percent = blob.peak_percent.max(percent(cell).min(100) as u8);

@@ -119,9 +119,10 @@ impl Hypotheses {
 
     /// The height (as a fraction of H, negative below the ground) that a
     /// cell's hypothesis SADs (by index, u32::MAX where not compared) point
-    /// at, or None if the ground explains the cell as well. `noise_floor`
-    /// is the median plain |diff| per pixel.
-    fn height_fraction(&self, sads: &[u32; HYPOTHESES], pixels: u16, min_gain: f64, noise_floor: u8, gain_percent: u32) -> Option<f64> {
+    /// at, and whether it beats the ground by the absolute gain too (else
+    /// it is [`CellHeights`]' weak kind); None if the ground explains the
+    /// cell as well. `noise_floor` is the median plain |diff| per pixel.
+    fn height_fraction(&self, sads: &[u32; HYPOTHESES], pixels: u16, min_gain: f64, noise_floor: u8, gain_percent: u32) -> Option<(f64, bool)> {
         // Ordered by displacement, so neighbours are neighbouring heights.
         let sad = |rank: usize| sads[by_rank(rank)];
         let g = |rank: usize| self.displacement[by_rank(rank)];
@@ -154,7 +155,7 @@ impl Hypotheses {
             .min()
             .unwrap_or(0);
         let distinct = above(best_sad) * 100 <= above(runner_up) * keep;
-        if !(relative && absolute && distinct) {
+        if !(relative && distinct) {
             return None;
         }
         // Parabola through the neighbouring hypotheses, in the displacement
@@ -169,7 +170,7 @@ impl Hypotheses {
                 g(best) + offset * (g(best + 1) - g(best))
             }
         };
-        Some(displacement / (1.0 + displacement))
+        Some((displacement / (1.0 + displacement), absolute))
     }
 }
 
@@ -183,17 +184,31 @@ fn by_rank(rank: usize) -> usize {
 }
 
 /// Parallax height per cell (mm, 0 = ground or undecided, negative below
-/// the ground), up to 255 mm either way: one byte and one bit a cell, for
-/// the M4's RAM.
+/// the ground), up to 255 mm either way: one byte and two bits a cell, for
+/// the M4's RAM. A weak height beat the ground clearly but by less than
+/// the absolute gain (low contrast: vignetting darkens the image's corners,
+/// and it shades one ground point differently in two views): too uncertain
+/// to count as a measurement, it only shows that a surface goes on there.
 pub(super) struct CellHeights {
     magnitude: [u8; MAX_CELLS],
     below: CellSet,
+    weak: CellSet,
 }
 
 impl CellHeights {
-    pub(super) const EMPTY: CellHeights = CellHeights { magnitude: [0; MAX_CELLS], below: CellSet::EMPTY };
+    pub(super) const EMPTY: CellHeights = CellHeights { magnitude: [0; MAX_CELLS], below: CellSet::EMPTY, weak: CellSet::EMPTY };
 
+    /// A cell's measured height (0 for a weak one).
     pub(super) fn get(&self, cell: usize) -> i16 {
+        if self.weak.contains(cell) {
+            0
+        } else {
+            self.any(cell)
+        }
+    }
+
+    /// A cell's height, measured or weak.
+    pub(super) fn any(&self, cell: usize) -> i16 {
         let magnitude = i16::from(self.magnitude[cell]);
         if self.below.contains(cell) {
             -magnitude
@@ -202,13 +217,23 @@ impl CellHeights {
         }
     }
 
-    /// Sets a cell's height, clamped to ±255 mm.
-    pub(super) fn set(&mut self, cell: usize, height: i16) {
+    /// Did the cell's height beat the ground by less than the absolute gain?
+    pub(super) fn is_weak(&self, cell: usize) -> bool {
+        self.weak.contains(cell)
+    }
+
+    /// Sets a cell's height, clamped to ±255 mm, and whether it is weak.
+    pub(super) fn set(&mut self, cell: usize, height: i16, weak: bool) {
         self.magnitude[cell] = height.unsigned_abs().min(u16::from(u8::MAX)) as u8;
         if height < 0 {
             self.below.insert(cell);
         } else {
             self.below.remove(cell);
+        }
+        if weak {
+            self.weak.insert(cell);
+        } else {
+            self.weak.remove(cell);
         }
     }
 }
@@ -342,7 +367,7 @@ impl Parallax {
         for column in 0..cells.wide {
             let pixels = u16::from(self.sums.pixels[0][column]);
             let cell = cell_row * cells.wide + column;
-            self.height.set(cell, 0);
+            self.height.set(cell, 0, false);
             if pixels < min_pixels || self.hypotheses.usable == 0 {
                 continue;
             }
@@ -357,10 +382,10 @@ impl Parallax {
                 }
             }
             let fraction = self.hypotheses.height_fraction(&sads, pixels, min_gain, noise.floor(), config.parallax_gain_percent);
-            if let Some(fraction) = fraction {
+            if let Some((fraction, strong)) = fraction {
                 let height = libm::round(fraction * camera_height_mm);
                 let magnitude = libm::fabs(height).clamp(1.0, f64::from(u8::MAX)) as i16;
-                self.height.set(cell, if height > 0.0 { magnitude } else { -magnitude });
+                self.height.set(cell, if height > 0.0 { magnitude } else { -magnitude }, !strong);
             }
         }
         self.sums.clear();
