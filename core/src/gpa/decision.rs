@@ -167,46 +167,18 @@ impl Alarm {
             (None, None) => AlarmSource::None,
         };
         let found = parallax.map(|(footprint, height)| (footprint, Some(height))).or(residue.map(|footprint| (footprint, None)));
-        let travel = config.keyframe_travel_mm;
-        let cannot_clear = |(held, found_at): &(Hazard, f64)| {
-            let is_drop = held.1.is_some_and(|h| h < 0);
-            let needed = (if is_drop { 0.75 } else { 0.6 } * travel).max(found_at.min(keyframe::full_baseline_mm(config)));
-            let unseen_depth = held.1.is_some_and(|h| f64::from(-h) < self.shallowest_drop_mm);
-            let seen_again = held.1.is_some_and(|h| h > 0) && self.beyond.is_some_and(|b| b.left_mm <= held.0.right_mm && b.right_mm >= held.0.left_mm);
-            baseline_mm < needed || (is_drop && (!drops_looked_for || unseen_depth)) || seen_again
-        };
-        let moved_previous = self.previous.map(|((footprint, height), found_at)| {
-            let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
-            let moved_footprint = Footprint {
-                near_mm: moved(footprint.near_mm, step.tz_mm),
-                left_mm: moved(footprint.left_mm, step.tx_mm),
-                right_mm: moved(footprint.right_mm, step.tx_mm),
-            };
-            ((moved_footprint, height), found_at)
-        });
-        let held = self.previous.filter(cannot_clear).and(moved_previous);
-        // The drop found again: the nearer edge.
-        let is_drop = |hazard: &Hazard| hazard.1.is_some_and(|h| h < 0);
-        let found = found.map(|(footprint, height)| match moved_previous {
-            Some(((last, last_height), _))
-                if is_drop(&(footprint, height))
-                    && is_drop(&(last, last_height))
-                    && footprint.left_mm <= last.right_mm
-                    && footprint.right_mm >= last.left_mm =>
-            {
-                (Footprint { near_mm: footprint.near_mm.min(last.near_mm), ..footprint }, height)
-            }
-            _ => (footprint, height),
+        let moved_previous = self.previous.map(|((footprint, height), found_at)| ((footprint.moved(step), height), found_at));
+        let held = moved_previous.filter(|_| self.previous.is_some_and(|previous| self.cannot_clear(&previous, baseline_mm, drops_looked_for, config)));
+        let found = found.map(|found| match moved_previous {
+            Some((last, _)) => nearer_drop_edge(found, &last),
+            None => found,
         });
         // A drop's lower level lags the floor, so it leaves residue from
         // its edge on: residue that starts there (within a cell, what a
         // footprint is good to) is the held drop seen without its depth,
         // not a new hazard.
         let explained_by_held_drop = |found: &Hazard| {
-            found.1.is_none()
-                && held.is_some_and(|((drop, height), _)| {
-                    height.is_some_and(|h| h < 0) && f64::from(found.0.near_mm) >= f64::from(drop.near_mm) - config.cell_mm
-                })
+            found.1.is_none() && held.is_some_and(|(drop, _)| is_drop(&drop) && f64::from(found.0.near_mm) >= f64::from(drop.0.near_mm) - config.cell_mm)
         };
         let (hazard, found_at) = match (found, held) {
             (Some(found), _) if !explained_by_held_drop(&found) => (Some(found), baseline_mm),
@@ -218,6 +190,32 @@ impl Alarm {
         };
         self.previous = hazard.map(|hazard| (hazard, found_at));
         hazard
+    }
+
+    /// Whether a frame at `baseline_mm` cannot clear `held`, found at a
+    /// baseline of `found_at` (see [`Self::decide`]).
+    fn cannot_clear(&self, (held, found_at): &(Hazard, f64), baseline_mm: f64, drops_looked_for: bool, config: &GpaConfig) -> bool {
+        let drop = is_drop(held);
+        let needed = (if drop { 0.75 } else { 0.6 } * config.keyframe_travel_mm).max(found_at.min(keyframe::full_baseline_mm(config)));
+        let unseen_depth = held.1.is_some_and(|h| f64::from(-h) < self.shallowest_drop_mm);
+        let seen_again = held.1.is_some_and(|h| h > 0) && self.beyond.is_some_and(|beyond| beyond.overlaps_sideways(&held.0));
+        baseline_mm < needed || (drop && (!drops_looked_for || unseen_depth)) || seen_again
+    }
+}
+
+fn is_drop(hazard: &Hazard) -> bool {
+    hazard.1.is_some_and(|h| h < 0)
+}
+
+/// `found` with the nearer of its edge and the `last` drop's (moved by the
+/// step) when both are drops overlapping sideways: a frame finds a drop's
+/// edge at the first textured row past it, never nearer.
+fn nearer_drop_edge(found: Hazard, last: &Hazard) -> Hazard {
+    let (footprint, height) = found;
+    if is_drop(&found) && is_drop(last) && footprint.overlaps_sideways(&last.0) {
+        (Footprint { near_mm: footprint.near_mm.min(last.0.near_mm), ..footprint }, height)
+    } else {
+        found
     }
 }
 

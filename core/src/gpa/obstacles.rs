@@ -11,6 +11,7 @@ use super::parallax::CellHeights;
 use super::layout::{CellSet, Layout};
 use super::residue::Residue;
 use crate::limits::{MAX_BLOBS, MAX_BLOB_CELLS, MAX_CELLS_SIDE, MAX_FLOOD_CELLS};
+use crate::motion::Motion;
 use crate::scan::Scan;
 
 /// A connected group of hot cells.
@@ -35,6 +36,19 @@ pub(super) struct Footprint {
     pub(super) near_mm: i32,
     pub(super) left_mm: i32,
     pub(super) right_mm: i32,
+}
+
+impl Footprint {
+    /// Whether the two share some of their lateral extent.
+    pub(super) fn overlaps_sideways(&self, other: &Footprint) -> bool {
+        self.left_mm <= other.right_mm && self.right_mm >= other.left_mm
+    }
+
+    /// Where it stands after the robot moved by `step`.
+    pub(super) fn moved(&self, step: &Motion) -> Footprint {
+        let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
+        Footprint { near_mm: moved(self.near_mm, step.tz_mm), left_mm: moved(self.left_mm, step.tx_mm), right_mm: moved(self.right_mm, step.tx_mm) }
+    }
 }
 
 /// Visits the cells connected to `start` (neighbours within `radius` cells,
