@@ -61,9 +61,14 @@ pub const IMAGE_CAPACITY: usize = MAX_GRID_SIDE * MAX_GRID_SIDE;
 pub(crate) static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
 pub(crate) static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
 pub(crate) static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY);
-/// The GTI stage (`size_of::<GtiStage>()`, 19.6 KB), configured in place.
+/// The GTI stage (`size_of::<GtiStage>()`, 19.6 KB), configured in place,
+/// in the CCM beside the second image (the CPU alone reads it; RAM holds
+/// the detector). Not zeroed at reset: see [`ccm_gti`].
 #[cfg(not(feature = "full-frame"))]
-pub(crate) static GTI: ConstStaticCell<GtiStage> = ConstStaticCell::new(GtiStage::UNCONFIGURED);
+#[link_section = ".ccm"]
+static mut CCM_GTI: core::mem::MaybeUninit<GtiStage> = core::mem::MaybeUninit::uninit();
+#[cfg(not(feature = "full-frame"))]
+static CCM_GTI_TAKEN: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 pub(crate) static IMAGE: ConstStaticCell<[u8; IMAGE_CAPACITY]> = ConstStaticCell::new([0; IMAGE_CAPACITY]);
 /// The second image, in the CCM (not zeroed at reset; see [`ccm_image`]).
 #[link_section = ".ccm"]
@@ -82,6 +87,22 @@ pub(crate) fn ccm_image() -> Option<&'static mut [u8; IMAGE_CAPACITY]> {
         let image = &raw mut CCM_IMAGE;
         core::ptr::write_bytes(image, 0, 1);
         Some((*image).assume_init_mut())
+    }
+}
+
+/// The CCM's GTI stage, unconfigured, once; None on a second call.
+#[cfg(not(feature = "full-frame"))]
+fn ccm_gti() -> Option<&'static mut GtiStage> {
+    use core::sync::atomic::Ordering;
+    if CCM_GTI_TAKEN.swap(true, Ordering::AcqRel) {
+        return None;
+    }
+    // SAFETY: the flag hands the stage out once, so this is its only
+    // reference; it is written whole before it is read.
+    unsafe {
+        let gti = &raw mut CCM_GTI;
+        (*gti).write(GtiStage::UNCONFIGURED);
+        Some((*gti).assume_init_mut())
     }
 }
 
@@ -732,10 +753,10 @@ fn serve_frame<S, A, C, R, K, W>(
 }
 
 /// GTI (19.6 KB) is configured in place in its static, as the detector.
-/// None on a refused rig (the fault is sent).
+/// None on a refused rig (the fault is sent), or when called twice.
 #[cfg(not(feature = "full-frame"))]
 pub(crate) fn gti_stage<S: Read + ReadReady + Write>(link: &mut Link<S>, rig: &Rig, grid: &KgGrid) -> Option<Option<&'static mut GtiStage>> {
-    let gti: &'static mut GtiStage = GTI.take();
+    let gti: &'static mut GtiStage = ccm_gti()?;
     match gti.configure(rig, grid) {
         Ok(()) => Some(Some(gti)),
         Err(error) => {
