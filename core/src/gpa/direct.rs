@@ -192,19 +192,34 @@ pub(super) struct Alignment {
     pub(super) lower: Option<Lower>,
 }
 
+/// One pixel in use: 32 bytes (512 of them are most of the alignment's memory).
 #[derive(Clone, Copy)]
 struct Point {
-    /// Pixel of its level.
-    i: u16,
-    j: u16,
-    /// Its gray level in the current image, and its gradient's length.
-    c: f32,
-    gradient: f32,
-    /// d r / d p; while selecting, the gradient in the first two.
+    /// Pixel of its level (levels are at most [`MAX_GRID_SIDE`] wide and high).
+    ///
+    /// [`MAX_GRID_SIDE`]: crate::grid::MAX_GRID_SIDE
+    i: u8,
+    j: u8,
+    /// Its gray level in the current image.
+    c: u8,
+    /// Its gradient's length in half gray levels per pixel, truncated and
+    /// capped at 255: the bin of [`Points::median_gradient`]'s histogram,
+    /// its only use.
+    gradient_bin: u8,
+    /// d r / d p; while selecting, the gradient in the first two. With
+    /// `depth` ([`Points::jacobians_with`]), the last (the keyframe body's
+    /// roll, which [`Direct::lower_level`] holds at its prior, so its
+    /// derivative is dead there) holds d r / d (depth of a lower level
+    /// there) instead: [`DEPTH`].
     jacobian: Geometry,
-    /// d r / d (depth of a lower level there), when asked for.
-    depth: f32,
 }
+
+/// The slot of [`Point::jacobian`] that holds the lower level's depth
+/// derivative after [`Points::jacobians_with`] with `depth`: the keyframe
+/// roll's, which [`hold_keyframe_attitude`] takes out of the normal
+/// equations and [`Border::add`] leaves out when `held`.
+const DEPTH: usize = 6;
+const _: () = assert!(core::mem::size_of::<Point>() == 32);
 
 #[derive(Clone, Copy)]
 enum Loss {
@@ -447,17 +462,17 @@ impl Points {
         self.points.clear();
         self.side = chosen.side;
         for &(i, j) in chosen.pixels.iter() {
-            let (i, j) = (u16::from(i), u16::from(j));
             if usize::from(j) < near_row {
                 continue;
             }
             let Some((gx, gy)) = level.gradient(usize::from(i), usize::from(j)) else { continue };
             let mut jacobian = [0.0; GEOMETRY];
             (jacobian[0], jacobian[1]) = (gx, gy);
-            let c = f32::from(level.at(usize::from(i), usize::from(j)));
+            let c = level.at(usize::from(i), usize::from(j));
             let gradient = crate::kernels::hypotf(gx, gy);
+            let gradient_bin = ((gradient * 2.0) as usize).min(255) as u8;
             // Capacity: `chosen` holds at most MAX_POINTS.
-            let _ = self.points.push(Point { i, j, c, gradient, jacobian, depth: 0.0 });
+            let _ = self.points.push(Point { i, j, c, gradient_bin, jacobian });
         }
     }
 
@@ -478,7 +493,7 @@ impl Points {
         });
         let s = pyramid::scale(level) as f32;
         self.points.retain_mut(|point| {
-            let (x, y) = (to_grid(level, point.i), to_grid(level, point.j));
+            let (x, y) = (to_grid(level, u16::from(point.i)), to_grid(level, u16::from(point.j)));
             let (Some(w0), Some(wx), Some(wy)) = (base.at(x, y), base.at(x + 1.0, y), base.at(x, y + 1.0)) else { return false };
             // The warp's 2x2 derivative A; the gradient in the keyframe is g A^-1.
             let (a00, a01, a10, a11) = (wx.0 - w0.0, wy.0 - w0.0, wx.1 - w0.1, wy.1 - w0.1);
@@ -494,7 +509,8 @@ impl Points {
             }
             if let Some(below) = &below {
                 let Some(moved) = below.at(x, y) else { return false };
-                point.depth = (ku * (moved.0 - w0.0) + kv * (moved.1 - w0.1)) / (DEPTH_STEP_MM * s);
+                // Over the keyframe roll's derivative, dead while the depth is used.
+                point.jacobian[DEPTH] = (ku * (moved.0 - w0.0) + kv * (moved.1 - w0.1)) / (DEPTH_STEP_MM * s);
             }
             true
         });
@@ -511,11 +527,11 @@ impl Points {
         let mut sampled = 0usize;
         for (k, point) in self.points.iter().enumerate() {
             let sample = map
-                .at(to_grid(level, point.i), to_grid(level, point.j))
+                .at(to_grid(level, u16::from(point.i)), to_grid(level, u16::from(point.j)))
                 .and_then(|(u, v)| keyframe.sample((u - offset) * inverse, (v - offset) * inverse));
             match sample {
                 Some(value) => {
-                    let r = state.gain * (value - 128.0) + state.offset - point.c;
+                    let r = state.gain * (value - 128.0) + state.offset - f32::from(point.c);
                     self.residuals[k] = r;
                     self.samples[k] = value;
                     histogram[((r.abs() * 4.0) as usize).min(255)] += 1;
@@ -609,7 +625,7 @@ impl Points {
         for (k, point) in self.points.iter().enumerate() {
             let r = self.residuals[k];
             if !r.is_nan() && Loss::Tukey.weight(r, scale) > 0.0 {
-                current += point.c;
+                current += f32::from(point.c);
                 warped += self.samples[k];
             }
         }
@@ -743,7 +759,7 @@ impl Points {
     fn median_gradient(&self) -> f32 {
         let mut histogram = [0u16; 256];
         for point in self.points.iter() {
-            histogram[((point.gradient * 2.0) as usize).min(255)] += 1;
+            histogram[usize::from(point.gradient_bin)] += 1;
         }
         let half = self.points.len().div_ceil(2);
         let mut count = 0usize;
@@ -822,7 +838,7 @@ impl Direct {
                 continue;
             }
             far += 1;
-            border.add(point, points.residuals[k], points.samples[k], scale, true);
+            border.add(point, points.residuals[k], points.samples[k], scale);
         }
         let (chi2, edge_row, mut step) = best?;
         // Refined only when it could be adopted: the refinement is most of the cost.
@@ -847,8 +863,8 @@ impl Direct {
             hold_keyframe_attitude(&mut normal);
             let mut border = Border::default();
             for (k, point) in points.points.iter().enumerate() {
-                if to_grid(0, point.j) < edge_row && !points.residuals[k].is_nan() {
-                    border.add(point, points.residuals[k], points.samples[k], scale, true);
+                if to_grid(0, u16::from(point.j)) < edge_row && !points.residuals[k].is_nan() {
+                    border.add(point, points.residuals[k], points.samples[k], scale);
                 }
             }
             border.dd += scale * scale * CORRELATION / (DEPTH_SIGMA_MM * DEPTH_SIGMA_MM);
@@ -879,20 +895,22 @@ struct Border {
 }
 
 impl Border {
-    /// Adds a point of the level; `held`: not to the keyframe's attitude,
-    /// which the search for the edge holds.
-    fn add(&mut self, point: &Point, r: f32, sample: f32, scale: f32, held: bool) {
+    /// Adds a point of the level, not to the keyframe's attitude, which
+    /// [`Direct::lower_level`] holds (the point's [`DEPTH`] slot holds the
+    /// depth derivative).
+    fn add(&mut self, point: &Point, r: f32, sample: f32, scale: f32) {
         let weight = Loss::Tukey.weight(r, scale);
         if weight == 0.0 {
             return;
         }
-        let wd = weight * point.depth;
-        for k in 0..if held { 5 } else { GEOMETRY } {
+        let depth = point.jacobian[DEPTH];
+        let wd = weight * depth;
+        for k in 0..5 {
             self.h[k] += wd * point.jacobian[k];
         }
         self.h[GEOMETRY] += wd * (sample - 128.0);
         self.h[GEOMETRY + 1] += wd;
-        self.dd += wd * point.depth;
+        self.dd += wd * depth;
         self.g += wd * r;
     }
 }
