@@ -192,19 +192,34 @@ pub(super) struct Alignment {
     pub(super) lower: Option<Lower>,
 }
 
+/// One pixel in use: 32 bytes (512 of them are most of the alignment's memory).
 #[derive(Clone, Copy)]
 struct Point {
-    /// Pixel of its level.
-    i: u16,
-    j: u16,
-    /// Its gray level in the current image, and its gradient's length.
-    c: f32,
-    gradient: f32,
-    /// d r / d p; while selecting, the gradient in the first two.
+    /// Pixel of its level (levels are at most [`MAX_GRID_SIDE`] wide and high).
+    ///
+    /// [`MAX_GRID_SIDE`]: crate::grid::MAX_GRID_SIDE
+    i: u8,
+    j: u8,
+    /// Its gray level in the current image.
+    c: u8,
+    /// Its gradient's length in half gray levels per pixel, truncated and
+    /// capped at 255: the bin of [`Points::median_gradient`]'s histogram,
+    /// its only use.
+    gradient_bin: u8,
+    /// d r / d p; while selecting, the gradient in the first two. With
+    /// `depth` ([`Points::jacobians_with`]), the last (the keyframe body's
+    /// roll, which [`Direct::lower_level`] holds at its prior, so its
+    /// derivative is dead there) holds d r / d (depth of a lower level
+    /// there) instead: [`DEPTH`].
     jacobian: Geometry,
-    /// d r / d (depth of a lower level there), when asked for.
-    depth: f32,
 }
+
+/// The slot of [`Point::jacobian`] that holds the lower level's depth
+/// derivative after [`Points::jacobians_with`] with `depth`: the keyframe
+/// roll's, which [`hold_keyframe_attitude`] takes out of the normal
+/// equations and [`Border::add`] leaves out when `held`.
+const DEPTH: usize = 6;
+const _: () = assert!(core::mem::size_of::<Point>() == 32);
 
 #[derive(Clone, Copy)]
 enum Loss {
@@ -257,7 +272,7 @@ pub(super) struct Direct {
     keyframe: Pyramid,
     current: Pyramid,
     /// Each level's chosen pixels.
-    chosen: [Chosen; LEVELS],
+    chosen: Chosen,
     points: Points,
 }
 
@@ -271,36 +286,99 @@ struct Points {
     samples: [f32; MAX_POINTS],
 }
 
-/// One level's chosen pixels: the strongest gradient of each block, far
+/// Each level's chosen pixels: the strongest gradient of each block, far
 /// rows first. The choice depends on the current image alone, so it is
 /// made once a frame.
 struct Chosen {
-    pixels: heapless::Vec<(u8, u8), MAX_POINTS>,
+    /// The levels' pixels one after the other, finest first.
+    pixels: [(u8, u8); CHOSEN_CAPACITY],
+    /// Where each level's are in `pixels`: start and end.
+    ranges: [(usize, usize); LEVELS],
+    /// Each level's blocks' side, level pixels.
+    sides: [usize; LEVELS],
+}
+
+/// One level's chosen pixels.
+#[derive(Clone, Copy)]
+struct ChosenLevel<'a> {
+    pixels: &'a [(u8, u8)],
     /// The blocks' side, level pixels.
     side: usize,
 }
 
 impl Chosen {
-    const EMPTY: Chosen = Chosen { pixels: heapless::Vec::new(), side: 1 };
+    const EMPTY: Chosen = Chosen { pixels: [(0, 0); CHOSEN_CAPACITY], ranges: [(0, 0); LEVELS], sides: [1; LEVELS] };
+
+    fn level(&self, level: usize) -> ChosenLevel<'_> {
+        let (start, end) = self.ranges[level];
+        ChosenLevel { pixels: &self.pixels[start..end], side: self.sides[level] }
+    }
 }
 
-/// Chooses the strongest-gradient pixel of each block of `level` (at least
-/// [`MIN_GRADIENT_SUM`]), blocks sized so that at most [`MAX_POINTS`] are chosen.
-fn choose(level: &Level, chosen: &mut Chosen) {
-    // Blocks of many pixels are scanned on every second row and column:
-    // one strong pixel of a block is all it gives, and a quarter of the
-    // finest level's scan is most of the choice's cost.
-    let stride = if level.width * level.height > 4 * MAX_POINTS { 2 } else { 1 };
-    chosen.pixels.clear();
-    let (w, h) = (level.width, level.height);
+/// Most pixels [`choose`] keeps of a level `w` x `h` pixels: one per block
+/// of its interior (columns and rows 1 to the last but one), blocks from
+/// row 1 and column 0 on, and [`MAX_POINTS`] at most.
+const fn most_chosen(w: usize, h: usize) -> usize {
     if w < 3 || h < 3 || w > 256 || h > 256 {
-        return;
+        return 0;
     }
     let mut side = 1;
     while w.div_ceil(side) * h.div_ceil(side) > MAX_POINTS {
         side += 1;
     }
-    chosen.side = side;
+    let block_rows = (h - 2).div_ceil(side);
+    let block_columns = (w - 2) / side - 1 / side + 1;
+    let most = block_rows * block_columns;
+    if most < MAX_POINTS { most } else { MAX_POINTS }
+}
+
+/// Room for every level's chosen pixels, on any grid: [`MAX_POINTS`] for
+/// the image, the most [`most_chosen`] gives on each coarser level (a
+/// level of 4 or 8 grid pixels has fewer pixels than MAX_POINTS blocks or
+/// not many more: 496 and 420 of a 256 x 256 grid's, not 512).
+const CHOSEN_CAPACITY: usize = {
+    let mut total = MAX_POINTS;
+    let mut level = 1;
+    while level < LEVELS {
+        let largest = crate::grid::MAX_GRID_SIDE / pyramid::SCALES[level];
+        let mut most = 0;
+        let mut w = 0;
+        while w <= largest {
+            let mut h = 0;
+            while h <= largest {
+                let n = most_chosen(w, h);
+                if n > most {
+                    most = n;
+                }
+                h += 1;
+            }
+            w += 1;
+        }
+        total += most;
+        level += 1;
+    }
+    total
+};
+
+/// Chooses the strongest-gradient pixel of each block of `level` (at least
+/// [`MIN_GRADIENT_SUM`]), blocks sized so that at most [`MAX_POINTS`] are chosen.
+/// Writes them to `out` (at most its length) and returns how many; the
+/// blocks' side to `chosen_side` (unless the level is too small for any).
+fn choose(level: &Level, out: &mut [(u8, u8)], chosen_side: &mut usize) -> usize {
+    // Blocks of many pixels are scanned on every second row and column:
+    // one strong pixel of a block is all it gives, and a quarter of the
+    // finest level's scan is most of the choice's cost.
+    let stride = if level.width * level.height > 4 * MAX_POINTS { 2 } else { 1 };
+    let mut count = 0;
+    let (w, h) = (level.width, level.height);
+    if w < 3 || h < 3 || w > 256 || h > 256 {
+        return count;
+    }
+    let mut side = 1;
+    while w.div_ceil(side) * h.div_ceil(side) > MAX_POINTS {
+        side += 1;
+    }
+    *chosen_side = side;
     let mut best = [(0i32, 0u8, 0u8); crate::grid::MAX_GRID_SIDE];
     let blocks_wide = w.div_ceil(side);
     let mut block_row_start = 1;
@@ -333,23 +411,38 @@ fn choose(level: &Level, chosen: &mut Chosen) {
         }
         for &(strength, i, j) in &best[..blocks_wide] {
             if strength >= MIN_GRADIENT_SUM {
-                // Capacity: at most MAX_POINTS blocks by construction.
-                let _ = chosen.pixels.push((i, j));
+                // Capacity: at most MAX_POINTS blocks by construction, and
+                // `out` holds `most_chosen` of the level.
+                if count < out.len().min(MAX_POINTS) {
+                    out[count] = (i, j);
+                    count += 1;
+                }
             }
         }
         block_row_start = block_row_end;
     }
+    count
 }
 
 /// Leaves out the chosen pixels that may show a hazard, unless that would
 /// leave fewer than [`MIN_GROUND_SHARE_PERCENT`] of them: a view that is mostly
 /// hazard (or mistaken for it) is aligned as a whole, as before.
-fn leave_out(level: usize, chosen: &mut Chosen, hazards: &MovedMask) -> bool {
+/// `range`: the level's in `pixels`, its end moved back by those left out.
+fn leave_out(level: usize, pixels: &mut [(u8, u8)], range: &mut (usize, usize), hazards: &MovedMask) -> bool {
     let ground = |&(i, j): &(u8, u8)| !hazards.covers(to_grid(level, u16::from(i)), to_grid(level, u16::from(j)));
-    let kept = chosen.pixels.iter().filter(|p| ground(p)).count();
-    let leave = kept < chosen.pixels.len() && kept * 100 >= MIN_GROUND_SHARE_PERCENT * chosen.pixels.len();
+    let chosen = &mut pixels[range.0..range.1];
+    let kept = chosen.iter().filter(|p| ground(p)).count();
+    let leave = kept < chosen.len() && kept * 100 >= MIN_GROUND_SHARE_PERCENT * chosen.len();
     if leave {
-        chosen.pixels.retain(|p| ground(p));
+        // In order, as Vec::retain.
+        let mut end = 0;
+        for k in 0..chosen.len() {
+            if ground(&chosen[k]) {
+                chosen[end] = chosen[k];
+                end += 1;
+            }
+        }
+        range.1 = range.0 + end;
     }
     leave
 }
@@ -368,7 +461,7 @@ impl Direct {
     pub(super) const EMPTY: Direct = Direct {
         keyframe: Pyramid::EMPTY,
         current: Pyramid::EMPTY,
-        chosen: [Chosen::EMPTY; LEVELS],
+        chosen: Chosen::EMPTY,
         points: Points { points: heapless::Vec::new(), side: 1, residuals: [0.0; MAX_POINTS], samples: [0.0; MAX_POINTS] },
     };
 
@@ -377,8 +470,11 @@ impl Direct {
         let (w, h) = (images.grid.width(), images.grid.height());
         self.keyframe.build(images.keyframe, w, h, images.seen);
         self.current.build(images.current, w, h, images.seen);
-        for (level, chosen) in self.chosen.iter_mut().enumerate() {
-            choose(&self.current.level(level, images.current, images.seen), chosen);
+        let mut start = 0;
+        for level in 0..LEVELS {
+            let count = choose(&self.current.level(level, images.current, images.seen), &mut self.chosen.pixels[start..], &mut self.chosen.sides[level]);
+            self.chosen.ranges[level] = (start, start + count);
+            start += count;
         }
     }
 
@@ -387,8 +483,9 @@ impl Direct {
     pub(super) fn leave_out_hazards(&mut self, images: &Images) -> bool {
         let Some(hazards) = &images.hazards else { return false };
         let mut any = false;
-        for (level, chosen) in self.chosen.iter_mut().enumerate() {
-            any |= leave_out(level, chosen, hazards);
+        let Chosen { pixels, ranges, .. } = &mut self.chosen;
+        for (level, range) in ranges.iter_mut().enumerate() {
+            any |= leave_out(level, pixels, range, hazards);
         }
         any
     }
@@ -404,7 +501,7 @@ impl Direct {
             let keyframe = self.keyframe.level(level, images.keyframe, images.seen);
             let near_row = if level >= schedule.near_from_level { schedule.near_row / pyramid::scale(level) } else { 0 };
             let points = &mut self.points;
-            points.select(&current, &self.chosen[level], near_row);
+            points.select(&current, self.chosen.level(level), near_row);
             if points.points.len() < MIN_POINTS {
                 continue;
             }
@@ -443,21 +540,21 @@ impl Points {
     /// `near_row` on, blocks sized so that at most [`MAX_POINTS`] are chosen.
     /// The chosen pixels of `level` (`chosen`, from [`choose`]) from row
     /// `near_row` on, with their gray level and gradient.
-    fn select(&mut self, level: &Level, chosen: &Chosen, near_row: usize) {
+    fn select(&mut self, level: &Level, chosen: ChosenLevel, near_row: usize) {
         self.points.clear();
         self.side = chosen.side;
-        for &(i, j) in chosen.pixels.iter() {
-            let (i, j) = (u16::from(i), u16::from(j));
+        for &(i, j) in chosen.pixels {
             if usize::from(j) < near_row {
                 continue;
             }
             let Some((gx, gy)) = level.gradient(usize::from(i), usize::from(j)) else { continue };
             let mut jacobian = [0.0; GEOMETRY];
             (jacobian[0], jacobian[1]) = (gx, gy);
-            let c = f32::from(level.at(usize::from(i), usize::from(j)));
+            let c = level.at(usize::from(i), usize::from(j));
             let gradient = crate::kernels::hypotf(gx, gy);
+            let gradient_bin = ((gradient * 2.0) as usize).min(255) as u8;
             // Capacity: `chosen` holds at most MAX_POINTS.
-            let _ = self.points.push(Point { i, j, c, gradient, jacobian, depth: 0.0 });
+            let _ = self.points.push(Point { i, j, c, gradient_bin, jacobian });
         }
     }
 
@@ -478,7 +575,7 @@ impl Points {
         });
         let s = pyramid::scale(level) as f32;
         self.points.retain_mut(|point| {
-            let (x, y) = (to_grid(level, point.i), to_grid(level, point.j));
+            let (x, y) = (to_grid(level, u16::from(point.i)), to_grid(level, u16::from(point.j)));
             let (Some(w0), Some(wx), Some(wy)) = (base.at(x, y), base.at(x + 1.0, y), base.at(x, y + 1.0)) else { return false };
             // The warp's 2x2 derivative A; the gradient in the keyframe is g A^-1.
             let (a00, a01, a10, a11) = (wx.0 - w0.0, wy.0 - w0.0, wx.1 - w0.1, wy.1 - w0.1);
@@ -494,7 +591,8 @@ impl Points {
             }
             if let Some(below) = &below {
                 let Some(moved) = below.at(x, y) else { return false };
-                point.depth = (ku * (moved.0 - w0.0) + kv * (moved.1 - w0.1)) / (DEPTH_STEP_MM * s);
+                // Over the keyframe roll's derivative, dead while the depth is used.
+                point.jacobian[DEPTH] = (ku * (moved.0 - w0.0) + kv * (moved.1 - w0.1)) / (DEPTH_STEP_MM * s);
             }
             true
         });
@@ -511,11 +609,11 @@ impl Points {
         let mut sampled = 0usize;
         for (k, point) in self.points.iter().enumerate() {
             let sample = map
-                .at(to_grid(level, point.i), to_grid(level, point.j))
+                .at(to_grid(level, u16::from(point.i)), to_grid(level, u16::from(point.j)))
                 .and_then(|(u, v)| keyframe.sample((u - offset) * inverse, (v - offset) * inverse));
             match sample {
                 Some(value) => {
-                    let r = state.gain * (value - 128.0) + state.offset - point.c;
+                    let r = state.gain * (value - 128.0) + state.offset - f32::from(point.c);
                     self.residuals[k] = r;
                     self.samples[k] = value;
                     histogram[((r.abs() * 4.0) as usize).min(255)] += 1;
@@ -609,7 +707,7 @@ impl Points {
         for (k, point) in self.points.iter().enumerate() {
             let r = self.residuals[k];
             if !r.is_nan() && Loss::Tukey.weight(r, scale) > 0.0 {
-                current += point.c;
+                current += f32::from(point.c);
                 warped += self.samples[k];
             }
         }
@@ -656,7 +754,7 @@ impl Direct {
         let current = self.current.level(top, images.current, images.seen);
         let keyframe = self.keyframe.level(top, images.keyframe, images.seen);
         let points = &mut self.points;
-        points.select(&current, &self.chosen[top], 0);
+        points.select(&current, self.chosen.level(top), 0);
         let gain = level_mean(&current) / level_mean(&keyframe).max(1.0);
         let mut best = (f32::INFINITY, *fallback);
         for p in candidates {
@@ -722,7 +820,7 @@ impl Direct {
         let current = self.current.level(0, images.current, images.seen);
         let keyframe = self.keyframe.level(0, images.keyframe, images.seen);
         let points = &mut self.points;
-        points.select(&current, &self.chosen[0], near_row);
+        points.select(&current, self.chosen.level(0), near_row);
         let state = State { p: aligned.p, gain: aligned.exposure.0, offset: aligned.exposure.1, lower: aligned.lower };
         points.residuals(images, &keyframe, 0, &state);
         let (mut sum, mut count) = (0.0, 0);
@@ -743,7 +841,7 @@ impl Points {
     fn median_gradient(&self) -> f32 {
         let mut histogram = [0u16; 256];
         for point in self.points.iter() {
-            histogram[((point.gradient * 2.0) as usize).min(255)] += 1;
+            histogram[usize::from(point.gradient_bin)] += 1;
         }
         let half = self.points.len().div_ceil(2);
         let mut count = 0usize;
@@ -787,7 +885,7 @@ impl Direct {
         let current = self.current.level(0, images.current, images.seen);
         let keyframe = self.keyframe.level(0, images.keyframe, images.seen);
         let points = &mut self.points;
-        points.select(&current, &self.chosen[0], 0);
+        points.select(&current, self.chosen.level(0), 0);
         points.jacobians_with(images, 0, &aligned.p, true);
         // The keyframe's attitude held at its prior: with it free, a single
         // plane bends far enough to mimic most of a lower level.
@@ -822,7 +920,7 @@ impl Direct {
                 continue;
             }
             far += 1;
-            border.add(point, points.residuals[k], points.samples[k], scale, true);
+            border.add(point, points.residuals[k], points.samples[k], scale);
         }
         let (chi2, edge_row, mut step) = best?;
         // Refined only when it could be adopted: the refinement is most of the cost.
@@ -847,8 +945,8 @@ impl Direct {
             hold_keyframe_attitude(&mut normal);
             let mut border = Border::default();
             for (k, point) in points.points.iter().enumerate() {
-                if to_grid(0, point.j) < edge_row && !points.residuals[k].is_nan() {
-                    border.add(point, points.residuals[k], points.samples[k], scale, true);
+                if to_grid(0, u16::from(point.j)) < edge_row && !points.residuals[k].is_nan() {
+                    border.add(point, points.residuals[k], points.samples[k], scale);
                 }
             }
             border.dd += scale * scale * CORRELATION / (DEPTH_SIGMA_MM * DEPTH_SIGMA_MM);
@@ -879,20 +977,22 @@ struct Border {
 }
 
 impl Border {
-    /// Adds a point of the level; `held`: not to the keyframe's attitude,
-    /// which the search for the edge holds.
-    fn add(&mut self, point: &Point, r: f32, sample: f32, scale: f32, held: bool) {
+    /// Adds a point of the level, not to the keyframe's attitude, which
+    /// [`Direct::lower_level`] holds (the point's [`DEPTH`] slot holds the
+    /// depth derivative).
+    fn add(&mut self, point: &Point, r: f32, sample: f32, scale: f32) {
         let weight = Loss::Tukey.weight(r, scale);
         if weight == 0.0 {
             return;
         }
-        let wd = weight * point.depth;
-        for k in 0..if held { 5 } else { GEOMETRY } {
+        let depth = point.jacobian[DEPTH];
+        let wd = weight * depth;
+        for k in 0..5 {
             self.h[k] += wd * point.jacobian[k];
         }
         self.h[GEOMETRY] += wd * (sample - 128.0);
         self.h[GEOMETRY + 1] += wd;
-        self.dd += wd * point.depth;
+        self.dd += wd * depth;
         self.g += wd * r;
     }
 }
@@ -1019,6 +1119,16 @@ fn solve(h: &[[f32; UNKNOWNS]; UNKNOWNS], g: &[f32; UNKNOWNS]) -> Option<[f32; U
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_chosen_pixels_fit_on_the_largest_grid() {
+        // The image's 512, level 1 at most 496 (a 32 x 63 level), level 2 420.
+        assert_eq!(CHOSEN_CAPACITY, MAX_POINTS + 496 + 420);
+        assert_eq!(most_chosen(32, 63), 496);
+        assert_eq!(most_chosen(32, 16), 420);
+        assert_eq!(most_chosen(256, 256), 484);
+        assert_eq!(most_chosen(128, 256), MAX_POINTS);
+    }
 
     #[test]
     fn the_solver_inverts_a_symmetric_system() {

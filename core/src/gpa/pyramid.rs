@@ -23,6 +23,9 @@ pub(super) fn scale(level: usize) -> usize {
 /// Pixels of levels 1.. together, for the largest grid.
 const STORE: usize = (MAX_GRID_SIDE / 4) * (MAX_GRID_SIDE / 4) + (MAX_GRID_SIDE / 8) * (MAX_GRID_SIDE / 8);
 
+/// Rows of levels 1.. together, for the largest grid.
+const SEEN_ROWS: usize = MAX_GRID_SIDE / 4 + MAX_GRID_SIDE / 8;
+
 /// Seen columns of a row, `(first, end)`; `(0, 0)` for none.
 pub(super) type Seen = (u16, u16);
 
@@ -88,31 +91,31 @@ impl Level<'_> {
 /// Levels 1.. of one image (level 0 is borrowed when asked for).
 pub(super) struct Pyramid {
     store: [u8; STORE],
-    seen: [[Seen; MAX_GRID_SIDE / 4]; LEVELS - 1],
+    /// The seen columns of levels 1.. row by row, one level after the other.
+    seen: [Seen; SEEN_ROWS],
     /// Width and height of each level, the image's first.
     sizes: [(usize, usize); LEVELS],
-    /// Where each level from 1 on starts in `store`.
-    starts: [usize; LEVELS],
+    /// Where each level from 1 on starts in `store`, and its rows in `seen`.
+    starts: [(usize, usize); LEVELS],
 }
 
 impl Pyramid {
-    pub(super) const EMPTY: Pyramid = Pyramid { store: [0; STORE], seen: [[(0, 0); MAX_GRID_SIDE / 4]; LEVELS - 1], sizes: [(0, 0); LEVELS], starts: [0; LEVELS] };
+    pub(super) const EMPTY: Pyramid = Pyramid { store: [0; STORE], seen: [(0, 0); SEEN_ROWS], sizes: [(0, 0); LEVELS], starts: [(0, 0); LEVELS] };
 
     /// Builds levels 1.. of `image` (`width` x `height`, row `j` seen at
     /// the columns `seen[j]`), each from the one below.
     pub(super) fn build(&mut self, image: &[u8], width: usize, height: usize, seen: &[Seen]) {
         self.sizes[0] = (width, height);
-        let mut start = 0;
+        let (mut start, mut seen_start) = (0, 0);
         for level in 1..LEVELS {
             let factor = scale(level) / scale(level - 1);
             let (below_width, below_height) = self.sizes[level - 1];
             let (w, h) = (below_width / factor, below_height / factor);
             self.sizes[level] = (w, h);
-            self.starts[level] = start;
+            self.starts[level] = (start, seen_start);
             let (below, above) = self.store.split_at_mut(start);
-            let (done, rest) = self.seen.split_at_mut(level - 1);
-            let (below_pixels, below_seen): (&[u8], &[Seen]) = if level == 1 { (image, seen) } else { (&below[self.starts[level - 1]..], &done[level - 2][..]) };
-            let level_seen = &mut rest[0];
+            let (done, level_seen) = self.seen.split_at_mut(seen_start);
+            let (below_pixels, below_seen): (&[u8], &[Seen]) = if level == 1 { (image, seen) } else { (&below[self.starts[level - 1].0..], &done[self.starts[level - 1].1..]) };
             let mut sums = [0u16; MAX_GRID_SIDE];
             for j in 0..h {
                 let rows = j * factor..(j + 1) * factor;
@@ -133,6 +136,7 @@ impl Pyramid {
                 }
             }
             start += w * h;
+            seen_start += h;
         }
     }
 
@@ -142,7 +146,8 @@ impl Pyramid {
         if level == 0 {
             return Level { pixels: image, width, height, seen };
         }
-        Level { pixels: &self.store[self.starts[level]..][..width * height], width, height, seen: &self.seen[level - 1][..height] }
+        let (start, seen_start) = self.starts[level];
+        Level { pixels: &self.store[start..][..width * height], width, height, seen: &self.seen[seen_start..][..height] }
     }
 }
 
