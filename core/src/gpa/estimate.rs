@@ -220,6 +220,78 @@ impl Scene<'_> {
     }
 }
 
+/// One frame's alignments (step 2), each kept only if trusted (step 3):
+/// the whole view, or the nearest rows alone, from a start under a prior.
+struct Attempts<'a> {
+    images: &'a Images<'a>,
+    grid: &'a KgGrid,
+    typical: Option<f32>,
+    /// The keyframe attitude every start begins from.
+    keyframe: [f32; 2],
+    whole: Schedule,
+    near: Schedule,
+}
+
+impl Attempts<'_> {
+    fn start(&self, p: &Params) -> Geometry {
+        [p[0], p[1], p[2], p[3], p[4], self.keyframe[0], self.keyframe[1]]
+    }
+
+    /// The whole view from `p`; the flag says it was the whole view.
+    fn whole(&self, direct: &mut Direct, p: &Params, prior: &direct::Prior) -> Option<(Alignment, bool)> {
+        direct.align(self.images, prior, self.start(p), self.whole).filter(|a| trusted(a, self.grid, self.typical)).map(|a| (a, true))
+    }
+
+    /// The nearest rows alone from `p`: the ground is the surface under
+    /// the robot (a curb top or a lower level may fill the far view).
+    fn near(&self, direct: &mut Direct, p: &Params, prior: &direct::Prior) -> Option<(Alignment, bool)> {
+        direct.align(self.images, prior, self.start(p), self.near).filter(|a| trusted(a, self.grid, self.typical)).map(|a| (a, false))
+    }
+}
+
+/// The first trusted alignment, in this order: the whole view from step
+/// 1's start, from the prior's, and from the best attitude change on the
+/// top level (a body that pitched beyond the alignment's reach); the
+/// nearest rows alone from the first two; the whole view and the nearest
+/// rows again without the pixels where the last frame found hazards (an
+/// obstacle that holds most of the contrast); last, the best translation
+/// between standing still and the prior, with no prior on the planar
+/// motion (standing still is the hypothesis that the odometry is wrong:
+/// wheels that slip). None when none can be trusted.
+fn first_trusted(direct: &mut Direct, attempts: &Attempts, start: &Params, prior_start: &Start, prior: &direct::Prior) -> Option<(Alignment, bool)> {
+    let five = |g: Geometry| -> Params { [g[0], g[1], g[2], g[3], g[4]] };
+    let other_start = (prior_start.p != *start).then_some(prior_start.p);
+    let attitude_reach = 3.0 * prior_start.sigma[3].max(prior_start.sigma[4]);
+    let mut aligned = attempts.whole(direct, start, prior);
+    if aligned.is_none() {
+        if let Some(p) = other_start {
+            aligned = attempts.whole(direct, &p, prior);
+        }
+    }
+    if aligned.is_none() && attitude_reach > ATTITUDE_WITHIN_REACH_DEG {
+        let searched = five(direct.search_attitude(attempts.images, &attempts.start(start), attitude_reach));
+        aligned = attempts.whole(direct, &searched, prior);
+    }
+    if aligned.is_none() {
+        aligned = attempts.near(direct, start, prior);
+    }
+    if aligned.is_none() {
+        if let Some(p) = other_start {
+            aligned = attempts.near(direct, &p, prior);
+        }
+    }
+    if aligned.is_none() && direct.leave_out_hazards(attempts.images) {
+        aligned = attempts.whole(direct, start, prior).or_else(|| attempts.near(direct, start, prior));
+    }
+    if aligned.is_none() {
+        let mut unmoored = *prior;
+        unmoored.sigma[..3].copy_from_slice(&UNMOORED_SIGMA);
+        let searched = five(direct.search_translation(attempts.images, &attempts.start(&[0.0; 5]), &attempts.start(&prior_start.p)));
+        aligned = attempts.whole(direct, &searched, &unmoored).or_else(|| attempts.near(direct, &searched, &unmoored));
+    }
+    aligned
+}
+
 /// Steps 2 and 3 and their memory (step 1 has its own, [`CoarseSearch`]:
 /// the two are never live at once).
 pub(super) struct Estimator {
@@ -248,61 +320,18 @@ impl Estimator {
         let prior7 = direct::Prior { mean: seven(&prior_start.p, keyframe.deg), sigma: seven(&prior_start.sigma, keyframe.sigma_deg) };
         let schedule = Schedule { near_row: near_row(scene), near_from_level: NEAR_FROM_LEVEL, top_level: LEVELS - 1 };
         let since = self.profiler.now();
-        // The whole view from a start, and if that cannot be trusted (a
-        // curb top or a lower level filling most of the view), the nearest
-        // rows alone: the ground is the surface under the robot.
-        let near_only = Schedule { near_row: schedule.near_row, near_from_level: 0, top_level: LEVELS - 1 };
-        let typical = scene.typical.0;
-        let whole = |direct: &mut Direct, p: &Params, prior: &direct::Prior| {
-            direct.align(&images, prior, seven(p, keyframe.deg), schedule).filter(|a| trusted(a, scene.grid, typical)).map(|a| (a, true))
+        let attempts = Attempts {
+            images: &images,
+            grid: scene.grid,
+            typical: scene.typical.0,
+            keyframe: keyframe.deg,
+            whole: schedule,
+            near: Schedule { near_from_level: 0, ..schedule },
         };
-        let near = |direct: &mut Direct, p: &Params, prior: &direct::Prior| {
-            direct.align(&images, prior, seven(p, keyframe.deg), near_only).filter(|a| trusted(a, scene.grid, typical)).map(|a| (a, false))
-        };
-        let five = |g: Geometry| -> Params { [g[0], g[1], g[2], g[3], g[4]] };
-        // Standing still is the hypothesis that the odometry is wrong
-        // (wheels that slip): from there the planar motion has no prior.
-        let mut unmoored = prior7;
-        unmoored.sigma[..3].copy_from_slice(&UNMOORED_SIGMA);
-        // The whole view first: from step 1's start, the prior's, and the
-        // best attitude change on the top level (a body that pitched
-        // beyond the alignment's reach). Then the nearest rows alone from
-        // the first two. Last, the best translation between standing
-        // still and the prior, with no prior on the planar motion.
-        let direct = &mut self.direct;
-        let other_start = (prior_start.p != start).then_some(prior_start.p);
-        let attitude_reach = 3.0 * prior_start.sigma[3].max(prior_start.sigma[4]);
-        let mut aligned = whole(direct, &start, &prior7);
-        if aligned.is_none() {
-            if let Some(p) = other_start {
-                aligned = whole(direct, &p, &prior7);
-            }
-        }
-        if aligned.is_none() && attitude_reach > ATTITUDE_WITHIN_REACH_DEG {
-            let searched = five(direct.search_attitude(&images, &seven(&start, keyframe.deg), attitude_reach));
-            aligned = whole(direct, &searched, &prior7);
-        }
-        if aligned.is_none() {
-            aligned = near(direct, &start, &prior7);
-        }
-        if aligned.is_none() {
-            if let Some(p) = other_start {
-                aligned = near(direct, &p, &prior7);
-            }
-        }
-        // An obstacle the last frame found may hold most of the contrast
-        // (a view it fills): the whole view and the nearest rows again
-        // without it.
-        if aligned.is_none() && direct.leave_out_hazards(&images) {
-            aligned = whole(direct, &start, &prior7).or_else(|| near(direct, &start, &prior7));
-        }
-        if aligned.is_none() {
-            let searched = five(direct.search_translation(&images, &seven(&[0.0; 5], keyframe.deg), &seven(&prior_start.p, keyframe.deg)));
-            aligned = whole(direct, &searched, &unmoored).or_else(|| near(direct, &searched, &unmoored));
-        }
+        let aligned = first_trusted(&mut self.direct, &attempts, &start, &prior_start, &prior7);
         self.profiler.charge(since, |p| &mut p.estimate_align);
         let aligned = match aligned? {
-            (whole, true) => self.nearest_surface(&images, &prior7, whole, schedule.near_row, typical),
+            (whole, true) => self.nearest_surface(&images, &prior7, whole, schedule.near_row, scene.typical.0),
             (near, false) => near,
         };
         let since = self.profiler.now();
