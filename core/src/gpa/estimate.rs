@@ -232,18 +232,22 @@ struct Attempts<'a> {
     near: Schedule,
 }
 
+// `whole` and `near` are inlined: a frame of theirs would stand between
+// the estimate and the alignment's deep calls, the stack's high-water mark.
 impl Attempts<'_> {
     fn start(&self, p: &Params) -> Geometry {
         [p[0], p[1], p[2], p[3], p[4], self.keyframe[0], self.keyframe[1]]
     }
 
     /// The whole view from `p`; the flag says it was the whole view.
+    #[inline(always)]
     fn whole(&self, direct: &mut Direct, p: &Params, prior: &direct::Prior) -> Option<(Alignment, bool)> {
         direct.align(self.images, prior, self.start(p), self.whole).filter(|a| trusted(a, self.grid, self.typical)).map(|a| (a, true))
     }
 
     /// The nearest rows alone from `p`: the ground is the surface under
     /// the robot (a curb top or a lower level may fill the far view).
+    #[inline(always)]
     fn near(&self, direct: &mut Direct, p: &Params, prior: &direct::Prior) -> Option<(Alignment, bool)> {
         direct.align(self.images, prior, self.start(p), self.near).filter(|a| trusted(a, self.grid, self.typical)).map(|a| (a, false))
     }
