@@ -36,9 +36,6 @@ pub const MAX_LINE: usize = 512;
 
 /// Largest search radius S (the window is `(2S+1)^2` shifts).
 pub const MAX_SEARCH_RADIUS: usize = 3;
-/// Blocks the motion estimate matches per frame (16 px blocks over the
-/// largest grid).
-pub const MAX_BLOCK_MATCHES: usize = (MAX_GRID_SIDE / 16) * (MAX_GRID_SIDE / 16);
 /// Cells of the motion estimate's coarse images (each image; larger grids
 /// get larger cells).
 pub const MAX_COARSE_CELLS: usize = 48 * 48;

@@ -712,11 +712,10 @@ impl<'b> Gpa<'b> {
     fn settle_searches(&mut self, predicted: &Motion, seed_apart: bool, estimated: bool) -> (u32, u32, shift_search::ShiftFit) {
         let measured = self.prediction.predicted;
         let rows = self.workspace.rows();
-        let fit = rows.search.fit(self.config.search_radius, &measured, &self.layout);
         // The estimate's motion stands: it modelled what is not ground (a
         // drop's lower level, a box) that the search's one shift over the
         // AOI averages in. Without one, the search refines the prior.
-        let refined = if estimated { Some(measured) } else { fit.refined };
+        let refined = if estimated { Some(measured) } else { rows.search.fit(self.config.search_radius, &measured, &self.layout).refined };
         self.prediction.settle(refined, self.layout.grid.mm_per_px);
         self.noise.update(&rows.search.histogram(), &self.config);
         let seed = if seed_apart { &rows.seed } else { &rows.search };
