@@ -59,6 +59,7 @@ checks! {
         seed_statistics_equal_plain,
         pinhole_rows_equal_bilinear,
         copy_row_copies,
+        mean_4x4_equals_plain,
         dot_shifts_equal_plain,
         seen_difference_equals_plain,
         residues_equal_plain,

@@ -900,7 +900,8 @@ impl Direct {
         let (mut normal, _) = points.accumulate(Loss::Tukey, scale);
         add_priors(&mut normal, &state, prior, scale);
         hold_keyframe_attitude(&mut normal);
-        let base = reduction(&normal.h, &normal.g)?;
+        let ground = GroundFactor::of(&normal)?;
+        let base = ground.reduction()?;
         let mut border = Border::default();
         let mut best: Option<(f32, f32, [f32; UNKNOWNS + 1])> = None;
         let mut far = 0;
@@ -908,7 +909,7 @@ impl Direct {
         for (k, point) in points.points.iter().enumerate() {
             let starts_block_row = k > 0 && usize::from(point.j) / side != usize::from(points.points[k - 1].j) / side;
             if starts_block_row && far >= LEVEL_MIN_POINTS && sampled - far >= LEVEL_MIN_POINTS {
-                if let Some((decrease, step)) = bordered(&normal, &border, variance, base) {
+                if let Some((decrease, step)) = ground.bordered(&border, variance, base) {
                     let chi2 = decrease / variance;
                     // The level's depth is minus the step's last entry.
                     if (FAR_LEVEL_RAISED || step[UNKNOWNS] < 0.0) && best.is_none_or(|(b, _, _)| chi2 > b) {
@@ -997,36 +998,82 @@ impl Border {
     }
 }
 
-/// g^T H^-1 g: how much one Gauss-Newton step lowers the chi-square.
-fn reduction(h: &[[f32; UNKNOWNS]; UNKNOWNS], g: &[f32; UNKNOWNS]) -> Option<f32> {
-    let x = solve(h, g)?;
-    Some(x.iter().zip(g).map(|(x, g)| x * g).sum())
+/// The ground's normal equations factored once for every candidate edge
+/// of a lower level: the bordered system's factor and forward pass share
+/// their first [`UNKNOWNS`] rows with them (Cholesky goes row by row), so
+/// each edge adds only its own row: the same arithmetic, a third of it.
+struct GroundFactor {
+    factor: ([[f32; UNKNOWNS]; UNKNOWNS], [f32; UNKNOWNS]),
+    /// The forward pass of the ground's gradient, `L^-1 g` (scaled).
+    forward: [f32; UNKNOWNS],
+    g: [f32; UNKNOWNS],
+}
+
+impl GroundFactor {
+    fn of(normal: &Normal) -> Option<GroundFactor> {
+        let factor = cholesky(&normal.h)?;
+        let forward = forward_n(&factor, &normal.g);
+        Some(GroundFactor { factor, forward, g: normal.g })
+    }
+
+    /// g^T H^-1 g: how much one Gauss-Newton step lowers the chi-square.
+    fn reduction(&self) -> Option<f32> {
+        let mut x = back_n(&self.factor.0, &self.forward, |_| (0.0, 0.0));
+        x = core::array::from_fn(|k| x[k] * self.factor.1[k]);
+        x.iter().all(|v| v.is_finite()).then_some(x.iter().zip(&self.g).map(|(x, g)| x * g).sum())
+    }
+
+    /// The step of the normal equations bordered by a lower level's depth
+    /// (`cholesky_n` and `cholesky_solve_n` of the bordered system, its
+    /// last row alone computed here).
+    fn bordered_step(&self, border: &Border) -> Option<[f32; UNKNOWNS + 1]> {
+        let (l, scales) = &self.factor;
+        // Not positive, or NaN.
+        if border.dd.is_nan() || border.dd <= 0.0 {
+            return None;
+        }
+        let last_scale = 1.0 / crate::kernels::sqrtf(border.dd);
+        let mut last = [0.0f32; UNKNOWNS];
+        for c in 0..UNKNOWNS {
+            let mut sum = border.h[c] * last_scale * scales[c];
+            for (a, b) in last[..c].iter().zip(&l[c][..c]) {
+                sum -= a * b;
+            }
+            last[c] = sum / l[c][c];
+        }
+        let mut sum = border.dd * last_scale * last_scale;
+        for a in &last {
+            sum -= a * a;
+        }
+        // Not positive, or NaN.
+        if sum.is_nan() || sum <= 1e-9 {
+            return None;
+        }
+        let diagonal = crate::kernels::sqrtf(sum);
+        let mut sum = border.g * last_scale;
+        for (a, y) in last.iter().zip(&self.forward) {
+            sum -= a * y;
+        }
+        let x_last = sum / diagonal / diagonal;
+        let x = back_n(l, &self.forward, |r| (last[r], x_last));
+        let step: [f32; UNKNOWNS + 1] = core::array::from_fn(|k| if k < UNKNOWNS { x[k] * scales[k] } else { x_last * last_scale });
+        step.iter().all(|v| v.is_finite()).then_some(step)
+    }
+
+    /// [`Self::bordered_step`] at a candidate edge, and its decrease of
+    /// chi-square beyond the ground alone's (`base`).
+    fn bordered(&self, border: &Border, variance: f32, base: f32) -> Option<(f32, [f32; UNKNOWNS + 1])> {
+        let border = Border { h: border.h, dd: border.dd + variance / (DEPTH_SIGMA_MM * DEPTH_SIGMA_MM), g: border.g };
+        let step = self.bordered_step(&border)?;
+        let mut decrease: f32 = step[..UNKNOWNS].iter().zip(&self.g).map(|(x, g)| x * g).sum();
+        decrease += step[UNKNOWNS] * border.g;
+        Some((decrease - base, step))
+    }
 }
 
 /// The step of the normal equations bordered by a lower level's depth.
 fn solve_bordered(normal: &Normal, border: &Border) -> Option<[f32; UNKNOWNS + 1]> {
-    let mut h = [[0.0f32; UNKNOWNS + 1]; UNKNOWNS + 1];
-    let mut g = [0.0f32; UNKNOWNS + 1];
-    for r in 0..UNKNOWNS {
-        h[r][..UNKNOWNS].copy_from_slice(&normal.h[r]);
-        h[r][UNKNOWNS] = border.h[r];
-        g[r] = normal.g[r];
-    }
-    h[UNKNOWNS][UNKNOWNS] = border.dd;
-    g[UNKNOWNS] = border.g;
-    let factor = cholesky_n(&h)?;
-    let x = cholesky_solve_n(&factor, &g);
-    x.iter().all(|v| v.is_finite()).then_some(x)
-}
-
-/// [`solve_bordered`] at a candidate edge, and its decrease of chi-square
-/// beyond the ground alone's (`base`).
-fn bordered(normal: &Normal, border: &Border, variance: f32, base: f32) -> Option<(f32, [f32; UNKNOWNS + 1])> {
-    let border = Border { h: border.h, dd: border.dd + variance / (DEPTH_SIGMA_MM * DEPTH_SIGMA_MM), g: border.g };
-    let step = solve_bordered(normal, &border)?;
-    let mut decrease: f32 = step[..UNKNOWNS].iter().zip(&normal.g).map(|(x, g)| x * g).sum();
-    decrease += step[UNKNOWNS] * border.g;
-    Some((decrease - base, step))
+    GroundFactor::of(normal)?.bordered_step(border)
 }
 
 /// Adds each unknown's prior to the normal equations, weighed against
@@ -1089,7 +1136,13 @@ fn cholesky_solve(factor: &([[f32; UNKNOWNS]; UNKNOWNS], [f32; UNKNOWNS]), b: &[
 
 /// [`cholesky_solve`] of any size.
 fn cholesky_solve_n<const N: usize>(factor: &([[f32; N]; N], [f32; N]), b: &[f32; N]) -> [f32; N] {
-    let (l, scales) = factor;
+    let y = forward_n(factor, b);
+    let x = back_n(&factor.0, &y, |_| (0.0, 0.0));
+    core::array::from_fn(|k| x[k] * factor.1[k])
+}
+
+/// The forward pass: y = L^-1 (scaled b).
+fn forward_n<const N: usize>((l, scales): &([[f32; N]; N], [f32; N]), b: &[f32; N]) -> [f32; N] {
     let mut y = [0.0f32; N];
     for r in 0..N {
         let mut sum = b[r] * scales[r];
@@ -1098,15 +1151,24 @@ fn cholesky_solve_n<const N: usize>(factor: &([[f32; N]; N], [f32; N]), b: &[f32
         }
         y[r] = sum / l[r][r];
     }
+    y
+}
+
+/// The back pass: x = L^-T y (scaled), with `border(r)` = a bordering
+/// row's entry in column r and its x, subtracted last as the bordered
+/// system's would be (0, 0 for none).
+fn back_n<const N: usize>(l: &[[f32; N]; N], y: &[f32; N], border: impl Fn(usize) -> (f32, f32)) -> [f32; N] {
     let mut x = [0.0f32; N];
     for r in (0..N).rev() {
         let mut sum = y[r];
         for k in r + 1..N {
             sum -= l[k][r] * x[k];
         }
+        let (entry, x_border) = border(r);
+        sum -= entry * x_border;
         x[r] = sum / l[r][r];
     }
-    core::array::from_fn(|k| x[k] * scales[k])
+    x
 }
 
 /// The step x of H x = g; None when H is not positive definite.

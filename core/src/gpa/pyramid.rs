@@ -5,6 +5,7 @@
 //! not see.
 
 use crate::grid::MAX_GRID_SIDE;
+use crate::kernels;
 
 /// Levels, the image included.
 pub(super) const LEVELS: usize = 3;
@@ -122,6 +123,12 @@ impl Pyramid {
                 let (lo, hi) = rows.clone().fold((0u16, u16::MAX), |(lo, hi), r| (lo.max(below_seen[r].0), hi.min(below_seen[r].1)));
                 let (lo, hi) = (lo.div_ceil(factor as u16), hi / factor as u16);
                 level_seen[j] = if hi > lo { (lo, hi) } else { (0, 0) };
+                let out = &mut above[j * w..][..w];
+                if factor == 4 {
+                    let row = |r: usize| &below_pixels[(j * 4 + r) * below_width..][..w * 4];
+                    kernels::mean_4x4([row(0), row(1), row(2), row(3)], out);
+                    continue;
+                }
                 let sums = &mut sums[..w];
                 sums.fill(0);
                 for r in rows {
@@ -131,7 +138,7 @@ impl Pyramid {
                     }
                 }
                 let (count, half) = ((factor * factor) as u16, (factor * factor / 2) as u16);
-                for (out, &sum) in above[j * w..][..w].iter_mut().zip(sums.iter()) {
+                for (out, &sum) in out.iter_mut().zip(sums.iter()) {
                     *out = ((sum + half) / count) as u8;
                 }
             }

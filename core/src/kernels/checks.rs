@@ -225,6 +225,33 @@ pub fn pinhole_rows_equal_bilinear() -> Outcome {
     Ok(())
 }
 
+/// `mean_4x4` equals the rounded mean of each 4x4 block: 0 to 20 outputs
+/// (rows of any start, unaligned too), values up to 255.
+pub fn mean_4x4_equals_plain() -> Outcome {
+    let mut state = 0x4D45_414Eu32;
+    let mut rows = [[0u8; 84]; 4];
+    for (r, row) in rows.iter_mut().enumerate() {
+        fill(row, xorshift32(&mut state), if r == 3 { 0 } else { 256 });
+    }
+    rows[3].fill(255);
+    for n in 0..=20 {
+        for start in 0..4 {
+            let mut out = [0xA5u8; 22];
+            super::mean_4x4(core::array::from_fn(|r| &rows[r][start..start + 4 * n]), &mut out[1..1 + n]);
+            for (k, &value) in out[1..1 + n].iter().enumerate() {
+                let sum: u32 = rows.iter().flat_map(|row| &row[start + 4 * k..start + 4 * k + 4]).map(|&v| u32::from(v)).sum();
+                if u32::from(value) != (sum + 8) / 16 {
+                    return Err("mean_4x4 differs from the rounded block mean");
+                }
+            }
+            if out[0] != 0xA5 || out[1 + n..].iter().any(|&b| b != 0xA5) {
+                return Err("mean_4x4 wrote outside its output");
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The block matcher's `dot_shifts` equals per-product loops: rows of 0
 /// to 20 pairs (the tails included), 1 to 7 shifts, patch values up to the
 /// Q4 gray levels' 4,080 and the 2^15 - 1 the M4's signed lanes allow.

@@ -336,6 +336,20 @@ macro_rules! round_to_bits {
 round_to_bits!(round_u64, u64);
 round_to_bits!(round_u128, u128);
 
+// ------------------------------------------------------------ pyramid
+
+/// `out[k]` = the rounded mean of the 4x4 block of `rows` at columns
+/// `4k..4k + 4`, for every `k` of `out` (each row holds at least
+/// `4 * out.len()` bytes): the motion estimate's pyramid level 1.
+#[inline]
+pub fn mean_4x4(rows: [&[u8]; 4], out: &mut [u8]) {
+    let n = out.len();
+    if rows.iter().any(|row| row.len() < 4 * n) {
+        return;
+    }
+    selected::mean_4x4(rows, out)
+}
+
 // ---------------------------------------------------------------- remap
 
 /// Fractional bits of the fixed-point source coordinates (Q16.16 pixels).

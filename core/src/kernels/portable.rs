@@ -123,3 +123,11 @@ pub fn residues<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLin
         *ground = residue;
     }
 }
+
+#[inline]
+pub fn mean_4x4(rows: [&[u8]; 4], out: &mut [u8]) {
+    for (k, out) in out.iter_mut().enumerate() {
+        let sum: u32 = rows.iter().flat_map(|row| &row[4 * k..4 * k + 4]).map(|&v| u32::from(v)).sum();
+        *out = ((sum + 8) / 16) as u8;
+    }
+}
