@@ -551,8 +551,11 @@ impl Points {
             let mut jacobian = [0.0; GEOMETRY];
             (jacobian[0], jacobian[1]) = (gx, gy);
             let c = level.at(usize::from(i), usize::from(j));
-            let gradient = crate::kernels::hypotf(gx, gy);
-            let gradient_bin = ((gradient * 2.0) as usize).min(255) as u8;
+            // Twice the gradient is a whole number each way, so the bin,
+            // floor(2 |g|), is the correctly rounded square root of an
+            // exact sum of squares, truncated: the same as through hypotf.
+            let (twice_x, twice_y) = (2.0 * gx, 2.0 * gy);
+            let gradient_bin = (crate::kernels::sqrtf(twice_x * twice_x + twice_y * twice_y) as usize).min(255) as u8;
             // Capacity: `chosen` holds at most MAX_POINTS.
             let _ = self.points.push(Point { i, j, c, gradient_bin, jacobian });
         }
