@@ -884,6 +884,7 @@ impl Direct {
     /// is then refined if its decrease of chi-square (in pixels' residual
     /// variance, [`CORRELATION`] included) exceeds `adopted_from_chi2`.
     /// Returns it and that decrease, or None.
+    #[inline(never)]
     pub(super) fn lower_level(&mut self, images: &Images, prior: &Prior, aligned: &Alignment, adopted_from_chi2: f32) -> Option<(Alignment, f32)> {
         let current = self.current.level(0, images.current, images.seen);
         let keyframe = self.keyframe.level(0, images.keyframe, images.seen);
@@ -1013,6 +1014,7 @@ struct GroundFactor {
 }
 
 impl GroundFactor {
+    #[inline(never)]
     fn of(normal: &Normal) -> Option<GroundFactor> {
         let factor = cholesky(&normal.h)?;
         let forward = forward_n(&factor, &normal.g);
@@ -1029,6 +1031,7 @@ impl GroundFactor {
     /// The step of the normal equations bordered by a lower level's depth
     /// (`cholesky_n` and `cholesky_solve_n` of the bordered system, its
     /// last row alone computed here).
+    #[inline(never)]
     fn bordered_step(&self, border: &Border) -> Option<[f32; UNKNOWNS + 1]> {
         let (l, scales) = &self.factor;
         // Not positive, or NaN.
