@@ -26,6 +26,7 @@ use super::homography::{PixelMap, SinCosMemo};
 use super::hazard_mask::MovedMask;
 use super::pyramid::{self, Level, Pyramid, Seen, LEVELS};
 use crate::grid::KgGrid;
+use crate::kernels;
 
 /// Geometric unknowns: tx mm, tz mm, yaw, pitch change, roll change, then
 /// the keyframe body's pitch and roll (degrees).
@@ -33,6 +34,9 @@ pub(super) const GEOMETRY: usize = 7;
 pub(super) type Geometry = [f32; GEOMETRY];
 /// And the exposure's gain and offset.
 const UNKNOWNS: usize = GEOMETRY + 2;
+const _: () = assert!(UNKNOWNS == kernels::NORMAL_UNKNOWNS);
+/// The terms [`Points::accumulate`] hands the kernel at once.
+const TERMS_A_BATCH: usize = 16;
 /// Most pixels one level uses.
 pub(super) const MAX_POINTS: usize = 512;
 /// Fewest pixels that measure the unknowns at all.
@@ -642,9 +646,11 @@ impl Points {
 
     /// The normal equations of the stored residuals under `loss`, and
     /// how many points kept a weight.
+    #[inline(never)] // its terms' buffer off the deepest stack path
     fn accumulate(&self, loss: Loss, scale: f32) -> (Normal, usize) {
         let mut normal = Normal { h: [[0.0; UNKNOWNS]; UNKNOWNS], g: [0.0; UNKNOWNS] };
-        let mut kept = 0;
+        let mut terms = [kernels::NormalTerm::EMPTY; TERMS_A_BATCH];
+        let (mut kept, mut batched) = (0, 0);
         for (k, point) in self.points.iter().enumerate() {
             let r = self.residuals[k];
             if r.is_nan() {
@@ -655,18 +661,14 @@ impl Points {
                 continue;
             }
             kept += 1;
-            let mut j = [0.0f32; UNKNOWNS];
-            j[..GEOMETRY].copy_from_slice(&point.jacobian);
-            j[GEOMETRY] = self.samples[k] - 128.0;
-            j[GEOMETRY + 1] = 1.0;
-            for a in 0..UNKNOWNS {
-                let wa = weight * j[a];
-                normal.g[a] += wa * r;
-                for (h, &jb) in normal.h[a][a..].iter_mut().zip(&j[a..]) {
-                    *h += wa * jb;
-                }
+            terms[batched] = kernels::NormalTerm { weight, residual: r, brightness: self.samples[k] - 128.0, jacobian: &point.jacobian };
+            batched += 1;
+            if batched == TERMS_A_BATCH {
+                kernels::add_normal_terms(&terms, &mut normal.h, &mut normal.g);
+                batched = 0;
             }
         }
+        kernels::add_normal_terms(&terms[..batched], &mut normal.h, &mut normal.g);
         (normal, kept)
     }
 

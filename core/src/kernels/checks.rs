@@ -252,6 +252,34 @@ pub fn mean_4x4_equals_plain() -> Outcome {
     Ok(())
 }
 
+/// `add_normal_terms` equals the plain loop bit for bit: 0 to 20 terms
+/// onto sums already under way, values of mixed sign and magnitude.
+pub fn normal_terms_equal_plain() -> Outcome {
+    let mut state = 0x4E4F_524Du32;
+    let mut value = move || {
+        let bits = xorshift32(&mut state);
+        (bits % 20_001) as f32 / 1000.0 - 10.0 + (bits >> 24) as f32 * 1e-3
+    };
+    let jacobians: [[f32; 7]; 20] = core::array::from_fn(|_| core::array::from_fn(|_| value()));
+    let mut terms = [super::NormalTerm::EMPTY; 20];
+    for (term, jacobian) in terms.iter_mut().zip(&jacobians) {
+        *term = super::NormalTerm { weight: value().abs(), residual: value(), brightness: 10.0 * value(), jacobian };
+    }
+    for n in 0..=20 {
+        let start: [[f32; 9]; 9] = core::array::from_fn(|_| core::array::from_fn(|_| value()));
+        let start_g: [f32; 9] = core::array::from_fn(|_| value());
+        let (mut h, mut g) = (start, start_g);
+        super::add_normal_terms(&terms[..n], &mut h, &mut g);
+        let (mut plain_h, mut plain_g) = (start, start_g);
+        portable::add_normal_terms(&terms[..n], &mut plain_h, &mut plain_g);
+        let same = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+        if !same(&g, &plain_g) || !(0..9).all(|r| same(&h[r][r..], &plain_h[r][r..]) && same(&h[r][..r], &start[r][..r])) {
+            return Err("add_normal_terms differs from the plain loop");
+        }
+    }
+    Ok(())
+}
+
 /// The block matcher's `dot_shifts` equals per-product loops: rows of 0
 /// to 20 pairs (the tails included), 1 to 7 shifts, patch values up to the
 /// Q4 gray levels' 4,080 and the 2^15 - 1 the M4's signed lanes allow.

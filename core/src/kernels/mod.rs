@@ -336,6 +336,36 @@ macro_rules! round_to_bits {
 round_to_bits!(round_u64, u64);
 round_to_bits!(round_u128, u128);
 
+// ------------------------------------------------------- normal equations
+
+/// Unknowns of the motion estimate's normal equations: 7 geometric ones,
+/// then the exposure's gain and offset.
+pub const NORMAL_UNKNOWNS: usize = 9;
+
+/// One pixel's part in the normal equations: its derivatives are
+/// `(jacobian, brightness, 1)` (the gain's is the keyframe's gray level
+/// minus 128, the offset's 1).
+#[repr(C)]
+#[derive(Clone, Copy)]
+pub struct NormalTerm<'a> {
+    pub weight: f32,
+    pub residual: f32,
+    pub brightness: f32,
+    pub jacobian: &'a [f32; 7],
+}
+
+impl NormalTerm<'_> {
+    pub const EMPTY: NormalTerm<'static> = NormalTerm { weight: 0.0, residual: 0.0, brightness: 0.0, jacobian: &[0.0; 7] };
+}
+
+/// Adds each term's `w j j^T` to the upper triangle of `h` and `w r j` to
+/// `g`, term by term in order (each sum as a plain loop would make it,
+/// bit for bit).
+#[inline]
+pub fn add_normal_terms(terms: &[NormalTerm], h: &mut [[f32; NORMAL_UNKNOWNS]; NORMAL_UNKNOWNS], g: &mut [f32; NORMAL_UNKNOWNS]) {
+    selected::add_normal_terms(terms, h, g)
+}
+
 // ------------------------------------------------------------ pyramid
 
 /// `out[k]` = the rounded mean of the 4x4 block of `rows` at columns

@@ -131,3 +131,19 @@ pub fn mean_4x4(rows: [&[u8]; 4], out: &mut [u8]) {
         *out = ((sum + 8) / 16) as u8;
     }
 }
+
+#[inline]
+pub fn add_normal_terms(terms: &[super::NormalTerm], h: &mut [[f32; super::NORMAL_UNKNOWNS]; super::NORMAL_UNKNOWNS], g: &mut [f32; super::NORMAL_UNKNOWNS]) {
+    for term in terms {
+        let mut j = [0.0f32; super::NORMAL_UNKNOWNS];
+        j[..7].copy_from_slice(term.jacobian);
+        (j[7], j[8]) = (term.brightness, 1.0);
+        for a in 0..super::NORMAL_UNKNOWNS {
+            let wa = term.weight * j[a];
+            g[a] += wa * term.residual;
+            for (h, &jb) in h[a][a..].iter_mut().zip(&j[a..]) {
+                *h += wa * jb;
+            }
+        }
+    }
+}
