@@ -47,7 +47,7 @@ const STEP: Geometry = [0.5, 0.5, 0.02, 0.01, 0.01, 0.01, 0.01];
 const ITERATIONS: [usize; LEVELS] = [5, 6, 8];
 /// An iteration that moves no pixel by more than this (pixels of its
 /// level) ends the level.
-const CONVERGED_PX: f32 = 0.05;
+const CONVERGED_PX: f32 = 0.02;
 /// The least |gx| + |gy| of a used pixel (twice the gray levels per pixel):
 /// flatter pixels carry mostly noise.
 const MIN_GRADIENT_SUM: i32 = 6;
