@@ -52,15 +52,17 @@ impl Level<'_> {
         if j + 1 >= self.height {
             return None;
         }
-        let (upper, lower) = (self.seen[j], self.seen[j + 1]);
+        let &[upper, lower] = self.seen.get(j..j + 2)? else { return None };
         if i < usize::from(upper.0.max(lower.0)) || i + 1 >= usize::from(upper.1.min(lower.1)) {
             return None;
         }
         let (fu, fv) = (u - i as f32, v - j as f32);
-        let at = j * self.width + i;
-        let p = |k: usize| f32::from(self.pixels[k]);
-        let top = p(at) + fu * (p(at + 1) - p(at));
-        let bottom = p(at + self.width) + fu * (p(at + self.width + 1) - p(at + self.width));
+        let w = self.width;
+        // The four taps in one bounds check.
+        let taps = self.pixels.get(j * w + i..j * w + i + w + 2)?;
+        let p = |k: usize| f32::from(taps[k]);
+        let top = p(0) + fu * (p(1) - p(0));
+        let bottom = p(w) + fu * (p(w + 1) - p(w));
         Some(top + fv * (bottom - top))
     }
 
