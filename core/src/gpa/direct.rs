@@ -609,14 +609,23 @@ impl Points {
     /// stored; returns how many sampled and their robust scale.
     fn residuals(&mut self, images: &Images, keyframe: &Level, level: usize, state: &State) -> (usize, f32) {
         let map = Placement::new(images, &state.p, state.lower);
+        // The ground alone (most calls) in a loop of its own.
+        match &map.lower {
+            None => self.residuals_through(keyframe, level, state, |x, y| map.ground.at(x, y)),
+            Some(_) => self.residuals_through(keyframe, level, state, |x, y| map.at(x, y)),
+        }
+    }
+
+    /// [`Self::residuals`] with the placement `at`.
+    #[inline(always)]
+    fn residuals_through(&mut self, keyframe: &Level, level: usize, state: &State, at: impl Fn(f32, f32) -> Option<(f32, f32)>) -> (usize, f32) {
         let s = pyramid::scale(level) as f32;
         let (offset, inverse) = (0.5 * (s - 1.0), 1.0 / s);
         // |r| in quarter gray levels, for the median.
         let mut histogram = [0u16; 256];
         let mut sampled = 0usize;
         for (k, point) in self.points.iter().enumerate() {
-            let sample = map
-                .at(to_grid(level, u16::from(point.i)), to_grid(level, u16::from(point.j)))
+            let sample = at(to_grid(level, u16::from(point.i)), to_grid(level, u16::from(point.j)))
                 .and_then(|(u, v)| keyframe.sample((u - offset) * inverse, (v - offset) * inverse));
             match sample {
                 Some(value) => {
