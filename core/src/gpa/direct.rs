@@ -223,6 +223,8 @@ struct Point {
 /// roll's, which [`hold_keyframe_attitude`] takes out of the normal
 /// equations and [`Border::add`] leaves out when `held`.
 const DEPTH: usize = 6;
+/// The first of the unknowns [`Direct::lower_level`] holds: the keyframe's attitude.
+const HELD_FROM: usize = 5;
 const _: () = assert!(core::mem::size_of::<Point>() == 32);
 
 #[derive(Clone, Copy)]
@@ -573,9 +575,24 @@ impl Points {
     /// [`Self::jacobians`], and with `depth` each point's derivative by
     /// the depth of a lower level under it.
     fn jacobians_with(&mut self, images: &Images, level: usize, p: &Geometry, depth: bool) {
+        match depth {
+            false => self.derivatives::<GEOMETRY>(images, level, p, None),
+            // The keyframe's attitude is held at its prior (see
+            // [`Direct::lower_level`]): its two derivatives are dead, the
+            // roll's slot takes the depth's.
+            true => {
+                let below = Placement::new(images, p, Some(Lower { edge_row: f32::INFINITY, depth_mm: DEPTH_STEP_MM }));
+                self.derivatives::<HELD_FROM>(images, level, p, Some(&below));
+            }
+        }
+    }
+
+    /// d r / d p of the first `N` geometric unknowns at `p` (the rest 0)
+    /// and, with `below`, d r / d (depth) in the [`DEPTH`] slot.
+    #[inline(always)]
+    fn derivatives<const N: usize>(&mut self, images: &Images, level: usize, p: &Geometry, below: Option<&Placement>) {
         let base = images.map(p);
-        let below = depth.then(|| Placement::new(images, p, Some(Lower { edge_row: f32::INFINITY, depth_mm: DEPTH_STEP_MM })));
-        let maps: [PixelMap; GEOMETRY] = core::array::from_fn(|k| {
+        let maps: [PixelMap; N] = core::array::from_fn(|k| {
             let mut q = *p;
             q[k] += STEP[k];
             images.map(&q)
@@ -596,9 +613,9 @@ impl Points {
                 let Some(moved) = map.at(x, y) else { return false };
                 point.jacobian[k] = (ku * (moved.0 - w0.0) + kv * (moved.1 - w0.1)) / (STEP[k] * s);
             }
-            if let Some(below) = &below {
+            point.jacobian[N..].fill(0.0);
+            if let Some(below) = below {
                 let Some(moved) = below.at(x, y) else { return false };
-                // Over the keyframe roll's derivative, dead while the depth is used.
                 point.jacobian[DEPTH] = (ku * (moved.0 - w0.0) + kv * (moved.1 - w0.1)) / (DEPTH_STEP_MM * s);
             }
             true
