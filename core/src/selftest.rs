@@ -61,6 +61,7 @@ checks! {
         copy_row_copies,
         mean_4x4_equals_plain,
         normal_terms_equal_plain,
+        strongest_gradients_equal_plain,
         dot_shifts_equal_plain,
         seen_difference_equals_plain,
         residues_equal_plain,

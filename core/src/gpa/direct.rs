@@ -50,7 +50,7 @@ const ITERATIONS: [usize; LEVELS] = [5, 6, 8];
 const CONVERGED_PX: f32 = 0.02;
 /// The least |gx| + |gy| of a used pixel (twice the gray levels per pixel):
 /// flatter pixels carry mostly noise.
-const MIN_GRADIENT_SUM: i32 = 6;
+const MIN_GRADIENT_SUM: u32 = 6;
 /// The residuals' scale is their |r|'s 30th percentile over that of a
 /// unit Gaussian's |r| (0.385).
 const SCALE_QUANTILE_PERCENT: usize = 30;
@@ -370,6 +370,9 @@ const CHOSEN_CAPACITY: usize = {
 /// [`MIN_GRADIENT_SUM`]), blocks sized so that at most [`MAX_POINTS`] are chosen.
 /// Writes them to `out` (at most its length) and returns how many; the
 /// blocks' side to `chosen_side` (unless the level is too small for any).
+/// A frame of its own: inlined into the estimate, its blocks (1 KB) would
+/// lie under the alignment's deepest calls.
+#[inline(never)]
 fn choose(level: &Level, out: &mut [(u8, u8)], chosen_side: &mut usize) -> usize {
     // Blocks of many pixels are scanned on every second row and column:
     // one strong pixel of a block is all it gives, and a quarter of the
@@ -385,42 +388,26 @@ fn choose(level: &Level, out: &mut [(u8, u8)], chosen_side: &mut usize) -> usize
         side += 1;
     }
     *chosen_side = side;
-    let mut best = [(0i32, 0u8, 0u8); crate::grid::MAX_GRID_SIDE];
-    let blocks_wide = w.div_ceil(side);
+    let mut strongest = [kernels::Strongest::default(); crate::grid::MAX_GRID_SIDE];
+    let strongest = &mut strongest[..w.div_ceil(side)];
     let mut block_row_start = 1;
     while block_row_start < h - 1 {
         let block_row_end = (block_row_start + side).min(h - 1);
-        best[..blocks_wide].fill((0, 0, 0));
+        strongest.fill(kernels::Strongest::default());
         for j in (block_row_start..block_row_end).step_by(stride) {
             let (above, here, below) = (level.seen[j - 1], level.seen[j], level.seen[j + 1]);
             let lo = usize::from(above.0.max(below.0)).max(usize::from(here.0) + 1).max(1);
             let hi = usize::from(above.1.min(below.1)).min(usize::from(here.1).saturating_sub(1)).min(w - 1);
-            if hi <= lo {
-                continue;
-            }
-            let row = &level.pixels[j * w..][..w];
-            let up = &level.pixels[(j - 1) * w..][..w];
-            let down = &level.pixels[(j + 1) * w..][..w];
-            // Block by block, so no pixel needs a division for its block.
-            let mut block_start = lo - lo % side;
-            while block_start < hi {
-                let (from, to) = (block_start.max(lo), (block_start + side).min(hi));
-                let slot = &mut best[block_start / side];
-                for i in (from..to).step_by(stride) {
-                    let strength = (i32::from(row[i + 1]) - i32::from(row[i - 1])).abs() + (i32::from(down[i]) - i32::from(up[i])).abs();
-                    if strength > slot.0 {
-                        *slot = (strength, i as u8, j as u8);
-                    }
-                }
-                block_start += side;
-            }
+            let line = |j: usize| &level.pixels[j * w..][..w];
+            let rows = kernels::GradientRows { up: line(j - 1), row: line(j), down: line(j + 1) };
+            kernels::strongest_gradients(rows, j as u8, lo..hi, side, stride, strongest);
         }
-        for &(strength, i, j) in &best[..blocks_wide] {
-            if strength >= MIN_GRADIENT_SUM {
+        for block in strongest.iter() {
+            if u32::from(block.strength) >= MIN_GRADIENT_SUM {
                 // Capacity: at most MAX_POINTS blocks by construction, and
                 // `out` holds `most_chosen` of the level.
                 if count < out.len().min(MAX_POINTS) {
-                    out[count] = (i, j);
+                    out[count] = (block.column, block.row);
                     count += 1;
                 }
             }

@@ -2,7 +2,7 @@
 //! M4, listed in [`crate::selftest`]): the kernels in use and the portable
 //! ones equal plain per-pixel loops.
 
-use super::{bilinear, pinhole, portable, FRAC_BITS};
+use super::{bilinear, pinhole, portable, Strongest, FRAC_BITS};
 use crate::selftest::{xorshift32, Outcome};
 
 /// Deterministic bytes around 128, within `spread` of it (any byte from 256 up).
@@ -246,6 +246,73 @@ pub fn mean_4x4_equals_plain() -> Outcome {
             }
             if out[0] != 0xA5 || out[1 + n..].iter().any(|&b| b != 0xA5) {
                 return Err("mean_4x4 wrote outside its output");
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `strongest_gradients` equals a per-column loop over each block (the
+/// first of equal strengths kept, blocks stronger already left alone):
+/// rows of 0 to 24 pixels of full and narrow spread (many ties), and with
+/// the strongest gradient, 510, every third column; every column range,
+/// block sides 1 to 5, strides 1 to 3.
+pub fn strongest_gradients_equal_plain() -> Outcome {
+    let mut state = 0x5354_524Fu32;
+    let mut lines = [[0u8; 24]; 3];
+    for round in 0..3 {
+        for line in lines.iter_mut() {
+            fill(line, xorshift32(&mut state), if round == 1 { 2 } else { 256 });
+        }
+        if round == 2 {
+            // Column 3n + 1: 255 left, 0 right, 0 above and 255 below.
+            let [up, row, down] = &mut lines;
+            for n in (1..24).step_by(3) {
+                (row[n - 1], row[n], up[n], down[n]) = (255, 0, 0, 255);
+                if n + 1 < 24 {
+                    row[n + 1] = 0;
+                }
+            }
+        }
+        // Blocks found strong already, or not (strength 0), per round.
+        let before: [Strongest; 25] = core::array::from_fn(|b| {
+            let strength = [0, 2, 509, 510][(b + round) % 4];
+            Strongest { strength, column: 0xEE, row: 0xDD }
+        });
+        for width in 0..=24 {
+            let [up, row, down] = lines.each_ref().map(|line| &line[..width]);
+            let rows = super::GradientRows { up, row, down };
+            for start in 0..=width {
+                for end in start..=width + 1 {
+                    for side in 1..=5 {
+                        for stride in 1..=3 {
+                            let mut expected = before;
+                            let blocks = width.div_ceil(side);
+                            let inside = start.max(1)..end.min(width.saturating_sub(1));
+                            for i in inside.clone() {
+                                let block = &mut expected[i / side];
+                                if (i - inside.start.max(i / side * side)) % stride == 0 {
+                                    let strength = u16::from(row[i + 1].abs_diff(row[i - 1])) + u16::from(down[i].abs_diff(up[i]));
+                                    if strength > block.strength {
+                                        *block = Strongest { strength, column: i as u8, row: 7 };
+                                    }
+                                }
+                            }
+                            let mut fast = before;
+                            super::strongest_gradients(rows, 7, start..end, side, stride, &mut fast[..blocks]);
+                            if fast != expected {
+                                return Err("strongest_gradients (kernels in use) differs from the per-column loop");
+                            }
+                            let mut portable = before;
+                            if !inside.is_empty() {
+                                portable::strongest_gradients(rows, 7, inside, side, stride, &mut portable[..blocks]);
+                            }
+                            if portable != expected {
+                                return Err("strongest_gradients (portable) differs from the per-column loop");
+                            }
+                        }
+                    }
+                }
             }
         }
     }

@@ -380,6 +380,50 @@ pub fn mean_4x4(rows: [&[u8]; 4], out: &mut [u8]) {
     selected::mean_4x4(rows, out)
 }
 
+/// A pixel row with the rows above and below it, of one width: where
+/// [`strongest_gradients`] measures.
+#[derive(Clone, Copy)]
+pub struct GradientRows<'a> {
+    pub up: &'a [u8],
+    pub row: &'a [u8],
+    pub down: &'a [u8],
+}
+
+/// The gradient strength of column `i` (inside the rows, not at their
+/// ends): `|row[i + 1] - row[i - 1]| + |down[i] - up[i]|`, the definition
+/// every backend reproduces.
+#[inline(always)]
+pub(crate) fn gradient_strength(rows: GradientRows, i: usize) -> u32 {
+    u32::from(rows.row[i + 1].abs_diff(rows.row[i - 1])) + u32::from(rows.down[i].abs_diff(rows.up[i]))
+}
+
+/// A block's strongest pixel so far (strength 0: none yet), a word on the M4.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[repr(C, align(4))]
+pub struct Strongest {
+    pub strength: u16,
+    pub column: u8,
+    pub row: u8,
+}
+
+/// The motion estimate's point choice along row `row` (its index, kept in
+/// the pixels chosen): in each block of `side` columns, block b at columns
+/// `b * side..(b + 1) * side`, the columns from `columns.start` (at least 1)
+/// or the block's first, by `stride`, below `columns.end` (those without a
+/// right neighbour, past `strongest`'s blocks or from 256, beyond a `u8`,
+/// left out) replace `strongest[b]` when stronger by [`gradient_strength`],
+/// so the first of equal ones stays.
+#[inline]
+pub fn strongest_gradients(rows: GradientRows, row: u8, columns: core::ops::Range<usize>, side: usize, stride: usize, strongest: &mut [Strongest]) {
+    let width = rows.row.len().min(rows.up.len()).min(rows.down.len());
+    let end = columns.end.min(width.saturating_sub(1)).min(strongest.len() * side).min(usize::from(u8::MAX) + 1);
+    let columns = columns.start.max(1)..end;
+    if columns.is_empty() || side == 0 {
+        return;
+    }
+    selected::strongest_gradients(rows, row, columns, side, stride.max(1), strongest)
+}
+
 // ---------------------------------------------------------------- remap
 
 /// Fractional bits of the fixed-point source coordinates (Q16.16 pixels).

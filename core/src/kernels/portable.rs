@@ -133,6 +133,20 @@ pub fn mean_4x4(rows: [&[u8]; 4], out: &mut [u8]) {
 }
 
 #[inline]
+pub fn strongest_gradients(rows: super::GradientRows, row: u8, columns: core::ops::Range<usize>, side: usize, stride: usize, strongest: &mut [super::Strongest]) {
+    let first_block_start = columns.start - columns.start % side;
+    for block_start in (first_block_start..columns.end).step_by(side) {
+        let block = &mut strongest[block_start / side];
+        for i in (block_start.max(columns.start)..(block_start + side).min(columns.end)).step_by(stride) {
+            let strength = super::gradient_strength(rows, i);
+            if strength > u32::from(block.strength) {
+                *block = super::Strongest { strength: strength as u16, column: i as u8, row };
+            }
+        }
+    }
+}
+
+#[inline]
 pub fn add_normal_terms(terms: &[super::NormalTerm], h: &mut [[f32; super::NORMAL_UNKNOWNS]; super::NORMAL_UNKNOWNS], g: &mut [f32; super::NORMAL_UNKNOWNS]) {
     for term in terms {
         let mut j = [0.0f32; super::NORMAL_UNKNOWNS];
