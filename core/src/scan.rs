@@ -281,7 +281,7 @@ impl Scan {
                 if !all_seen {
                     break;
                 }
-                let (sin, cos) = libm::sincosf((angle as f32).to_radians());
+                let (sin, cos) = crate::kernels::sincosf((angle as f32).to_radians());
                 for n in 0..=samples {
                     let r = (near + n as f32 * step).min(far);
                     match view(r * sin, r * cos) {

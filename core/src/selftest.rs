@@ -67,6 +67,7 @@ checks! {
         residues_equal_plain,
         float_kernels_equal_reference,
         hypotf_equals_libm,
+        sincosf_equals_libm,
     ],
     health: [
         alarm_is_asserted_until_a_frame_is_judged_clear,

@@ -228,7 +228,7 @@ impl Candidates {
     fn placement(&self, dyaw: i32, dx: i32, dz: i32) -> Placement {
         let p = &self.start;
         let (origin_u, origin_v) = self.origin;
-        let (sin, cos) = libm::sincosf((p[2] + dyaw as f32 * self.yaw_step).to_radians());
+        let (sin, cos) = crate::kernels::sincosf((p[2] + dyaw as f32 * self.yaw_step).to_radians());
         let (tu, tv) = ((p[0] + dx as f32 * self.cell_mm) / self.cell_mm, (p[1] + dz as f32 * self.cell_mm) / self.cell_mm);
         let (ou, ov) = (tu + origin_u * cos - origin_v * sin, tv + origin_u * sin + origin_v * cos);
         Placement { sin, cos, offset: (ou - origin_u, origin_v - ov) }

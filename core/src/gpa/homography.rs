@@ -32,7 +32,8 @@ pub(super) trait Real: Copy + PartialOrd + Add<Output = Self> + Sub<Output = Sel
     fn sin_cos_deg(self) -> (Self, Self);
 }
 
-/// `Real` for a primitive float, its (sin, cos) from `libm`.
+/// `Real` for a primitive float, its (sin, cos) from `libm` (for `f32`
+/// through [`crate::kernels::sincosf`], the same bits).
 macro_rules! real {
     ($float:ty, $sin_cos:path) => {
         impl Real for $float {
@@ -53,7 +54,7 @@ macro_rules! real {
     };
 }
 
-real!(f32, libm::sincosf);
+real!(f32, crate::kernels::sincosf);
 real!(f64, libm::sincos);
 
 type Matrix<T> = [[T; 3]; 3];

@@ -575,3 +575,31 @@ pub fn hypotf_equals_libm() -> Outcome {
     }
     Ok(())
 }
+
+/// `sincosf` equals `libm::sincosf` bit for bit: the edges of its own
+/// range, 30,000 random angles there and anywhere, both signs. (The host
+/// also walks every 61st `f32` of its range: `kernels::tests`.)
+pub fn sincosf_equals_libm() -> Outcome {
+    let mut state = 0x5369_6E43u32;
+    let same = |x: f32| {
+        let ((s, c), (ls, lc)) = (super::sincosf(x), libm::sincosf(x));
+        (s.to_bits() == ls.to_bits() && c.to_bits() == lc.to_bits()) || (s.is_nan() && ls.is_nan())
+    };
+    let edges = [0x3980_0000u32, 0x397F_FFFF, 0x3F49_0FDA, 0x3F49_0FDB, 0, 0x7F80_0000, 0x7FC0_0000, 0x3F80_0000];
+    for bits in edges {
+        if !same(f32::from_bits(bits)) || !same(-f32::from_bits(bits)) {
+            return Err("sincosf differs from libm at an edge value");
+        }
+    }
+    for _ in 0..30_000 {
+        let random = xorshift32(&mut state);
+        let bits = match random % 4 {
+            0 => xorshift32(&mut state),
+            _ => 0x3980_0000 + xorshift32(&mut state) % (0x3F49_0FDB - 0x3980_0000),
+        };
+        if !same(f32::from_bits(bits)) || !same(-f32::from_bits(bits)) {
+            return Err("sincosf differs from libm");
+        }
+    }
+    Ok(())
+}
