@@ -297,7 +297,7 @@ pub fn sincosf(x: f32) -> (f32, f32) {
     }
     let exponent = (magnitude >> 23) as i32 - 127;
     let q62 = u64::from(magnitude & 0x7F_FFFF | 0x80_0000) << (exponent + 39);
-    let (sin, cos) = sin_cos_q62(q62 as i64);
+    let (sin, cos) = sin_cos_q62(q62);
     match (round_q62(sin), round_q62(cos)) {
         (Some(sin), Some(cos)) => (if x < 0.0 { -sin } else { sin }, cos),
         _ => libm::sincosf(x),
@@ -306,36 +306,38 @@ pub fn sincosf(x: f32) -> (f32, f32) {
 
 /// libm's (FreeBSD's) k_sinf and k_cosf polynomials at `x` (Q62, 0 < x <
 /// 1), exactly but for the truncation of each product (~2^-58 in all).
-fn sin_cos_q62(x: i64) -> (i64, i64) {
-    const ONE: i64 = 1 << 62;
-    // The coefficients of k_sinf.rs and k_cosf.rs, in Q62 (S3, S4 and C3
-    // lose bits below 2^-62).
-    const S1: i64 = -(0x15_5555_54CB_AC77 << 7);
-    const S2: i64 = 0x11_1110_896E_FBB2 << 3;
-    const S3: i64 = -(0x1A_00F9_E2CA_E774 >> 3);
-    const S4: i64 = 0x16_CD87_8C3B_46A7 >> 9;
-    const C0: i64 = -(0x1F_FFFF_FD0C_5E81 << 8);
-    const C1: i64 = 0x15_5553_E105_3A42 << 5;
-    const C2: i64 = -0x16_C087_E80F_1E27;
-    const C3: i64 = 0x19_9342_E0EE_5069 >> 6;
+/// Written with the coefficients' magnitudes, so every product is of two
+/// non-negative numbers (each bracket is: its first term dominates).
+fn sin_cos_q62(x: u64) -> (i64, i64) {
+    const ONE: u64 = 1 << 62;
+    // |coefficients| of k_sinf.rs and k_cosf.rs in Q62 (S3, S4 and C3
+    // lose bits below 2^-62); S1, S3, C0 and C2 are negative.
+    const S1: u64 = 0x15_5555_54CB_AC77 << 7;
+    const S2: u64 = 0x11_1110_896E_FBB2 << 3;
+    const S3: u64 = 0x1A_00F9_E2CA_E774 >> 3;
+    const S4: u64 = 0x16_CD87_8C3B_46A7 >> 9;
+    const C0: u64 = 0x1F_FFFF_FD0C_5E81 << 8;
+    const C1: u64 = 0x15_5553_E105_3A42 << 5;
+    const C2: u64 = 0x16_C087_E80F_1E27;
+    const C3: u64 = 0x19_9342_E0EE_5069 >> 6;
     let z = mul_q62(x, x);
     let w = mul_q62(z, z);
     let s = mul_q62(z, x);
-    let sin = x + mul_q62(s, S1 + mul_q62(z, S2)) + mul_q62(mul_q62(s, w), S3 + mul_q62(z, S4));
-    let cos = ONE + mul_q62(z, C0) + mul_q62(w, C1) + mul_q62(mul_q62(w, z), C2 + mul_q62(z, C3));
+    // x + s (S1 + z S2) + s w (S3 + z S4)
+    let sin = x as i64 - mul_q62(s, S1 - mul_q62(z, S2)) as i64 - mul_q62(mul_q62(s, w), S3 - mul_q62(z, S4)) as i64;
+    // 1 + z C0 + w C1 + w z (C2 + z C3)
+    let cos = ONE as i64 - mul_q62(z, C0) as i64 + mul_q62(w, C1) as i64 - mul_q62(mul_q62(w, z), C2 - mul_q62(z, C3)) as i64;
     (sin, cos)
 }
 
-/// a b in Q62, truncated toward zero (|a|, |b| < 2: four 32-bit products).
-fn mul_q62(a: i64, b: i64) -> i64 {
-    let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
-    let (a1, a0, b1, b0) = (ua >> 32, ua & 0xFFFF_FFFF, ub >> 32, ub & 0xFFFF_FFFF);
+/// a b in Q62, truncated (a, b < 2: four 32-bit products).
+fn mul_q62(a: u64, b: u64) -> u64 {
+    let (a1, a0, b1, b0) = (a >> 32, a & 0xFFFF_FFFF, b >> 32, b & 0xFFFF_FFFF);
     let low = a0 * b0;
     let (cross_a, cross_b) = (a1 * b0, a0 * b1);
     let middle = (low >> 32) + (cross_a & 0xFFFF_FFFF) + (cross_b & 0xFFFF_FFFF);
     let high = a1 * b1 + (cross_a >> 32) + (cross_b >> 32) + (middle >> 32);
-    let product = ((high << 2) | ((middle & 0xFFFF_FFFF) >> 30)) as i64;
-    if (a < 0) != (b < 0) { -product } else { product }
+    (high << 2) | ((middle & 0xFFFF_FFFF) >> 30)
 }
 
 /// A Q62 value in [2^-13, 2) to the nearest `f32`, or None within 2^-45
