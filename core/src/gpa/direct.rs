@@ -258,7 +258,7 @@ impl Loss {
 }
 
 /// The estimate as it goes.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, PartialEq)]
 struct State {
     p: Geometry,
     gain: f32,
@@ -290,6 +290,10 @@ struct Points {
     /// Each point's residual (NaN: it did not sample the keyframe) and keyframe sample.
     residuals: [f32; MAX_POINTS],
     samples: [f32; MAX_POINTS],
+    /// The residuals stored are those at this state of the finest level's
+    /// whole choice from this grid row on (none dropped): an alignment's
+    /// last evaluation, reused by [`Direct::misfit`].
+    evaluated: Option<(State, usize)>,
 }
 
 /// Each level's chosen pixels: the strongest gradient of each block, far
@@ -455,7 +459,7 @@ impl Direct {
         keyframe: Pyramid::EMPTY,
         current: Pyramid::EMPTY,
         chosen: Chosen::EMPTY,
-        points: Points { points: heapless::Vec::new(), side: 1, residuals: [0.0; MAX_POINTS], samples: [0.0; MAX_POINTS] },
+        points: Points { points: heapless::Vec::new(), side: 1, residuals: [0.0; MAX_POINTS], samples: [0.0; MAX_POINTS], evaluated: None },
     };
 
     /// Builds both pyramids; every [`Self::align`] until the next call uses them.
@@ -488,6 +492,7 @@ impl Direct {
     pub(super) fn align(&mut self, images: &Images, prior: &Prior, start: Geometry, schedule: Schedule) -> Option<Alignment> {
         let mut state = State { p: start, gain: 1.0, offset: 128.0, lower: None };
         let mut first = true;
+        // The finest level's first row, if none of its points was dropped.
         let mut finest = None;
         for level in (0..=schedule.top_level.min(LEVELS - 1)).rev() {
             let current = self.current.level(level, images.current, images.seen);
@@ -498,7 +503,9 @@ impl Direct {
             if points.points.len() < MIN_POINTS {
                 continue;
             }
+            let chosen = points.points.len();
             points.jacobians(images, level, &state.p);
+            let intact = points.points.len() == chosen;
             for _ in 0..ITERATIONS[level] {
                 let loss = if first { Loss::Huber } else { Loss::Tukey };
                 first = false;
@@ -519,12 +526,14 @@ impl Direct {
                 }
             }
             if level == 0 {
-                finest = Some(());
+                finest = Some(intact.then_some(near_row));
             }
         }
-        finest?;
+        let finest_rows = finest?;
         let keyframe = self.keyframe.level(0, images.keyframe, images.seen);
-        self.points.evaluate(images, &keyframe, &state, prior)
+        let aligned = self.points.evaluate(images, &keyframe, &state, prior);
+        self.points.evaluated = finest_rows.map(|row| (state, row));
+        aligned
     }
 }
 
@@ -534,6 +543,7 @@ impl Points {
     /// The chosen pixels of `level` (`chosen`, from [`choose`]) from row
     /// `near_row` on, with their gray level and gradient.
     fn select(&mut self, level: &Level, chosen: ChosenLevel, near_row: usize) {
+        self.evaluated = None;
         self.points.clear();
         self.side = chosen.side;
         for &(i, j) in chosen.pixels {
@@ -838,9 +848,11 @@ impl Direct {
         let current = self.current.level(0, images.current, images.seen);
         let keyframe = self.keyframe.level(0, images.keyframe, images.seen);
         let points = &mut self.points;
-        points.select(&current, self.chosen.level(0), near_row);
         let state = State { p: aligned.p, gain: aligned.exposure.0, offset: aligned.exposure.1, lower: aligned.lower };
-        points.residuals(images, &keyframe, 0, &state);
+        if points.evaluated != Some((state, near_row)) {
+            points.select(&current, self.chosen.level(0), near_row);
+            points.residuals(images, &keyframe, 0, &state);
+        }
         let (mut sum, mut count) = (0.0, 0);
         for &r in &points.residuals[..points.points.len()] {
             if r.is_nan() {

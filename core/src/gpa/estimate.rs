@@ -417,8 +417,9 @@ impl Estimator {
         let chosen = match near {
             Some(near) => {
                 let scale = near.scale.min(whole.scale);
-                let (whole_misfit, count) = self.direct.misfit(images, &whole, near_row, scale);
+                // The near rows' own first: their alignment's last residuals.
                 let (near_misfit, _) = self.direct.misfit(images, &near, near_row, scale);
+                let (whole_misfit, count) = self.direct.misfit(images, &whole, near_row, scale);
                 #[cfg(feature = "trace")]
                 std::eprintln!("trace: nearest surface: misfit whole {whole_misfit:.1} near {near_misfit:.1} of {count}");
                 if whole_misfit - near_misfit > NEAR_SURFACE_MISFIT.max(NEAR_SURFACE_SHARE * count as f32) { near } else { whole }
