@@ -14,6 +14,8 @@ pub(super) const LEVELS: usize = 3;
 /// within its reach, and the RAM it would take (a quarter of the grid
 /// for each image) is the board's.
 pub(super) const SCALES: [usize; LEVELS] = [1, 4, 8];
+// Each level from the one below: 4x4 blocks, then 2x2 ([`Pyramid::build`]).
+const _: () = assert!(SCALES[1] / SCALES[0] == 4 && SCALES[2] / SCALES[1] == 2);
 
 /// Grid pixels per level pixel, each way.
 #[inline(always)]
@@ -119,29 +121,21 @@ impl Pyramid {
             let (below, above) = self.store.split_at_mut(start);
             let (done, level_seen) = self.seen.split_at_mut(seen_start);
             let (below_pixels, below_seen): (&[u8], &[Seen]) = if level == 1 { (image, seen) } else { (&below[self.starts[level - 1].0..], &done[self.starts[level - 1].1..]) };
-            let mut sums = [0u16; MAX_GRID_SIDE];
             for j in 0..h {
                 let rows = j * factor..(j + 1) * factor;
-                let (lo, hi) = rows.clone().fold((0u16, u16::MAX), |(lo, hi), r| (lo.max(below_seen[r].0), hi.min(below_seen[r].1)));
+                let (lo, hi) = rows.fold((0u16, u16::MAX), |(lo, hi), r| (lo.max(below_seen[r].0), hi.min(below_seen[r].1)));
                 let (lo, hi) = (lo.div_ceil(factor as u16), hi / factor as u16);
                 level_seen[j] = if hi > lo { (lo, hi) } else { (0, 0) };
                 let out = &mut above[j * w..][..w];
-                if factor == 4 {
-                    let row = |r: usize| &below_pixels[(j * 4 + r) * below_width..][..w * 4];
-                    kernels::mean_4x4([row(0), row(1), row(2), row(3)], out);
-                    continue;
-                }
-                let sums = &mut sums[..w];
-                sums.fill(0);
-                for r in rows {
-                    let row = &below_pixels[r * below_width..][..w * factor];
-                    for (sum, block) in sums.iter_mut().zip(row.chunks_exact(factor)) {
-                        *sum += block.iter().map(|&v| u16::from(v)).sum::<u16>();
+                let row = |r: usize| &below_pixels[(j * factor + r) * below_width..][..w * factor];
+                match factor {
+                    4 => kernels::mean_4x4([row(0), row(1), row(2), row(3)], out),
+                    _ => {
+                        for ((out, top), bottom) in out.iter_mut().zip(row(0).chunks_exact(2)).zip(row(1).chunks_exact(2)) {
+                            let sum = u16::from(top[0]) + u16::from(top[1]) + u16::from(bottom[0]) + u16::from(bottom[1]);
+                            *out = ((sum + 2) / 4) as u8;
+                        }
                     }
-                }
-                let (count, half) = ((factor * factor) as u16, (factor * factor / 2) as u16);
-                for (out, &sum) in out.iter_mut().zip(sums.iter()) {
-                    *out = ((sum + half) / count) as u8;
                 }
             }
             start += w * h;
