@@ -101,6 +101,12 @@ impl core::fmt::Display for GridError {
 
 impl core::error::Error for GridError {}
 
+/// Columns and rows of a grid `extent_x` x `extent_z` mm at `mm_per_px`,
+/// both edges included.
+fn sides(extent_x: f64, extent_z: f64, mm_per_px: f64) -> (usize, usize) {
+    (ceil(extent_x / mm_per_px) as usize + 1, ceil(extent_z / mm_per_px) as usize + 1)
+}
+
 /// Resolution is rounded up to a multiple of this (mm), so figures stay readable.
 const RESOLUTION_QUANTUM_MM: f64 = 1.0 / 16.0;
 
@@ -156,12 +162,22 @@ impl KgGrid {
                 let extent_z = z_far - z_near;
                 let by_pixels = libm::sqrt(extent_x * extent_z / config.max_pixels.max(1) as f64);
                 let chosen = finest.max(extent_x / cap).max(extent_z / cap).max(by_pixels);
-                ceil(chosen / RESOLUTION_QUANTUM_MM) * RESOLUTION_QUANTUM_MM
+                let mut quanta = ceil(chosen / RESOLUTION_QUANTUM_MM);
+                // The sides round up and count both edges: coarser by a
+                // quantum until the pixels fit (a target's image buffers
+                // hold `max_pixels`; no grid has fewer than 2 x 2).
+                let pixels = |quanta: f64| {
+                    let (width, height) = sides(extent_x, extent_z, quanta * RESOLUTION_QUANTUM_MM);
+                    width * height
+                };
+                while pixels(quanta) > config.max_pixels.max(4) {
+                    quanta += 1.0;
+                }
+                quanta * RESOLUTION_QUANTUM_MM
             }
         };
         let extent_z = z_far - z_near;
-        let width = ceil(extent_x / mm_per_px) as usize + 1;
-        let height = ceil(extent_z / mm_per_px) as usize + 1;
+        let (width, height) = sides(extent_x, extent_z, mm_per_px);
         if width > MAX_GRID_SIDE || height > MAX_GRID_SIDE {
             return Err(GridError::TooLarge);
         }
@@ -254,6 +270,17 @@ mod tests {
         assert!(x >= -250.0 && x < -250.0 + grid.mm_per_px && z <= 1400.0 && z > 1400.0 - grid.mm_per_px);
         let (x, z) = grid.pixel_to_ground((aoi.right - 1) as f64, (aoi.bottom - 1) as f64);
         assert!(x <= 250.0 && x > 250.0 - grid.mm_per_px && z >= 450.0 && z < 450.0 + grid.mm_per_px);
+    }
+
+    /// The sides round up and count both edges; the grid still fits the
+    /// pixels a target holds (video_rate's 161 x 251 did not fit 40,000).
+    #[test]
+    fn a_chosen_grid_fits_its_pixel_budget() {
+        let rig = rig();
+        for max_pixels in (2_000..60_000).step_by(997) {
+            let grid = KgGrid::for_rig(&rig, &GridConfig { max_pixels, ..GridConfig::default() }).unwrap();
+            assert!(grid.len() <= max_pixels, "{max_pixels}: {}x{}", grid.width, grid.height);
+        }
     }
 
     #[test]
