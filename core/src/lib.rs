@@ -53,7 +53,6 @@ pub mod protocol;
 pub mod report;
 pub mod scan;
 pub mod subpixel;
-pub mod target;
 /// core's checks as one list: the on-target runner's (`cargo fw-test`) and the host `#[test]`s.
 #[cfg(any(test, feature = "selftest"))]
 pub mod selftest;

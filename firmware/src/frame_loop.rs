@@ -36,27 +36,22 @@ use flatland_core::pipeline::{FrameError, FrameTiming, Outcome, Pipeline, PoseSa
 use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, RigRecord};
 use flatland_core::remap::{Line, RemapError, RemapTable};
 use flatland_core::report::FrameReport;
-use flatland_core::target::{Capacity, FitError};
 use static_cell::ConstStaticCell;
 
 use crate::board::{Clock, CycleCounter, RowSource, RowSourceError, Watchdog};
 
-/// This board's buffers: the STM32F4's (`flatland_core::target`), with
-/// the `full-frame` build's larger images.
-pub const BOARD: Capacity = Capacity { image_bytes: IMAGE_CAPACITY, ..Capacity::STM32F4 };
 /// Widest camera row supported (VGA); wider rigs are refused at start-up.
-pub const MAX_CAMERA_WIDTH: usize = Capacity::STM32F4.camera_width;
+pub const MAX_CAMERA_WIDTH: usize = 640;
 /// Camera rows the streaming remap may keep: 4 rows of the widest camera
 /// (8 of a QVGA one). The bundled rigs need 2; steep tilts and strong
 /// distortion need more, and are refused at start-up if they need too many.
-pub const RING_CAPACITY: usize = Capacity::STM32F4.ring_bytes;
+pub const RING_CAPACITY: usize = 4 * MAX_CAMERA_WIDTH;
 /// Memory of each of GPA's two KG images (`Gpa::image_bytes`: one grid).
-/// The default grid cap, 40,000 px: every default grid fits (the grid's
-/// choice coarsens until it does; 256x256 camera: 141x255, 35,955 B;
-/// QVGA at 30 frames/s: 159x247, 39,273 B). One image sits in RAM, the
-/// other in the CCM (memory.x).
+/// 40,000 B holds a grid at the default 40,000 px cap: every bundled rig's
+/// default grid (256x256 camera: 141x255, 35,955 B; QVGA: 179x220, 39,380 B).
+/// One image sits in RAM, the other in the CCM (memory.x).
 #[cfg(not(feature = "full-frame"))]
-pub const IMAGE_CAPACITY: usize = Capacity::STM32F4.image_bytes;
+pub const IMAGE_CAPACITY: usize = 40_000;
 /// With the `full-frame` feature (the worst-case benchmark, `cargo fw-bench
 /// --full-frame`): the 256x256 grid, 65,536 B. It fits only without the GTI
 /// stage, which that build leaves out, and takes all of the CCM.
@@ -117,8 +112,12 @@ pub enum SetupError {
     Rig(flatland_core::geometry::RigError),
     Grid(flatland_core::grid::GridError),
     Table(flatland_core::remap::TableError),
-    /// The rig does not fit [`BOARD`] (the host refuses it alike).
-    Fit(FitError),
+    /// Camera rows wider than [`MAX_CAMERA_WIDTH`].
+    CameraTooWide { width: usize },
+    /// The remap needs more than [`RING_CAPACITY`] bytes of camera rows.
+    RingTooSmall { needed: usize },
+    /// A KG image of the grid needs more than [`IMAGE_CAPACITY`] bytes.
+    KeyframeTooLarge { needed: usize },
     Detector(flatland_core::gpa::GpaError),
     Gti(flatland_core::gti::GtiError),
 }
@@ -130,8 +129,8 @@ impl SetupError {
             SetupError::Grid(_) | SetupError::Table(_) | SetupError::Detector(_) | SetupError::Gti(_) => {
                 FaultCode::TableRejected
             }
-            SetupError::Fit(FitError::CameraTooWide { .. } | FitError::RingTooSmall { .. }) => FaultCode::CameraTooLarge,
-            SetupError::Fit(FitError::KeyframeTooLarge { .. }) => FaultCode::GridTooLarge,
+            SetupError::CameraTooWide { .. } | SetupError::RingTooSmall { .. } => FaultCode::CameraTooLarge,
+            SetupError::KeyframeTooLarge { .. } => FaultCode::GridTooLarge,
         }
     }
 }
@@ -286,17 +285,23 @@ impl<S: Read + ReadReady + Write> Link<S> {
 #[inline(never)] // start-up only: its locals stay out of the frame loop's stack
 pub(crate) fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Result<(Rig, KgGrid), SetupError> {
     let rig = Rig::try_from(record).map_err(SetupError::Rig)?;
-    let width = usize::from(record.width);
+    if usize::from(record.width) > MAX_CAMERA_WIDTH {
+        return Err(SetupError::CameraTooWide { width: usize::from(record.width) });
+    }
     let grid_config = if options.no_margins {
         GridConfig::without_margins(options.mm_per_px)
     } else {
         GridConfig { mm_per_px: options.mm_per_px, ..GridConfig::default() }
     };
     let grid = KgGrid::for_rig(&rig, &grid_config).map_err(SetupError::Grid)?;
-    // The camera and the images before the table is built, the ring after.
-    BOARD.fits(width, 0, &grid).map_err(SetupError::Fit)?;
+    let needed = Gpa::image_bytes(&grid);
+    if needed > IMAGE_CAPACITY {
+        return Err(SetupError::KeyframeTooLarge { needed });
+    }
     table.build(&rig, &grid).map_err(SetupError::Table)?;
-    BOARD.fits(width, table.ring_bytes(), &grid).map_err(SetupError::Fit)?;
+    if table.ring_bytes() > RING_CAPACITY {
+        return Err(SetupError::RingTooSmall { needed: table.ring_bytes() });
+    }
     Ok((rig, grid))
 }
 

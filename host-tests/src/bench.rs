@@ -203,7 +203,7 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
     } else {
         (recording.rig, GridConfig { mm_per_px, ..GridConfig::default() })
     };
-    let config = DetectConfig { grid: grid_config, gpa: GpaConfig { search_radius: search, ..GpaConfig::default() }, board: None };
+    let config = DetectConfig { grid: grid_config, gpa: GpaConfig { search_radius: search, ..GpaConfig::default() } };
     let mut detector = Detector::new(&rig, &config)?;
     // Frames and poses of every consecutive pair.
     let mut pairs = Vec::new();

@@ -12,7 +12,6 @@ use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::pipeline::{FrameError, Outcome, Pipeline, PoseSample};
 use flatland_core::remap::{Line, RemapTable};
 use flatland_core::report::FrameReport;
-use flatland_core::target::{Capacity, FitError};
 
 /// What happened to one frame.
 #[derive(Debug)]
@@ -30,20 +29,10 @@ pub enum FrameOutcome {
 }
 
 /// Detector settings.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 pub struct DetectConfig {
     pub grid: GridConfig,
     pub gpa: GpaConfig,
-    /// The board whose buffers the rig must fit: a rig the firmware would
-    /// refuse at start-up is refused here with the same [`FitError`]. None
-    /// for benches that try grids no board holds.
-    pub board: Option<Capacity>,
-}
-
-impl Default for DetectConfig {
-    fn default() -> DetectConfig {
-        DetectConfig { grid: Capacity::STM32F4.grid_config(), gpa: GpaConfig::default(), board: Some(Capacity::STM32F4) }
-    }
 }
 
 /// Whether a pipeline runs the GTI stage.
@@ -66,9 +55,6 @@ pub struct Detector {
 impl Detector {
     pub fn new(rig: &Rig, config: &DetectConfig) -> Result<Detector, String> {
         let front_end = KgFrontEnd::new(rig, &config.grid).map_err(|e| e.to_string())?;
-        if let Some(board) = config.board {
-            board.fits(usize::from(rig.camera().width), front_end.table.ring_bytes(), &front_end.grid).map_err(|e: FitError| format!("rig refused: {e}"))?;
-        }
         let keyframe = vec![0; Gpa::keyframe_bytes(&front_end.grid)];
         Ok(Detector { front_end, keyframe, rig: *rig, config: *config })
     }

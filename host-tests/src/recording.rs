@@ -9,7 +9,6 @@ use flatland_core::motion::{Attitude, Pose};
 use flatland_core::pgm::{Pgm, PgmError};
 use flatland_core::pipeline::PoseSample;
 use flatland_core::protocol::{Odometry, RigRecord};
-use flatland_core::target::Capacity;
 use serde::Deserialize;
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -191,10 +190,9 @@ fn key_of(error: RigError, record: &RigRecord) -> &'static str {
 }
 
 /// How recorded frames are area-averaged down to the camera the pipeline
-/// sees: frames wider than the board's camera rows ([`Capacity::STM32F4`],
-/// 640) or higher than [`MAX_IMAGE_SIDE`] (real cameras, up to 4096 px
-/// wide) are binned by the smallest integer factor n that brings both
-/// sides within them. Each n x n block becomes one pixel (its rounded
+/// sees: frames larger than [`MAX_IMAGE_SIDE`] on a side (real cameras, up
+/// to 4096 px wide) are binned by the smallest integer factor n that brings
+/// both sides within it. Each n x n block becomes one pixel (its rounded
 /// mean); a last partial column or row of blocks is dropped. Pixel centres
 /// keep their place: block centre u = n u' + (n - 1)/2, so fx' = fx/n,
 /// cx' = (cx + 0.5)/n - 0.5 (likewise fy, cy); distortion, in normalised
@@ -210,8 +208,8 @@ pub struct Binning {
 impl Binning {
     /// The binning for frames of `width` x `height`.
     pub fn for_frames(width: usize, height: usize) -> Binning {
-        let widest = Capacity::STM32F4.camera_width.min(usize::from(MAX_IMAGE_SIDE));
-        let factor = width.div_ceil(widest).max(height.div_ceil(usize::from(MAX_IMAGE_SIDE))).max(1);
+        let side = usize::from(MAX_IMAGE_SIDE);
+        let factor = width.div_ceil(side).max(height.div_ceil(side)).max(1);
         Binning { factor, recorded: (width, height) }
     }
 

@@ -8,7 +8,6 @@ use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::motion::{Attitude, Pose};
 use flatland_core::pipeline::PoseSample;
 use flatland_core::remap::RemapTable;
-use flatland_core::target::{Capacity, FitError};
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::heights::run_heights;
 use flatland_host::recording::{parse_poses, parse_rig, Binning, Frame, PoseHeaderError, Recording, RecordingError};
@@ -149,8 +148,7 @@ fn time_orders_frames_without_odometry() {
 #[test]
 fn binning_factor_and_average() {
     let factor = |w, h| Binning::for_frames(w, h).factor;
-    // Width to the board's 640 px rows, height to MAX_IMAGE_SIDE (1024).
-    assert_eq!([factor(640, 480), factor(641, 480), factor(600, 1025), factor(1024, 1024), factor(2048, 1536), factor(4096, 3072), factor(300, 4096)], [1, 2, 2, 2, 4, 7, 4]);
+    assert_eq!([factor(256, 256), factor(1024, 1024), factor(1025, 10), factor(2048, 1536), factor(2049, 10), factor(4096, 3072)], [1, 1, 2, 2, 3, 4]);
     assert_eq!(Binning::for_frames(1242, 375).size(), (621, 187));
     // 2x2 blocks, rounded means; the odd last column and row are dropped.
     #[rustfmt::skip]
@@ -218,9 +216,9 @@ fn alarms(recording: &Recording) -> Vec<(u32, bool)> {
     alarms
 }
 
-/// 2048 x 2048 frames (a bundled recording upsampled 8x) are binned 4x4,
-/// to the board's camera width, to exactly the 2x upsampled frames and
-/// rig, and detect raises the same alarms as on the original.
+/// 2048 x 2048 frames (a bundled recording upsampled 8x) are binned 2x2 to
+/// exactly the 4x upsampled frames and rig, and detect raises the same
+/// alarms as on the original.
 #[test]
 fn large_frames_are_binned_to_what_the_grid_needs() {
     for name in ["stool_bags", "flat_marks"] {
@@ -228,19 +226,19 @@ fn large_frames_are_binned_to_what_the_grid_needs() {
         upsampled(name, 8, &dir);
         let large = Recording::open(&dir).unwrap();
         let original = Recording::open(data(name)).unwrap();
-        assert_eq!(large.binning, Binning { factor: 4, recorded: (2048, 2048) });
-        let twice = scratch(&format!("twice_{name}"));
-        upsampled(name, 2, &twice);
-        let expected = Recording::open(&twice).unwrap();
+        assert_eq!(large.binning, Binning { factor: 2, recorded: (2048, 2048) });
+        let four_times = scratch(&format!("four_times_{name}"));
+        upsampled(name, 4, &four_times);
+        let expected = Recording::open(&four_times).unwrap();
         assert_eq!(expected.binning.factor, 1);
         assert_eq!(large.rig, expected.rig, "intrinsics scaled by the rule");
-        assert_eq!(large.load_frame(3).unwrap(), replicate(&original.load_frame(3).unwrap(), 2));
+        assert_eq!(large.load_frame(3).unwrap(), replicate(&original.load_frame(3).unwrap(), 4));
         let (got, want) = (alarms(&large), alarms(&original));
         println!("{name}: alarms binned {got:?}");
         assert_eq!(got, want, "{name}");
         assert!(want.len() == 7 && want.iter().all(|&(_, alarm)| alarm == (name == "stool_bags")), "{want:?}");
         let _ = std::fs::remove_dir_all(&dir);
-        let _ = std::fs::remove_dir_all(&twice);
+        let _ = std::fs::remove_dir_all(&four_times);
     }
 }
 
@@ -281,24 +279,6 @@ fn nearly_level_car_camera() {
 
 /// `flatland heights` gives points on a diagonal path, also without
 /// odometry; on the turning one it has none and says why.
-/// A rig the board cannot hold is refused before a frame is read, with
-/// the firmware's own error: a fixed resolution too fine for its images.
-/// The default grid of the same rig fits.
-#[test]
-fn a_rig_the_board_cannot_hold_is_refused_as_on_the_board() {
-    let recording = Recording::open(data("flat_marks")).unwrap();
-    let fine = DetectConfig { grid: GridConfig { mm_per_px: Some(4.0), ..GridConfig::default() }, ..DetectConfig::default() };
-    let grid = KgGrid::for_rig(&recording.rig, &fine.grid).unwrap();
-    let expected = FitError::KeyframeTooLarge { needed: grid.len() };
-    assert!(grid.len() > Capacity::STM32F4.image_bytes);
-    match Detector::new(&recording.rig, &fine) {
-        Err(error) => assert_eq!(error, format!("rig refused: {expected}")),
-        Ok(_) => panic!("a {}x{} grid was accepted", grid.width, grid.height),
-    }
-    Detector::new(&recording.rig, &DetectConfig { board: None, ..fine }).unwrap();
-    Detector::new(&recording.rig, &DetectConfig::default()).unwrap();
-}
-
 #[test]
 fn heights_on_curved_paths_give_points_or_say_why() {
     let mut csv = Vec::new();
