@@ -8,9 +8,8 @@ mod common;
 use common::*;
 use flatland_core::gpa::Gpa;
 use flatland_core::grid::{GridConfig, KgGrid};
-use flatland_core::geometry::Rig;
 use flatland_core::protocol::{checksum, encode_line, FaultCode, Message, Odometry, RigRecord};
-use flatland_host::qemu::{self, Sensors};
+use flatland_host::qemu::{self, RunRequest, Sensors};
 use flatland_host::recording::Recording;
 
 /// A line with a correct checksum around `body`.
@@ -181,24 +180,26 @@ fn odometry_out_of_sequence_on_the_wire_resets_the_keyframe() {
 
 #[test]
 fn rig_that_does_not_fit_the_target_is_refused_with_a_typed_fault() {
-    // Widen the QVGA rig's AOI until a KG image of its grid needs more
-    // memory than the firmware has; a valid rig, so only the capacity refuses it.
+    // A default grid always fits the board's images (it coarsens until it
+    // does), so the QVGA rig at a fixed resolution too fine for them, the
+    // firmware's `mm_per_px=` option; a valid rig, so only the capacity
+    // refuses it. Then a camera wider than the board's rows.
     const IMAGE_CAPACITY: usize = 40_000; // firmware/src/frame_loop.rs
+    const TOO_FINE_MM: f64 = 3.5;
     let base = Recording::open(data("qvga_curb")).unwrap();
-    let mut record = RigRecord::from(&base.rig);
-    let too_large = (200..1000).step_by(10).find_map(|half_width| {
-        record.aoi_half_width_mm = f64::from(half_width);
-        let rig = Rig::try_from(&record).ok()?;
-        let grid = KgGrid::for_rig(&rig, &GridConfig::default()).ok()?;
-        (Gpa::image_bytes(&grid) > IMAGE_CAPACITY).then_some(record)
-    });
-    let too_large = too_large.expect("some valid QVGA rig needs more than 40,000 B per image");
+    let fine = GridConfig { mm_per_px: Some(TOO_FINE_MM), ..GridConfig::default() };
+    let grid = KgGrid::for_rig(&base.rig, &fine).unwrap();
+    assert!(Gpa::image_bytes(&grid) > IMAGE_CAPACITY, "{}x{} fits", grid.width, grid.height);
+    assert!(Gpa::image_bytes(&KgGrid::for_rig(&base.rig, &GridConfig::default()).unwrap()) <= IMAGE_CAPACITY);
     let mut too_wide = RigRecord::from(&base.rig);
     too_wide.width = 800;
     too_wide.cx = 399.5;
-    let script = qemu::encode_script(&[Message::Rig(too_large), Message::Rig(too_wide), Message::End]).unwrap();
-    let outcome = run(&data("qvga_curb"), script);
+    let script = qemu::encode_script(&[Message::Rig(RigRecord::from(&base.rig)), Message::Rig(too_wide), Message::End]).unwrap();
+    let elf = firmware_elf();
+    let dir = data("qvga_curb");
+    let request = RunRequest { elf: &elf, dir: &dir, script, then: None, bench: true, bench_mm_per_px: Some(TOO_FINE_MM), bench_no_margins: false, echo_log: false, exec_log: None, timeout: TIMEOUT, mavlink: false };
+    let outcome = qemu::run_firmware(request, &mut |_| {}).unwrap();
     let codes: Vec<FaultCode> = faults(&outcome).iter().map(|f| f.code).collect();
-    assert_eq!(codes, [FaultCode::GridTooLarge, FaultCode::CameraTooLarge]);
+    assert_eq!(codes, [FaultCode::GridTooLarge, FaultCode::CameraTooLarge], "{}", outcome.log);
     assert!(!outcome.serial.messages.iter().any(|m| matches!(m, Message::Hello(_))), "nothing was accepted");
 }
