@@ -41,7 +41,7 @@ pub const LOOK_BEYOND_FRACTION: f64 = 0.25;
 
 impl GridConfig {
     /// No margins: the grid is exactly the AOI (the full-frame benchmark,
-    /// README "Performance"). An AOI of 255 x 255 steps of `mm_per_px`
+    /// docs/PERFORMANCE.md). An AOI of 255 x 255 steps of `mm_per_px`
     /// gives a [`MAX_GRID_SIDE`] x [`MAX_GRID_SIDE`] grid.
     pub fn without_margins(mm_per_px: Option<f64>) -> GridConfig {
         GridConfig { margin_lateral_mm: 0.0, margin_far_mm: Some(0.0), margin_near_mm: 0.0, mm_per_px, ..GridConfig::default() }

@@ -142,7 +142,7 @@ impl<S: Read + ReadReady + Write> Port<S> {
     }
 
     /// The status follows the monitor's health, and every change is
-    /// announced at once (README: a heartbeat at start, on every change of
+    /// announced at once (docs/MAVLINK.md: a heartbeat at start, on every change of
     /// `system_status`, and at most once a second between frames). A run
     /// shorter than a second still tells the autopilot it went active.
     fn follow(&mut self, monitor: &Monitor, now_us: u32) {

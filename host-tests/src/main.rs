@@ -87,7 +87,7 @@ enum Command {
         /// factors multiply), vignette=F (linear light left at the corners);
         /// slip=A-B (the images stand in pairs A..=B while poses.csv advances;
         /// later images come B-A+1 frames late and the truth follows them);
-        /// seed=N. README.md describes the models.
+        /// seed=N. docs/CLI.md describes the models.
         // Boxed: a Perturbation is large beside the other commands' arguments.
         #[arg(long, value_parser = |text: &str| text.parse::<Perturbation>().map(Box::new))]
         perturb: Option<Box<Perturbation>>,

@@ -164,7 +164,7 @@ impl Slip {
 }
 
 /// What to do to a recording. `Default` does nothing; `"KEY=VALUE,..."`
-/// parses into one (the `--perturb` grammar, README.md).
+/// parses into one (the `--perturb` grammar, docs/CLI.md).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Perturbation {
     pub seed: u64,
@@ -476,7 +476,7 @@ impl std::error::Error for PerturbError {}
 impl FromStr for Perturbation {
     type Err = PerturbError;
 
-    /// `KEY=VALUE,...`; see [`KEYS`] and README.md.
+    /// `KEY=VALUE,...`; see [`KEYS`] and docs/CLI.md.
     fn from_str(text: &str) -> Result<Perturbation, PerturbError> {
         let mut p = Perturbation::default();
         let mut given: Vec<&'static str> = Vec::new();

@@ -136,7 +136,7 @@ fn sweep(label: &str, perturbation: Perturbation) -> Vec<u32> {
         .collect()
 }
 
-// The bounds below are what the detector achieves today (README, "Detection
+// The bounds below are what the detector achieves today (docs/RESULTS.md, "Detection
 // under perturbation"); they guard against regressions. The misses left are
 // first frames of an obstacle at the detection limit: the 40 mm curb under
 // odometry noise and a bag entering from the side of a turn.

@@ -104,7 +104,7 @@ fn host_scans(recording: &Recording) -> (BTreeMap<u64, Scan>, BTreeMap<u64, u32>
     (scans, times.into_iter().map(|(frame, t)| (t, frame)).collect())
 }
 
-/// OBSTACLE_DISTANCE as the README documents it, from a scan's sectors:
+/// OBSTACLE_DISTANCE as docs/MAVLINK.md documents it, from a scan's sectors:
 /// element j holds the sectors centred in [5j - 2.5, 5j + 2.5) degrees.
 fn expected(scan: &Scan) -> ([u16; 72], u16, u16) {
     let layout = scan.layout();
@@ -293,7 +293,7 @@ fn type_counts(decoded: &Decoded) -> BTreeMap<String, u64> {
 /// recording's stream as valid MAVLink 2 (no CRC or length error, no byte
 /// outside a frame, no unknown message, no sequence gap), finds the messages
 /// the `mavlink` crate finds, and its OBSTACLE_DISTANCE equals `flatland scan`
-/// by the README's rule. The recordings are taken last first, so that this
+/// by docs/MAVLINK.md's rule. The recordings are taken last first, so that this
 /// test and the one above run QEMU on different recordings at once.
 #[test]
 fn pymavlink_decodes_every_recording_and_agrees_with_flatland_scan() {
@@ -336,7 +336,7 @@ fn pymavlink_decodes_every_recording_and_agrees_with_flatland_scan() {
 
 /// `flatland serial decode --mavlink --recording REC` on each capture prints,
 /// per pose, the scan merged into OBSTACLE_DISTANCE's 5-degree bins by the
-/// README's rule, from -180 degrees, in `flatland scan`'s csv form (mm, `inf`
+/// docs/MAVLINK.md's rule, from -180 degrees, in `flatland scan`'s csv form (mm, `inf`
 /// free, empty unknown); frames that compared nothing are all unknown.
 #[test]
 fn serial_decode_mavlink_prints_the_merged_scan() {

@@ -1,4 +1,4 @@
-//! Issue 13's perturbations (README.md, `--perturb`): first what each one
+//! Issue 13's perturbations (docs/CLI.md, `--perturb`): first what each one
 //! does to frames, poses and truth; then detection under each, on every
 //! bundled recording, with the default configuration and a bound of zero
 //! errors outside grace frames.

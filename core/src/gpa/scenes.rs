@@ -109,7 +109,7 @@ fn drop_reported(reports: &[FrameReport], depths: core::ops::RangeInclusive<i32>
 ///
 /// A knife-edge by design: at H = 400 mm it lags T*d/(H+d) = 5.9 mm after
 /// a 100 mm baseline, about one pixel, of which the ground's tolerance
-/// takes half (README, GPA: Limits).
+/// takes half (docs/ARCHITECTURE.md, the motion estimate).
 #[test]
 fn drop_of_25_mm_raises_the_alarm() {
     drop_reported(&drive_to_ledge(25.0), -40..=-20);
@@ -124,8 +124,8 @@ fn dip_of_10_mm_is_ground() {
 
 /// A pit 100 mm deep and 300 mm long, floor beyond it: a drop at its near
 /// edge, not an obstacle at its far wall. Only the depth's side of the
-/// limit is asserted: it reads -34 to -91 mm (depths read low; README,
-/// GPA: Limits).
+/// limit is asserted: it reads -34 to -91 mm (depths read low; see
+/// docs/ARCHITECTURE.md).
 #[test]
 fn pit_raises_the_alarm_at_its_near_edge() {
     drop_reported(&drive(&[(EDGE_Z_MM, 100.0), (EDGE_Z_MM + 300.0, 0.0)]), -255..=-20);
@@ -140,7 +140,7 @@ fn shallow_pit_raises_the_alarm_at_its_near_edge() {
 
 /// A kerb down, 100 mm: a drop at its edge all the way to 600 mm.
 #[test]
-#[ignore = "issue 14: as the lower level comes to fill the view the estimate puts it into the keyframe pitch (from 950 mm on, -0.58 to -0.78 deg, true 0); frames 17, 18 and 20 (750-600 mm) report an obstacle or residue at 453-539 mm instead (the alarm stays up). README, GPA: Limits"]
+#[ignore = "issue 14: as the lower level comes to fill the view the estimate puts it into the keyframe pitch (from 950 mm on, -0.58 to -0.78 deg, true 0); frames 17, 18 and 20 (750-600 mm) report an obstacle or residue at 453-539 mm instead (the alarm stays up). docs/ARCHITECTURE.md"]
 fn kerb_of_100_mm_raises_the_alarm_at_its_edge() {
     drop_reported(&drive_to_ledge(100.0), -255..=-20);
 }

@@ -1,4 +1,4 @@
-//! Flatland on the STM32F4DISCOVERY with an OV7670 camera (README "Real
+//! Flatland on the STM32F4DISCOVERY with an OV7670 camera (docs/BOARD.md "Real
 //! board"): the same frame loop as the emulated board, fed by DCMI, talking
 //! the protocol of PROTOCOL.md on USART2 (PA2 TX, PA3 RX, 115200 8N1), logging
 //! defmt over RTT. Build and flash: `cargo board-run`.

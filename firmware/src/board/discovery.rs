@@ -92,8 +92,8 @@ const CAMERA_TIMEOUT_CYCLES: u32 = SYSCLK_HZ / 2;
 const STATS_EVERY: u32 = 100;
 /// The IWDG's timeout, nominal (LSI 32 kHz). The LSI may run anywhere
 /// from 17 to 47 kHz, which makes it 3.4 to 9.4 s: above the longest stretch
-/// the loop goes without feeding it, a frame's end (~1.6 s, README
-/// "Performance"), with a margin of two.
+/// the loop goes without feeding it, a frame's end (~1.6 s, docs/PERFORMANCE.md),
+/// with a margin of two.
 pub const WATCHDOG_TIMEOUT_US: u32 = 5_000_000;
 /// USART2 buffers: a $FLRIG line is < 200 B, a $FLODO < 60 B.
 const SERIAL_RX_BYTES: usize = 1024;
@@ -189,7 +189,7 @@ impl DiscoveryBoard {
     pub fn take() -> DiscoveryBoard {
         let p = embassy_stm32::init(clock_config());
         // The alarm first: asserted from the moment the pins drive (before
-        // this they float; README "Wiring" asks for a pull-up on PD11).
+        // this they float; docs/BOARD.md asks for a pull-up on PD11).
         let alarm = AlarmOutputs {
             led: Output::new(p.PD14, Level::High, Speed::Low),
             line: Output::new(p.PD11, Level::High, Speed::Low),

@@ -156,7 +156,7 @@ pub const WINDOW_VGA: Window = Window { hstart: 158, vstart: 10, href_edge: 0b10
 /// by trying (Adafruit_OV7670's table; LiveOV7670 starts at 174 too and
 /// reports its first pixel and first few lines as garbage; ComputerNerd's
 /// ov7670-no-ram starts at 180). A real board may want a few pixels either
-/// way (README "Not tested without hardware").
+/// way (docs/BOARD.md, what only the board can show).
 pub const WINDOW_QVGA: Window = Window { hstart: 174, vstart: 10, href_edge: 0 };
 
 /// HSTART, HSTOP, HREF, VSTRT, VSTOP, VREF for `window` over the whole
