@@ -6,24 +6,9 @@ use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::evaluate::{score, Confusion};
 use flatland_host::perturb::Perturbation;
 use flatland_host::recording::Recording;
-use std::path::Path;
+mod common;
+use common::{bundled, data};
 
-/// Every bundled recording.
-const ALL_RECORDINGS: [&str; 13] = [
-    "flat_marks",
-    "stool_bags",
-    "approach_box",
-    "diagonal",
-    "turn",
-    "qvga_curb",
-    "noisy_marks",
-    "noisy_approach",
-    "bumpy_marks",
-    "bumpy_approach",
-    "exposure_rolling",
-    "slip",
-    "ledge",
-];
 
 /// The recordings rendered level, without noise or exposure effects of
 /// their own: the perturbation sweeps below add theirs to these. (The
@@ -34,7 +19,7 @@ const RECORDINGS: [&str; 8] =
 
 /// A bundled recording.
 fn open(name: &str) -> Recording {
-    Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)).unwrap()
+    Recording::open(data(name)).unwrap()
 }
 
 fn detect(name: &str, perturbation: Option<Perturbation>) -> (Confusion, Vec<FrameReport>) {
@@ -69,8 +54,8 @@ fn detect_recording(mut recording: Recording, perturbation: Option<Perturbation>
 
 #[test]
 fn every_bundled_recording_has_no_errors_outside_grace_frames() {
-    for name in ALL_RECORDINGS {
-        let (confusion, reports) = detect(name, None);
+    for name in bundled() {
+        let (confusion, reports) = detect(&name, None);
         println!("{name}: {confusion:?}");
         assert_eq!(confusion.errors(), 0, "{name}: {confusion:?}");
         // Every frame after the first gets a report (no keyframe restarts here).
@@ -121,7 +106,9 @@ without_odometry! {
 
 #[test]
 fn every_recording_is_tried_without_odometry() {
-    assert_eq!(WITHOUT_ODOMETRY, ALL_RECORDINGS);
+    let mut listed = WITHOUT_ODOMETRY.to_vec();
+    listed.sort();
+    assert_eq!(listed, bundled());
 }
 
 /// Errors outside grace frames per recording under one perturbation.
@@ -178,7 +165,7 @@ fn clean_recordings_made_noisy() {
 /// is a drop (negative height), and nearest_mm is the edge within 5 %.
 #[test]
 fn ledge_is_a_drop_at_its_edge() {
-    let recording = Recording::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join("ledge")).unwrap();
+    let recording = Recording::open(data("ledge")).unwrap();
     let truth = recording.truth.as_ref().unwrap();
     let (confusion, reports) = detect("ledge", None);
     println!("ledge: {confusion:?}");

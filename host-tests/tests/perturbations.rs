@@ -11,7 +11,7 @@ use flatland_host::recording::{Frame, Recording, Truth};
 use flatland_host::trial::{run_trial, Trial};
 
 mod common;
-use common::data;
+use common::{bundled, data};
 
 fn perturbation(spec: &str) -> Perturbation {
     spec.parse().unwrap_or_else(|e| panic!("{spec}: {e}"))
@@ -431,19 +431,6 @@ zero_errors! {
         stool_bags,
         turn,
     ];
-}
-
-/// The bundled recordings: every directory of host-tests/data with a truth.toml.
-fn bundled() -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(data(""))
-        .unwrap()
-        .filter_map(|entry| {
-            let path = entry.ok()?.path();
-            path.join("truth.toml").exists().then(|| path.file_name()?.to_str().map(String::from))?
-        })
-        .collect();
-    names.sort();
-    names
 }
 
 #[test]

@@ -11,23 +11,8 @@ use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::recording::Recording;
 
 mod common;
-use common::data;
+use common::{bundled, data};
 
-const RECORDINGS: [&str; 13] = [
-    "flat_marks",
-    "stool_bags",
-    "approach_box",
-    "diagonal",
-    "turn",
-    "qvga_curb",
-    "noisy_marks",
-    "noisy_approach",
-    "bumpy_marks",
-    "bumpy_approach",
-    "exposure_rolling",
-    "slip",
-    "ledge",
-];
 
 /// Every compared (judged) frame's report and scan, and the grid.
 fn scans(name: &str) -> (Vec<(FrameReport, Scan)>, KgGrid) {
@@ -59,8 +44,8 @@ fn edges(scan: &Scan, k: usize) -> (f64, f64) {
 #[test]
 fn scan_agrees_with_the_report() {
     let mut ahead = 0;
-    for name in RECORDINGS {
-        let (frames, _) = scans(name);
+    for name in bundled() {
+        let (frames, _) = scans(&name);
         for (report, scan) in &frames {
             let (Some(near), Some(left), Some(right)) = (report.nearest_mm, report.left_mm, report.right_mm) else {
                 assert!(!report.alarm);
@@ -96,8 +81,8 @@ fn scan_agrees_with_the_report() {
 /// hazard near enough to be seen there is still reported).
 #[test]
 fn sectors_outside_the_view_are_unknown() {
-    for name in RECORDINGS {
-        let (frames, grid) = scans(name);
+    for name in bundled() {
+        let (frames, grid) = scans(&name);
         let (x_left, _) = grid.pixel_to_ground(0.0, 0.0);
         let (x_right, _) = grid.pixel_to_ground(grid.width() as f64, 0.0);
         for (report, scan) in &frames {
@@ -121,13 +106,13 @@ fn sectors_outside_the_view_are_unknown() {
 /// degrees wide.
 #[test]
 fn clear_frames_are_free_within_view() {
-    let clear: Vec<&str> = RECORDINGS
+    let clear: Vec<String> = bundled()
         .into_iter()
         .filter(|name| Recording::open(data(name)).unwrap().truth.is_some_and(|truth| truth.obstacle.is_empty() && truth.drop.is_empty()))
         .collect();
     assert!(clear.len() >= 3, "{clear:?}");
     for name in clear {
-        let (frames, _) = scans(name);
+        let (frames, _) = scans(&name);
         assert!(!frames.is_empty());
         for (report, scan) in &frames {
             assert!(!report.alarm, "{name} frame {}", report.frame);

@@ -21,6 +21,19 @@ pub fn data(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)
 }
 
+/// Every bundled recording (a folder of `data/` with a truth.toml), by name.
+pub fn bundled() -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(data(""))
+        .unwrap()
+        .filter_map(|entry| {
+            let path = entry.ok()?.path();
+            path.join("truth.toml").exists().then(|| path.file_name()?.to_str().map(String::from))?
+        })
+        .collect();
+    names.sort();
+    names
+}
+
 /// The firmware ELF, built once per test binary. Panics (fails the test)
 /// with a clear message when QEMU or defmt-print is missing: never a skip.
 pub fn firmware_elf() -> PathBuf {
