@@ -43,13 +43,18 @@ pub fn describe(message: &MavMessage) -> String {
         MavMessage::HEARTBEAT(h) => format!("HEARTBEAT {:?}", h.system_status),
         MavMessage::STATUSTEXT(t) => format!("STATUSTEXT {:?}: {}", t.severity, t.text.to_str().unwrap_or("?")),
         MavMessage::OBSTACLE_DISTANCE(o) => {
-            let ahead = [o.distances[71], o.distances[0], o.distances[1]];
+            // MAVLink's encoding: UINT16_MAX unknown, above max_distance free.
+            let reading = |d: u16| match d {
+                u16::MAX => "unknown".to_string(),
+                d if d > o.max_distance => "free".to_string(),
+                d => format!("{d} cm"),
+            };
+            let ahead = [o.distances[71], o.distances[0], o.distances[1]].map(reading).join(", ");
             let nearest = o.distances.iter().filter(|&&d| d <= o.max_distance).min();
             format!(
-                "OBSTACLE_DISTANCE t {} us: -5/0/+5 deg {:?} cm, nearest {} (min {} max {} cm)",
+                "OBSTACLE_DISTANCE t {} us: -5/0/+5 deg [{ahead}], nearest {} (min {} max {} cm)",
                 o.time_usec,
-                ahead,
-                nearest.map_or("none".to_string(), |d| format!("{d} cm")),
+                nearest.map_or("none".to_string(), |&d| format!("{d} cm")),
                 o.min_distance,
                 o.max_distance
             )
@@ -148,4 +153,19 @@ pub fn write_scan_csv(decoded: &Decoded, key: RowKey, out: &mut dyn Write) -> Re
         rows += 1;
     }
     Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mavlink::dialects::common::OBSTACLE_DISTANCE_DATA;
+
+    #[test]
+    fn a_reading_says_free_and_unknown_in_words() {
+        let mut data = OBSTACLE_DISTANCE_DATA { time_usec: 5, min_distance: 10, max_distance: 142, ..OBSTACLE_DISTANCE_DATA::default() };
+        data.distances = [143; 72];
+        (data.distances[71], data.distances[1], data.distances[30]) = (u16::MAX, 57, 40);
+        let line = describe(&MavMessage::OBSTACLE_DISTANCE(data));
+        assert_eq!(line, "OBSTACLE_DISTANCE t 5 us: -5/0/+5 deg [unknown, free, 57 cm], nearest 40 cm (min 10 max 142 cm)");
+    }
 }
