@@ -325,17 +325,25 @@ impl Chosen {
     }
 }
 
-/// Most pixels [`choose`] keeps of a level `w` x `h` pixels: one per block
-/// of its interior (columns and rows 1 to the last but one), blocks from
-/// row 1 and column 0 on, and [`MAX_POINTS`] at most.
-const fn most_chosen(w: usize, h: usize) -> usize {
+/// The side of [`choose`]'s blocks on a level `w` x `h` pixels: the
+/// smallest that makes at most [`MAX_POINTS`] of them; None for a level
+/// too small for any (or too large for a `u8` pixel).
+const fn block_side(w: usize, h: usize) -> Option<usize> {
     if w < 3 || h < 3 || w > 256 || h > 256 {
-        return 0;
+        return None;
     }
     let mut side = 1;
     while w.div_ceil(side) * h.div_ceil(side) > MAX_POINTS {
         side += 1;
     }
+    Some(side)
+}
+
+/// Most pixels [`choose`] keeps of a level `w` x `h` pixels: one per block
+/// of its interior (columns and rows 1 to the last but one), blocks from
+/// row 1 and column 0 on, and [`MAX_POINTS`] at most.
+const fn most_chosen(w: usize, h: usize) -> usize {
+    let Some(side) = block_side(w, h) else { return 0 };
     let block_rows = (h - 2).div_ceil(side);
     let block_columns = (w - 2) / side - 1 / side + 1;
     let most = block_rows * block_columns;
@@ -384,13 +392,7 @@ fn choose(level: &Level, out: &mut [(u8, u8)], chosen_side: &mut usize) -> usize
     let stride = if level.width * level.height > 4 * MAX_POINTS { 2 } else { 1 };
     let mut count = 0;
     let (w, h) = (level.width, level.height);
-    if w < 3 || h < 3 || w > 256 || h > 256 {
-        return count;
-    }
-    let mut side = 1;
-    while w.div_ceil(side) * h.div_ceil(side) > MAX_POINTS {
-        side += 1;
-    }
+    let Some(side) = block_side(w, h) else { return count };
     *chosen_side = side;
     let mut strongest = [kernels::Strongest::default(); crate::grid::MAX_GRID_SIDE];
     let strongest = &mut strongest[..w.div_ceil(side)];
@@ -990,7 +992,7 @@ impl Direct {
 
 /// Takes the keyframe's attitude out of the normal equations: its step is 0.
 fn hold_keyframe_attitude(normal: &mut Normal) {
-    for k in [5, 6] {
+    for k in HELD_FROM..GEOMETRY {
         for other in 0..UNKNOWNS {
             normal.h[k][other] = 0.0;
             normal.h[other][k] = 0.0;
@@ -1019,7 +1021,7 @@ impl Border {
         }
         let depth = point.jacobian[DEPTH];
         let wd = weight * depth;
-        for k in 0..5 {
+        for k in 0..HELD_FROM {
             self.h[k] += wd * point.jacobian[k];
         }
         self.h[GEOMETRY] += wd * (sample - 128.0);
@@ -1034,7 +1036,7 @@ impl Border {
 /// their first [`UNKNOWNS`] rows with them (Cholesky goes row by row), so
 /// each edge adds only its own row: the same arithmetic, a third of it.
 struct GroundFactor {
-    factor: ([[f32; UNKNOWNS]; UNKNOWNS], [f32; UNKNOWNS]),
+    factor: Factor,
     /// The forward pass of the ground's gradient, `L^-1 g` (scaled).
     forward: [f32; UNKNOWNS],
     g: [f32; UNKNOWNS],
@@ -1044,20 +1046,18 @@ impl GroundFactor {
     #[inline(never)]
     fn of(normal: &Normal) -> Option<GroundFactor> {
         let factor = cholesky(&normal.h)?;
-        let forward = forward_n(&factor, &normal.g);
-        Some(GroundFactor { factor, forward, g: normal.g })
+        Some(GroundFactor { forward: forward(&factor, &normal.g), factor, g: normal.g })
     }
 
     /// g^T H^-1 g: how much one Gauss-Newton step lowers the chi-square.
     fn reduction(&self) -> Option<f32> {
-        let mut x = back_n(&self.factor.0, &self.forward, |_| (0.0, 0.0));
-        x = core::array::from_fn(|k| x[k] * self.factor.1[k]);
+        let x = back(&self.factor, &self.forward, None);
         x.iter().all(|v| v.is_finite()).then_some(x.iter().zip(&self.g).map(|(x, g)| x * g).sum())
     }
 
     /// The step of the normal equations bordered by a lower level's depth
-    /// (`cholesky_n` and `cholesky_solve_n` of the bordered system, its
-    /// last row alone computed here).
+    /// (what [`cholesky`] and [`cholesky_solve`] of the bordered system
+    /// compute, its last row alone computed here).
     #[inline(never)]
     fn bordered_step(&self, border: &Border) -> Option<[f32; UNKNOWNS + 1]> {
         let (l, scales) = &self.factor;
@@ -1088,8 +1088,8 @@ impl GroundFactor {
             sum -= a * y;
         }
         let x_last = sum / diagonal / diagonal;
-        let x = back_n(l, &self.forward, |r| (last[r], x_last));
-        let step: [f32; UNKNOWNS + 1] = core::array::from_fn(|k| if k < UNKNOWNS { x[k] * scales[k] } else { x_last * last_scale });
+        let x = back(&self.factor, &self.forward, Some((&last, x_last)));
+        let step: [f32; UNKNOWNS + 1] = core::array::from_fn(|k| if k < UNKNOWNS { x[k] } else { x_last * last_scale });
         step.iter().all(|v| v.is_finite()).then_some(step)
     }
 
@@ -1125,24 +1125,22 @@ fn add_priors(normal: &mut Normal, state: &State, prior: &Prior, scale: f32) {
     add(GEOMETRY + 1, state.offset, 128.0, OFFSET_SIGMA);
 }
 
-/// The Cholesky factor of the symmetric `h` (upper triangle given) after
-/// Jacobi scaling: (L, the scales); None unless positive definite.
-fn cholesky(h: &[[f32; UNKNOWNS]; UNKNOWNS]) -> Option<([[f32; UNKNOWNS]; UNKNOWNS], [f32; UNKNOWNS])> {
-    cholesky_n(h)
-}
+/// A Cholesky factor after Jacobi scaling: (L, the scales).
+type Factor = ([[f32; UNKNOWNS]; UNKNOWNS], [f32; UNKNOWNS]);
 
-/// [`cholesky`] of any size.
-fn cholesky_n<const N: usize>(h: &[[f32; N]; N]) -> Option<([[f32; N]; N], [f32; N])> {
-    let mut scales = [0.0; N];
-    for k in 0..N {
+/// The Cholesky factor of the symmetric `h` (upper triangle given) after
+/// Jacobi scaling; None unless positive definite.
+fn cholesky(h: &[[f32; UNKNOWNS]; UNKNOWNS]) -> Option<Factor> {
+    let mut scales = [0.0; UNKNOWNS];
+    for k in 0..UNKNOWNS {
         // Not positive, or NaN.
         if h[k][k].is_nan() || h[k][k] <= 0.0 {
             return None;
         }
         scales[k] = 1.0 / crate::kernels::sqrtf(h[k][k]);
     }
-    let mut l = [[0.0f32; N]; N];
-    for r in 0..N {
+    let mut l = [[0.0f32; UNKNOWNS]; UNKNOWNS];
+    for r in 0..UNKNOWNS {
         for c in 0..=r {
             let mut sum = h[c][r] * scales[r] * scales[c];
             for (a, b) in l[r][..c].iter().zip(&l[c][..c]) {
@@ -1163,21 +1161,14 @@ fn cholesky_n<const N: usize>(h: &[[f32; N]; N]) -> Option<([[f32; N]; N], [f32;
 }
 
 /// Solves H x = b with H's factor.
-fn cholesky_solve(factor: &([[f32; UNKNOWNS]; UNKNOWNS], [f32; UNKNOWNS]), b: &[f32; UNKNOWNS]) -> [f32; UNKNOWNS] {
-    cholesky_solve_n(factor, b)
-}
-
-/// [`cholesky_solve`] of any size.
-fn cholesky_solve_n<const N: usize>(factor: &([[f32; N]; N], [f32; N]), b: &[f32; N]) -> [f32; N] {
-    let y = forward_n(factor, b);
-    let x = back_n(&factor.0, &y, |_| (0.0, 0.0));
-    core::array::from_fn(|k| x[k] * factor.1[k])
+fn cholesky_solve(factor: &Factor, b: &[f32; UNKNOWNS]) -> [f32; UNKNOWNS] {
+    back(factor, &forward(factor, b), None)
 }
 
 /// The forward pass: y = L^-1 (scaled b).
-fn forward_n<const N: usize>((l, scales): &([[f32; N]; N], [f32; N]), b: &[f32; N]) -> [f32; N] {
-    let mut y = [0.0f32; N];
-    for r in 0..N {
+fn forward((l, scales): &Factor, b: &[f32; UNKNOWNS]) -> [f32; UNKNOWNS] {
+    let mut y = [0.0f32; UNKNOWNS];
+    for r in 0..UNKNOWNS {
         let mut sum = b[r] * scales[r];
         for k in 0..r {
             sum -= l[r][k] * y[k];
@@ -1187,21 +1178,22 @@ fn forward_n<const N: usize>((l, scales): &([[f32; N]; N], [f32; N]), b: &[f32; 
     y
 }
 
-/// The back pass: x = L^-T y (scaled), with `border(r)` = a bordering
-/// row's entry in column r and its x, subtracted last as the bordered
-/// system's would be (0, 0 for none).
-fn back_n<const N: usize>(l: &[[f32; N]; N], y: &[f32; N], border: impl Fn(usize) -> (f32, f32)) -> [f32; N] {
-    let mut x = [0.0f32; N];
-    for r in (0..N).rev() {
+/// The back pass: x = L^-T y, scaled back. With `border` (a bordering
+/// row of L, and its unknown's x), that row's term is subtracted last, as
+/// the bordered system's own back pass would.
+fn back((l, scales): &Factor, y: &[f32; UNKNOWNS], border: Option<(&[f32; UNKNOWNS], f32)>) -> [f32; UNKNOWNS] {
+    let mut x = [0.0f32; UNKNOWNS];
+    for r in (0..UNKNOWNS).rev() {
         let mut sum = y[r];
-        for k in r + 1..N {
+        for k in r + 1..UNKNOWNS {
             sum -= l[k][r] * x[k];
         }
-        let (entry, x_border) = border(r);
-        sum -= entry * x_border;
+        if let Some((row, x_border)) = border {
+            sum -= row[r] * x_border;
+        }
         x[r] = sum / l[r][r];
     }
-    x
+    core::array::from_fn(|k| x[k] * scales[k])
 }
 
 /// The step x of H x = g; None when H is not positive definite.
