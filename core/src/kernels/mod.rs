@@ -288,11 +288,7 @@ pub fn i64_to_f32(value: i64) -> f32 {
 /// everywhere else, libm itself.
 pub fn sincosf(x: f32) -> (f32, f32) {
     let magnitude = x.to_bits() & 0x7FFF_FFFF;
-    // libm: x itself and 1 below 2^-12; its polynomials up to ~pi/4.
-    if magnitude < 0x3980_0000 {
-        return libm::sincosf(x);
-    }
-    if magnitude > 0x3F49_0FDA {
+    if !SINCOSF_OWN.contains(&magnitude) {
         return libm::sincosf(x);
     }
     let exponent = (magnitude >> 23) as i32 - 127;
@@ -303,6 +299,10 @@ pub fn sincosf(x: f32) -> (f32, f32) {
         _ => libm::sincosf(x),
     }
 }
+
+/// The |x| (bits) [`sincosf`] computes itself: libm's polynomials, from
+/// 2^-12 (below, libm gives x itself and 1) to ~pi/4.
+const SINCOSF_OWN: core::ops::RangeInclusive<u32> = 0x3980_0000..=0x3F49_0FDA;
 
 /// libm's (FreeBSD's) k_sinf and k_cosf polynomials at `x` (Q62, 0 < x <
 /// 1), exactly but for the truncation of each product (~2^-58 in all).
@@ -540,7 +540,7 @@ mod tests {
     /// Every 61st `f32` of the range `sincosf` computes itself, both signs.
     #[test]
     fn sincosf_equals_libm_across_its_range() {
-        for bits in (0x3980_0000u32..=0x3F49_0FDA).step_by(61) {
+        for bits in super::SINCOSF_OWN.step_by(61) {
             for x in [f32::from_bits(bits), -f32::from_bits(bits)] {
                 let ((s, c), (ls, lc)) = (super::sincosf(x), libm::sincosf(x));
                 assert!(s.to_bits() == ls.to_bits() && c.to_bits() == lc.to_bits(), "{x:e}: {s:e} {c:e} vs libm {ls:e} {lc:e}");
