@@ -75,35 +75,35 @@ pub(crate) static IMAGE: ConstStaticCell<[u8; IMAGE_CAPACITY]> = ConstStaticCell
 static mut CCM_IMAGE: core::mem::MaybeUninit<[u8; IMAGE_CAPACITY]> = core::mem::MaybeUninit::uninit();
 static CCM_IMAGE_TAKEN: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 
-/// The CCM image, zeroed, once; None on a second call.
-pub(crate) fn ccm_image() -> Option<&'static mut [u8; IMAGE_CAPACITY]> {
-    use core::sync::atomic::Ordering;
-    if CCM_IMAGE_TAKEN.swap(true, Ordering::AcqRel) {
+/// The CCM statics are not zeroed at reset (the `.ccm` section is not
+/// loaded): each is handed out once, its `taken` flag (in RAM) set, after
+/// `init` has written all of it; None on a second call.
+///
+/// SAFETY: the caller passes its own static's slot and flag, used nowhere else.
+unsafe fn take_ccm<T>(slot: *mut core::mem::MaybeUninit<T>, taken: &core::sync::atomic::AtomicBool, init: impl FnOnce(*mut core::mem::MaybeUninit<T>)) -> Option<&'static mut T> {
+    if taken.swap(true, core::sync::atomic::Ordering::AcqRel) {
         return None;
     }
-    // SAFETY: the flag hands the buffer out once, so this is its only
-    // reference; it is written (zeroed) before it is read as bytes.
+    // SAFETY: the flag hands the slot out once, so this is its only
+    // reference; `init` writes it whole before it is read.
     unsafe {
-        let image = &raw mut CCM_IMAGE;
-        core::ptr::write_bytes(image, 0, 1);
-        Some((*image).assume_init_mut())
+        init(slot);
+        Some((*slot).assume_init_mut())
     }
+}
+
+/// The CCM image, zeroed, once; None on a second call.
+pub(crate) fn ccm_image() -> Option<&'static mut [u8; IMAGE_CAPACITY]> {
+    // SAFETY: CCM_IMAGE and its flag are used only here; zeroing writes
+    // every byte.
+    unsafe { take_ccm(&raw mut CCM_IMAGE, &CCM_IMAGE_TAKEN, |image| core::ptr::write_bytes(image, 0, 1)) }
 }
 
 /// The CCM's GTI stage, unconfigured, once; None on a second call.
 #[cfg(not(feature = "full-frame"))]
 fn ccm_gti() -> Option<&'static mut GtiStage> {
-    use core::sync::atomic::Ordering;
-    if CCM_GTI_TAKEN.swap(true, Ordering::AcqRel) {
-        return None;
-    }
-    // SAFETY: the flag hands the stage out once, so this is its only
-    // reference; it is written whole before it is read.
-    unsafe {
-        let gti = &raw mut CCM_GTI;
-        (*gti).write(GtiStage::UNCONFIGURED);
-        Some((*gti).assume_init_mut())
-    }
+    // SAFETY: CCM_GTI and its flag are used only here.
+    unsafe { take_ccm(&raw mut CCM_GTI, &CCM_GTI_TAKEN, |gti| _ = (*gti).write(GtiStage::UNCONFIGURED)) }
 }
 
 /// Why a rig was refused at start-up. Each is logged and sent as `$FLERR`.
