@@ -9,7 +9,7 @@ use common::*;
 use flatland_core::gpa::Gpa;
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::protocol::{checksum, encode_line, FaultCode, Message, Odometry, RigRecord};
-use flatland_host::qemu::{self, RunRequest, Sensors};
+use flatland_host::qemu::{self, Sensors};
 use flatland_host::recording::Recording;
 
 /// A line with a correct checksum around `body`.
@@ -195,10 +195,7 @@ fn rig_that_does_not_fit_the_target_is_refused_with_a_typed_fault() {
     too_wide.width = 800;
     too_wide.cx = 399.5;
     let script = qemu::encode_script(&[Message::Rig(RigRecord::from(&base.rig)), Message::Rig(too_wide), Message::End]).unwrap();
-    let elf = firmware_elf();
-    let dir = data("qvga_curb");
-    let request = RunRequest { elf: &elf, dir: &dir, script, then: None, bench: true, bench_mm_per_px: Some(TOO_FINE_MM), bench_no_margins: false, echo_log: false, exec_log: None, timeout: TIMEOUT, mavlink: false };
-    let outcome = qemu::run_firmware(request, &mut |_| {}).unwrap();
+    let outcome = run_at_resolution(&data("qvga_curb"), script, TOO_FINE_MM);
     let codes: Vec<FaultCode> = faults(&outcome).iter().map(|f| f.code).collect();
     assert_eq!(codes, [FaultCode::GridTooLarge, FaultCode::CameraTooLarge], "{}", outcome.log);
     assert!(!outcome.serial.messages.iter().any(|m| matches!(m, Message::Hello(_))), "nothing was accepted");

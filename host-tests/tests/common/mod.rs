@@ -55,8 +55,19 @@ pub fn run(dir: &Path, script: Vec<u8>) -> RunOutcome {
 
 /// As [`run`], with more bytes sent once a frame is answered.
 pub fn run_then(dir: &Path, script: Vec<u8>, then: Option<qemu::Continuation>) -> RunOutcome {
+    checked_run(dir, script, then, None)
+}
+
+/// As [`run`], the KG resolution fixed (the firmware's `mm_per_px=`
+/// option, which its benchmark mode takes).
+pub fn run_at_resolution(dir: &Path, script: Vec<u8>, mm_per_px: f64) -> RunOutcome {
+    checked_run(dir, script, None, Some(mm_per_px))
+}
+
+/// One QEMU run that must end well: exit status 0, no panic logged.
+fn checked_run(dir: &Path, script: Vec<u8>, then: Option<qemu::Continuation>, mm_per_px: Option<f64>) -> RunOutcome {
     let elf = firmware_elf();
-    let request = RunRequest { elf: &elf, dir, script, then, bench: false, bench_mm_per_px: None, bench_no_margins: false, echo_log: false, exec_log: None, timeout: TIMEOUT, mavlink: false };
+    let request = RunRequest { elf: &elf, dir, script, then, bench: mm_per_px.is_some(), bench_mm_per_px: mm_per_px, bench_no_margins: false, echo_log: false, exec_log: None, timeout: TIMEOUT, mavlink: false };
     let outcome = qemu::run_firmware(request, &mut |_| {}).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
     assert!(outcome.status.success(), "{}: firmware exit {}; log:\n{}", dir.display(), outcome.status, outcome.log);
     assert!(!outcome.log.contains("panic"), "{}: log mentions a panic:\n{}", dir.display(), outcome.log);
