@@ -13,9 +13,12 @@
 //! Frames (vehicle conventions, ArduPilot and PX4 alike):
 //! - `OBSTACLE_DISTANCE` in `MAV_FRAME_BODY_FRD`: element j is centred
 //!   j * 5 degrees clockwise from the vehicle's front (`angle_offset` 0,
-//!   `increment_f` 5), so the 72 elements go once round; PX4 bins it by
-//!   5 degrees and reads out of bounds on a finer increment. Each element
-//!   merges the scan's two 2.5-degree sectors in it ([`obstacle_distance`]).
+//!   `increment_f` 5), so the 72 elements go once round. Each element
+//!   carries the nearest hazard within +-5 degrees of its centre
+//!   ([`obstacle_distance`]): the windows overlap so that every reader
+//!   gets every hazard, whichever elements it takes (PX4's 36 bins of 10
+//!   degrees read only the even elements; ArduPilot and PX4's 72 bins read
+//!   each); docs/MAVLINK.md has the readers.
 //! - Positions NED (x north, y east), attitude as aerospace angles or a
 //!   body-FRD-to-NED quaternion; converted to RECORDING.md's frames
 //!   (x east, z north, yaw positive left; pitch positive nose down, roll
@@ -44,6 +47,8 @@ pub const SYSTEM_ID: u8 = 1;
 pub const COMPONENT_ID: u8 = MavComponent::MAV_COMP_ID_OBSTACLE_AVOIDANCE as u8;
 /// Width of an `OBSTACLE_DISTANCE` element, degrees (72 of them go round once).
 pub const BIN_DEG: f32 = 5.0;
+/// [`BIN_DEG`] in thousandths of a degree, as the scan counts its sectors.
+const BIN_MDEG: i32 = 5000;
 /// Elements of `OBSTACLE_DISTANCE`.
 pub const BINS: usize = 72;
 /// Longest MAVLink 2 frame: 10 header bytes, 255 payload, 2 CRC, 13 signature.
@@ -134,36 +139,40 @@ pub fn status_text(severity: MavSeverity, text: &str) -> STATUSTEXT_DATA {
     STATUSTEXT_DATA { severity, text: bytes.into(), id: 0, chunk_seq: 0 }
 }
 
-/// The `OBSTACLE_DISTANCE` range fields for a scan: `min_distance` the
-/// scan's nearest range, `max_distance` its farthest (cm).
+/// The `OBSTACLE_DISTANCE` range fields for a scan (cm): `min_distance`
+/// the scan's nearest range, `max_distance` one cm beyond its farthest, so
+/// that every hazard (whole cm, rounded down) lies below it: PX4 reads a
+/// value at `max_distance` as free, ArduPilot as an obstacle.
 pub fn distance_limits_cm(scan: &Scan) -> (u16, u16) {
     let layout = scan.layout();
-    (layout.range_min_mm / 10, layout.range_max_mm.div_ceil(10))
+    (layout.range_min_mm / 10, layout.range_max_mm / 10 + 1)
 }
 
 /// `OBSTACLE_DISTANCE` for `scan` at `time_usec`. Element j merges the
-/// scan's sectors whose centres lie in [5j - 2.5, 5j + 2.5) degrees: the
-/// nearest hazard if any (cm, rounded), else `max_distance + 1` (free) when
-/// all of them are free, else `UINT16_MAX` (unknown); elements without a
-/// sector are unknown.
+/// scan's sectors whose centres lie within 5 degrees of 5j (four of them):
+/// the nearest hazard if any (cm, rounded down, so never read farther than
+/// it is, and below `max_distance`), else `max_distance + 1` (free) when
+/// all four are free, else `UINT16_MAX` (unknown). Each sector thus sits in
+/// two neighbouring elements, and the even elements alone (or the odd ones)
+/// hold every hazard.
 pub fn obstacle_distance(scan: &Scan, time_usec: u64) -> OBSTACLE_DISTANCE_DATA {
     let (min_cm, max_cm) = distance_limits_cm(scan);
-    let mut distances = [u16::MAX; BINS];
-    let mut seen = [Merge::None; BINS];
-    let increment = f64::from(SCAN_INCREMENT_MDEG) / 1000.0;
-    let start = f64::from(scan.layout().angle_start_mdeg()) / 1000.0;
-    for (k, sector) in scan.sectors().enumerate() {
-        let centre = start + k as f64 * increment;
-        let bin = (libm::floor(centre / f64::from(BIN_DEG) + 0.5) as i32).rem_euclid(BINS as i32) as usize;
-        seen[bin] = seen[bin].with(sector);
-    }
-    for (distance, merge) in distances.iter_mut().zip(seen) {
-        *distance = match merge {
-            Merge::None | Merge::Unknown => u16::MAX,
-            Merge::Free => max_cm + 1,
-            Merge::Hazard(mm) => (mm.saturating_add(5) / 10).clamp(min_cm, max_cm),
-        };
-    }
+    let layout = scan.layout();
+    let seen: [Merge; BINS] = core::array::from_fn(|element| {
+        // Centred on (-180, 180] degrees, as the scan counts.
+        let centre = if element > BINS / 2 { element as i32 - BINS as i32 } else { element as i32 } * BIN_MDEG;
+        // The sectors centred within 5 degrees; one outside the scan is unknown.
+        [-3, -1, 1, 3].into_iter().fold(Merge::Free, |merge, quarter| {
+            let offset = centre + quarter * SCAN_INCREMENT_MDEG / 2 - layout.angle_start_mdeg();
+            let k = offset.div_euclid(SCAN_INCREMENT_MDEG);
+            merge.with(usize::try_from(k).map_or(Sector::Unknown, |k| scan.sector(k)))
+        })
+    });
+    let distances = seen.map(|merge| match merge {
+        Merge::Unknown => u16::MAX,
+        Merge::Free => max_cm + 1,
+        Merge::Hazard(mm) => (mm / 10).clamp(min_cm, max_cm - 1),
+    });
     OBSTACLE_DISTANCE_DATA {
         time_usec,
         distances,
@@ -180,7 +189,6 @@ pub fn obstacle_distance(scan: &Scan, time_usec: u64) -> OBSTACLE_DISTANCE_DATA 
 /// Sectors merged into one element.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Merge {
-    None,
     Unknown,
     Free,
     Hazard(u16),
@@ -193,7 +201,7 @@ impl Merge {
             (Merge::Hazard(a), _) => Merge::Hazard(a),
             (_, Sector::Hazard(b)) => Merge::Hazard(b),
             (Merge::Unknown, _) | (_, Sector::Unknown) => Merge::Unknown,
-            (Merge::None | Merge::Free, Sector::Free) => Merge::Free,
+            (Merge::Free, Sector::Free) => Merge::Free,
         }
     }
 }
@@ -625,18 +633,31 @@ mod tests {
     }
 
     #[test]
-    fn obstacle_distance_merges_sector_pairs() {
+    fn obstacle_distance_elements_overlap_by_half() {
+        // Eight sectors centred on -8.75, -6.25, ..., 8.75 degrees.
         let mut scan = Scan::new(ScanLayout::new(10.0, 450.0, 1500.0));
         scan.begin(1);
         scan.mark_view(15.0, |x, _| if x > -150.0 { View::Seen } else { View::Unseen });
-        scan.add_point(-1.0, 800.0); // sector [-2.5, 0)
+        scan.add_point(-1.0, 809.0); // sector [-2.5, 0)
         let message = obstacle_distance(&scan, 5);
-        assert_eq!((message.min_distance, message.max_distance), (45, 150));
-        assert_eq!(message.distances[0], 80);
-        assert_eq!(message.distances[1], 151, "free: max + 1");
-        assert_eq!(message.distances[71], u16::MAX, "[-7.5, -2.5): one sector unknown");
+        assert_eq!((message.min_distance, message.max_distance), (45, 151), "max one cm beyond 1500 mm");
+        assert_eq!(message.distances[0], 80, "809 mm rounded down");
+        assert_eq!(message.distances[71], 80, "-5 degrees holds -1.25 too");
+        assert_eq!(message.distances[1], 152, "1.25..8.75 free: max + 1");
+        assert_eq!(message.distances[2], u16::MAX, "half outside the scan: unknown");
+        assert_eq!(message.distances[70], u16::MAX, "-8.75 unseen");
         assert_eq!(message.distances[36], u16::MAX);
         assert_eq!((message.increment_f, message.angle_offset, message.frame), (5.0, 0.0, MavFrame::MAV_FRAME_BODY_FRD));
+    }
+
+    #[test]
+    fn a_hazard_at_the_far_edge_stays_below_max_distance() {
+        let mut scan = Scan::new(ScanLayout::new(10.0, 450.0, 1500.0));
+        scan.begin(1);
+        scan.mark_view(15.0, |_, _| View::Seen);
+        scan.add_point(0.5, 1500.0);
+        let message = obstacle_distance(&scan, 5);
+        assert_eq!((message.distances[0], message.max_distance), (150, 151));
     }
 
     #[test]

@@ -3,6 +3,7 @@
 //! by `flatland_core`, the same code the firmware runs.
 
 pub mod animation;
+pub mod autopilot;
 pub mod bench;
 pub mod calibrate;
 pub mod detect;

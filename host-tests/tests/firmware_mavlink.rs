@@ -5,7 +5,9 @@
 //! ATTITUDE; garbage, damaged and foreign frames are counted and change
 //! nothing. The same streams, saved as files, are decoded by pymavlink (the
 //! Python reference implementation, host-tests/tools/mavlink_check.py) and by
-//! `flatland serial decode --mavlink`: each QEMU run serves all three.
+//! `flatland serial decode --mavlink`: each QEMU run serves all three. Every
+//! captured OBSTACLE_DISTANCE gives ArduPilot and both PX4 readers every
+//! hazard of the host's scan (`flatland_host::autopilot`).
 
 mod common;
 
@@ -15,6 +17,7 @@ use std::process::Command;
 use std::sync::OnceLock;
 
 use flatland_core::scan::{Scan, Sector, SCAN_INCREMENT_MDEG};
+use flatland_host::autopilot::lost_hazards;
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::mavlink_decode::{decode, frames_by_time, write_scan_csv, Decoded, RowKey};
 use flatland_host::qemu::{self, PoseMessages, RunRequest};
@@ -105,22 +108,28 @@ fn host_scans(recording: &Recording) -> (BTreeMap<u64, Scan>, BTreeMap<u64, u32>
 }
 
 /// OBSTACLE_DISTANCE as docs/MAVLINK.md documents it, from a scan's sectors:
-/// element j holds the sectors centred in [5j - 2.5, 5j + 2.5) degrees.
+/// element j holds the sectors centred within 5 degrees of 5j, all four of
+/// them in the scan for free; hazards in cm rounded down, max_distance one
+/// cm beyond the scan's range.
 fn expected(scan: &Scan) -> ([u16; 72], u16, u16) {
     let layout = scan.layout();
-    let (min, max) = (layout.range_min_mm / 10, layout.range_max_mm.div_ceil(10));
+    let (min, max) = (layout.range_min_mm / 10, layout.range_max_mm / 10 + 1);
     let mut groups: BTreeMap<usize, Vec<Sector>> = BTreeMap::new();
     for (k, sector) in scan.sectors().enumerate() {
         let centre_mdeg = layout.angle_start_mdeg() + k as i32 * SCAN_INCREMENT_MDEG;
-        let bin = (centre_mdeg + 2500).div_euclid(5000).rem_euclid(72) as usize;
-        groups.entry(bin).or_default().push(sector);
+        for bin in 0..72i32 {
+            let apart = (centre_mdeg - bin * 5000 + 180_000).rem_euclid(360_000) - 180_000;
+            if apart.abs() < 5000 {
+                groups.entry(bin as usize).or_default().push(sector);
+            }
+        }
     }
     let mut distances = [u16::MAX; 72];
     for (bin, sectors) in groups {
         let nearest = sectors.iter().filter_map(|s| if let Sector::Hazard(mm) = s { Some(*mm) } else { None }).min();
         distances[bin] = match nearest {
-            Some(mm) => ((f64::from(mm) / 10.0).round() as u16).clamp(min, max),
-            None if sectors.iter().all(|s| *s == Sector::Free) => max + 1,
+            Some(mm) => (mm / 10).clamp(min, max - 1),
+            None if sectors.len() == 4 && sectors.iter().all(|s| *s == Sector::Free) => max + 1,
             None => u16::MAX,
         };
     }
@@ -154,6 +163,8 @@ fn check_against(name: &str, recording: &Recording, decoded: &Decoded) -> usize 
                 let (distances, min, max) = expected(scan);
                 assert_eq!((message.min_distance, message.max_distance), (min, max), "{name} frame {frame}");
                 assert_eq!(message.distances, distances, "{name} frame {frame}");
+                let lost = lost_hazards(message, scan);
+                assert!(lost.is_empty(), "{name} frame {frame}: an autopilot loses hazards: {lost:?}");
                 compared += 1;
             }
             None => assert!(message.distances.iter().all(|&d| d == u16::MAX), "{name} frame {frame}: nothing compared, all unknown"),

@@ -167,3 +167,24 @@ fn cli_prints_the_scan() {
         assert!(json.contains(&format!("\"ranges_mm\":[{}]", readings.join(","))), "{json}");
     }
 }
+
+/// The scan as OBSTACLE_DISTANCE, read by ArduPilot and both PX4 readers
+/// (modelled from their sources in `flatland_host::autopilot`): each gets
+/// every hazard of every judged frame, at its distance or nearer, and no
+/// element sits at max_distance. The firmware's stream is this message
+/// (firmware_mavlink.rs compares it field for field and checks it alike).
+#[test]
+fn every_autopilot_reads_every_hazard() {
+    use flatland_core::mavlink::obstacle_distance;
+    use flatland_host::autopilot::{hazards, lost_hazards};
+    let mut checked = 0;
+    for name in bundled() {
+        for (report, scan) in scans(&name).0 {
+            let problems = lost_hazards(&obstacle_distance(&scan, 0), &scan);
+            assert!(problems.is_empty(), "{name} frame {}: {problems:?}", report.frame);
+            checked += hazards(&scan);
+        }
+    }
+    println!("{checked} hazard sectors read whole by every autopilot");
+    assert!(checked > 100, "the recordings hold hazards: {checked}");
+}
