@@ -65,7 +65,9 @@ unsafe fn DefaultHandler(irqn: i16) {
     exit(Exit::Failure)
 }
 
-defmt::timestamp!("{=u32}", crate::board::emulated::instructions_now());
+// Seconds since the board's microsecond clock started (0 before it does),
+// printed by defmt-print as `s.uuuuuu`.
+defmt::timestamp!("{=u32:us}", crate::board::uptime_us());
 
 /// Room for the semihosting command line: QEMU's kernel path, then the
 /// options (a few words).

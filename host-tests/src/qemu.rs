@@ -257,7 +257,7 @@ impl Emulator {
         let mut qemu = qemu.stdin(Stdio::null()).stdout(Stdio::piped()).spawn().map_err(|e| format!("qemu-system-arm: {e}"))?;
         let frames = qemu.stdout.take().ok_or("qemu stdout")?;
         let mut decoder = match Command::new("defmt-print")
-            .args(["--log-format", "{t} {L} {s}", "-e"])
+            .args(["--log-format", "{t}s {L} {s}", "-e"])
             .arg(elf)
             .stdin(Stdio::from(frames))
             .stdout(Stdio::piped())

@@ -785,9 +785,14 @@ pub struct Tim2Clock {
     _private: (),
 }
 
+/// TIM2's counter: microseconds, 0 before [`DiscoveryBoard::take`] enables it.
+pub fn uptime_us() -> u32 {
+    pac::TIM2.cnt().read()
+}
+
 impl Clock for Tim2Clock {
     fn now_us(&self) -> u32 {
-        pac::TIM2.cnt().read()
+        uptime_us()
     }
 }
 

@@ -86,6 +86,15 @@ pub fn instructions_now() -> u32 {
     read_register(TIM2 + TIM_CNT)
 }
 
+/// TIM5's counter: microseconds of virtual time, 0 before [`EmulatedBoard::take`]
+/// starts it (QEMU's counter runs on virtual time even while disabled).
+pub fn uptime_us() -> u32 {
+    if read_register(TIM5 + TIM_CR1) & 1 == 0 {
+        return 0;
+    }
+    read_register(TIM5 + TIM_CNT)
+}
+
 /// The emulated board's parts, handed to the frame loop.
 pub struct EmulatedBoard {
     pub serial: Usart1,
@@ -137,7 +146,7 @@ pub struct Tim5Clock {
 
 impl Clock for Tim5Clock {
     fn now_us(&self) -> u32 {
-        read_register(TIM5 + TIM_CNT)
+        uptime_us()
     }
 }
 

@@ -19,6 +19,16 @@ pub mod discovery;
 pub mod emulated;
 pub mod ov7670;
 
+/// Microseconds on the board's free-running clock (the [`Clock`] the loop
+/// gets; 0 until the board is taken; wraps after 71 minutes): the log's
+/// timestamps, which the handlers need without owning the clock.
+pub fn uptime_us() -> u32 {
+    #[cfg(feature = "discovery")]
+    return discovery::uptime_us();
+    #[cfg(not(feature = "discovery"))]
+    return emulated::uptime_us();
+}
+
 /// The size of the frame a [`RowSource`] is about to deliver.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
 pub struct FrameSize {
