@@ -72,6 +72,7 @@ fn check(name: &str, recording: &Recording, truth: &Mount, config: &CalibrationC
 }
 
 #[test]
+#[cfg_attr(not(feature = "long-tests"), ignore = "long tier: cargo test -p flatland-host --features long-tests")]
 fn perturbed_mounts_come_back_on_the_flat_recordings() {
     let mut failures = Vec::new();
     for name in FLAT {
@@ -85,6 +86,7 @@ fn perturbed_mounts_come_back_on_the_flat_recordings() {
 /// The rocking body's frames are told apart from the mount, and the body
 /// model says so.
 #[test]
+#[cfg_attr(not(feature = "long-tests"), ignore = "long tier: cargo test -p flatland-host --features long-tests")]
 fn a_rocking_body_is_found_and_its_mean_taken_as_level() {
     for name in ROCKING {
         let mut recording = Recording::open(data(name)).unwrap();
@@ -119,6 +121,7 @@ fn perturbed_mounts_come_back_on_the_rocking_recordings() {
 }
 
 #[test]
+#[cfg_attr(not(feature = "long-tests"), ignore = "long tier: cargo test -p flatland-host --features long-tests")]
 fn without_odometry_a_known_height_gives_the_angles() {
     let mut failures = Vec::new();
     for name in ["flat_marks", "noisy_marks"] {
@@ -173,6 +176,7 @@ fn crooked_copy(name: &str, roll_deg: f64, yaw_deg: f64) -> (TempRecording, Moun
 }
 
 #[test]
+#[cfg_attr(not(feature = "long-tests"), ignore = "long tier: cargo test -p flatland-host --features long-tests")]
 fn a_crooked_mount_is_found() {
     let mut failures = Vec::new();
     for (name, roll, yaw) in [("flat_marks", 1.5, -2.0), ("noisy_marks", -2.0, 2.5)] {
@@ -304,6 +308,7 @@ fn camera_info_is_read_and_written() {
 /// KG rows across more camera rows than the firmware's ring holds: refused
 /// at start-up with `camera_too_large`, cleanly.
 #[test]
+#[cfg_attr(not(feature = "qemu-tests"), ignore = "QEMU tier: cargo test -p flatland-host --features qemu-tests")]
 fn a_crooked_recording_detects_alike_on_host_and_firmware() {
     let (copy, _) = crooked_copy("flat_marks", 0.5, -1.0);
     let expected = common::detect_csv(&copy.dir);

@@ -14,7 +14,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
 
 use flatland_core::scan::{Scan, Sector, SCAN_INCREMENT_MDEG};
 use flatland_host::autopilot::lost_hazards;
@@ -24,21 +24,6 @@ use flatland_host::qemu::{self, PoseMessages, RunRequest};
 use flatland_host::recording::Recording;
 use mavlink::dialects::common::{MavFrame, MavMessage, MavSeverity, MavState, OBSTACLE_DISTANCE_DATA};
 
-const RECORDINGS: [&str; 13] = [
-    "flat_marks",
-    "stool_bags",
-    "approach_box",
-    "diagonal",
-    "turn",
-    "qvga_curb",
-    "noisy_marks",
-    "noisy_approach",
-    "bumpy_marks",
-    "bumpy_approach",
-    "exposure_rolling",
-    "slip",
-    "ledge",
-];
 
 fn mavlink_elf() -> std::path::PathBuf {
     static ELF: OnceLock<Result<std::path::PathBuf, String>> = OnceLock::new();
@@ -71,12 +56,12 @@ struct Capture {
     path: PathBuf,
 }
 
-/// RECORDINGS[index]'s capture: one QEMU run per recording for every test
-/// that reads it (a second test asking waits for the first's run).
-fn capture(index: usize) -> &'static Capture {
-    static CAPTURES: [OnceLock<Capture>; RECORDINGS.len()] = [const { OnceLock::new() }; RECORDINGS.len()];
-    CAPTURES[index].get_or_init(|| {
-        let name = RECORDINGS[index];
+/// A bundled recording's capture: one QEMU run per recording for every
+/// test that reads it (a second test asking waits for the first's run).
+fn capture(name: &str) -> &'static Capture {
+    static CAPTURES: Mutex<BTreeMap<String, &'static OnceLock<Capture>>> = Mutex::new(BTreeMap::new());
+    let cell: &'static OnceLock<Capture> = CAPTURES.lock().unwrap().entry(name.to_string()).or_insert_with(|| Box::leak(Box::default()));
+    cell.get_or_init(|| {
         let dir = common::data(name);
         let recording = Recording::open(&dir).unwrap();
         let (raw, log) = run_raw(&dir, qemu::mavlink_script(&recording, PoseMessages::Odometry).unwrap());
@@ -202,10 +187,10 @@ fn end_text(decoded: &Decoded) -> String {
 #[test]
 fn obstacle_distance_matches_flatland_scan_on_every_recording() {
     let mut compared = 0;
-    for (index, name) in RECORDINGS.into_iter().enumerate() {
+    for name in &common::bundled() {
         let dir = common::data(name);
         let recording = Recording::open(&dir).unwrap();
-        let capture = capture(index);
+        let capture = capture(name);
         let (decoded, log) = (decode(&capture.raw), &capture.log);
         compared += check_against_host(name, &dir, &decoded);
         let states = heartbeats(&decoded);
@@ -310,9 +295,9 @@ fn type_counts(decoded: &Decoded) -> BTreeMap<String, u64> {
 fn pymavlink_decodes_every_recording_and_agrees_with_flatland_scan() {
     let python = pymavlink_python();
     let mut compared = 0;
-    for (index, name) in RECORDINGS.into_iter().enumerate().rev() {
+    for name in common::bundled().iter().rev() {
         let dir = common::data(name);
-        let capture = capture(index);
+        let capture = capture(name);
         let report = pymavlink_check(&capture.path);
         for fault in ["receive_errors", "bad_data", "unknown", "mavlink1", "seq_gaps", "leftover_bytes"] {
             assert_eq!(report.counts[fault], 0, "{name}: pymavlink {fault} ({} with {})", capture.path.display(), python.display());
@@ -351,9 +336,9 @@ fn pymavlink_decodes_every_recording_and_agrees_with_flatland_scan() {
 /// free, empty unknown); frames that compared nothing are all unknown.
 #[test]
 fn serial_decode_mavlink_prints_the_merged_scan() {
-    for (index, name) in RECORDINGS.into_iter().enumerate() {
+    for name in &common::bundled() {
         let dir = common::data(name);
-        let capture = capture(index);
+        let capture = capture(name);
         let (scans, frames) = host_scans(&Recording::open(&dir).unwrap());
         let mut expected_csv = String::from("frame,angle_start_deg,increment_deg");
         for k in 0..72 {

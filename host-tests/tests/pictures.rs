@@ -254,11 +254,13 @@ fn footprint_lands_on_obstacle(name: &str, frames: std::ops::RangeInclusive<u32>
 }
 
 #[test]
+#[cfg_attr(not(feature = "long-tests"), ignore = "long tier: cargo test -p flatland-host --features long-tests")]
 fn drawn_footprint_lands_on_the_box() {
     footprint_lands_on_obstacle("approach_box", 16..=39, 15, 0.95);
 }
 
 #[test]
+#[cfg_attr(not(feature = "long-tests"), ignore = "long tier: cargo test -p flatland-host --features long-tests")]
 fn drawn_footprint_lands_on_the_crate_and_the_curb() {
     footprint_lands_on_obstacle("diagonal", 7..=11, 4, 0.95);
     footprint_lands_on_obstacle("qvga_curb", 9..=15, 5, 0.95);
