@@ -12,7 +12,9 @@
 //! `firmware/PROTOCOL.md` documents every message and argues the choice.
 //!
 //! Both directions use one [`Message`] type, one [`encode`] and one
-//! [`Decoder`]; the firmware and the host share them. No heap, no panics:
+//! [`Decoder`]; the firmware and the host share them. Each message's
+//! fields are listed once, in a table both directions follow (`layout!`,
+//! below). No heap, no panics:
 //! the decoder is a byte-at-a-time state machine over a fixed line buffer
 //! and every malformed input is a typed [`DecodeError`], also counted in
 //! [`DecoderStats`].
@@ -409,9 +411,9 @@ pub fn encode_line(message: &Message) -> Result<Line, EncodeError> {
 
 // ---------------------------------------------------------------- field tables
 //
-// Each message body is a table of fields in wire order ([`layout!`]); the
+// Each message body is a table of fields in wire order (`layout!`); the
 // encoder writes and the decoder reads through the same table, and each
-// field's type knows its own text ([`Field`]).
+// field's type knows its own text (`Field`).
 
 /// One value's text on the wire: how it is written (with its leading
 /// comma) and read back.

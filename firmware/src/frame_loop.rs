@@ -4,13 +4,14 @@
 //! camera rows from the row source fed to `flatland_core::pipeline`, one
 //! report or fault out, the alarm pin set.
 //!
-//! It sees the board only through the board layer's traits, and the serial
+//! It sees the board only through the board layer's traits and the serial
 //! link only through a [`Protocol`] (the line protocol, or MAVLink in the
-//! `mavlink` build), so one loop runs on the emulated and on a real board
-//! and counts gaps, faults and benchmarks the same way in both protocols. The frame's work, odometry gate
-//! included, is the pipeline's, which the host's `flatland detect` drives
-//! too: the reports are equal field for field. Here:
-//! - a frame that cannot be opened or read is skipped with a `$FLERR`, and
+//! `mavlink` build): one loop runs on the emulated and on a real board, and
+//! counts gaps, faults and benchmarks the same way for both protocols. The
+//! frame's work, odometry gate included, is the pipeline's, which the
+//! host's `flatland detect` drives too: the reports are equal field for
+//! field. Here:
+//! - a frame that cannot be opened or read is skipped with a fault, and
 //!   one that stops mid-frame is abandoned (counted as aborted); the reports
 //!   already sent stand and the loop goes on with the next pose;
 //! - a frame whose time goes backwards is skipped without a fault;
@@ -18,11 +19,12 @@
 //!
 //! Fail-safe (`flatland_core::health::FailSafe`, tested on the host with a
 //! mock pin): the alarm pin is asserted from the start and released only
-//! right after a frame judged clear. A keyframe
-//! restart, a frame not judged (reported with its reason), a skipped or lost frame, a camera that does not deliver a frame
-//! within 0.5 s, odometry that stops for 0.5 s while the loop waits, and the
-//! end of input all assert it. The loop never blocks on the serial port: it
-//! polls, feeds the watchdog and checks the odometry timer while it waits.
+//! right after a frame judged clear. A keyframe restart, a frame not judged
+//! (reported with its reason), a skipped or lost frame, a camera that does
+//! not deliver a frame within 0.5 s, odometry that stops for 0.5 s while
+//! the loop waits, and the end of input all assert it. The loop never
+//! blocks on the serial port: it polls, feeds the watchdog and checks the
+//! odometry timer while it waits.
 
 use embedded_hal::digital::OutputPin;
 
@@ -100,14 +102,16 @@ fn ccm_image() -> Option<&'static mut [u8; IMAGE_CAPACITY]> {
     unsafe { take_ccm(&raw mut CCM_IMAGE, &CCM_IMAGE_TAKEN, |image| core::ptr::write_bytes(image, 0, 1)) }
 }
 
-/// The CCM's GTI stage, unconfigured, once; None on a second call.
+/// The build's GTI stage: the CCM's, unconfigured, once; None on a
+/// second call.
 #[cfg(not(feature = "full-frame"))]
 fn ccm_gti() -> Option<Option<&'static mut GtiStage>> {
     // SAFETY: CCM_GTI and its flag are used only here.
     unsafe { take_ccm(&raw mut CCM_GTI, &CCM_GTI_TAKEN, |gti| _ = (*gti).write(GtiStage::UNCONFIGURED)) }.map(Some)
 }
 
-/// The `full-frame` build has no GTI stage: its keyframe needs the RAM.
+/// The `full-frame` build has no GTI stage (`Some(None)`): its keyframe
+/// needs the RAM.
 #[cfg(feature = "full-frame")]
 fn ccm_gti() -> Option<Option<&'static mut GtiStage>> {
     Some(None)
