@@ -383,6 +383,7 @@ where
                 Ok(sample) => self.serve_frame(&mut session, frame, sample, cycle_start),
                 Err(error) => {
                     // No usable pose: the frame is not taken and the next restarts.
+                    defmt::warn!("frame {=u32} skipped: its pose was refused", frame);
                     self.protocol.pose_refused(frame, &error);
                     session.pipeline.restart();
                     self.fail_safe.frame_skipped(frame);

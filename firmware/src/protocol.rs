@@ -33,12 +33,13 @@ pub enum Input<E> {
 }
 
 impl<E> Input<E> {
-    /// The input's name, for the log of an out-of-order one.
+    /// The input's name, for the log of an out-of-order one (the rig and
+    /// the end are lines in both protocols).
     pub fn name(&self) -> &'static str {
         match self {
-            Input::Rig(_) => "rig",
+            Input::Rig(_) => "FLRIG",
             Input::Pose { .. } => "pose",
-            Input::End => "end",
+            Input::End => "FLEND",
             Input::Unexpected(name) => name,
         }
     }

@@ -102,12 +102,6 @@ impl<S: Read + ReadReady + Write> Mavlink<S> {
         self.send(&status_text(severity, text));
     }
 
-    /// A fault as an error `STATUSTEXT`, logged too.
-    fn fault(&mut self, text: &str) {
-        defmt::error!("fault: {=str}", text);
-        self.text(MavSeverity::MAV_SEVERITY_ERROR, text);
-    }
-
     /// `OBSTACLE_DISTANCE` with every element unknown (no stale clear).
     fn unknown_scan(&mut self, scan: &Scan, time_usec: u64) {
         self.send(&obstacle_distance(&Scan::new(scan.layout()), time_usec));
@@ -170,11 +164,11 @@ impl<S: Read + ReadReady + Write> Protocol for Mavlink<S> {
     }
 
     fn setup_failed(&mut self, error: &SetupError) {
-        self.fault(&short(format_args!("{}", error)));
+        self.text(MavSeverity::MAV_SEVERITY_ERROR, &short(format_args!("{}", error)));
     }
 
     fn pose_refused(&mut self, frame: u32, error: &PoseError) {
-        self.fault(&short(format_args!("frame {}: pose: {}", frame, error)));
+        self.text(MavSeverity::MAV_SEVERITY_ERROR, &short(format_args!("frame {}: pose: {}", frame, error)));
     }
 
     fn frame_done(&mut self, frame: u32, t_s: f64, outcome: &Outcome, scan: &Scan) {
