@@ -549,7 +549,8 @@ trait Layout: Sized {
 }
 
 /// A struct's [`Layout`]: its fields listed once, in wire order. The plain
-/// form builds the struct from every one of its fields; the `default` form
+/// form builds the struct from every one of its fields (a field added to
+/// the struct and not to the table does not compile); the `default` form
 /// takes field paths (`a.b`) and fills a `Default` value in wire order.
 macro_rules! layout {
     ($ty:ident { $($field:ident),* $(,)? }) => {
