@@ -439,6 +439,7 @@ where
             let record = match self.receive() {
                 Input::Rig(record) => record,
                 Input::End => return None,
+                Input::Pose { .. } if P::POSES_STREAM => continue,
                 other => {
                     self.out_of_order(&other);
                     continue;

@@ -61,6 +61,10 @@ pub trait Protocol {
     type Serial: Read + ReadReady + Write;
     /// Why a pose message could not be used.
     type PoseError;
+    /// The robot streams its poses whether or not a rig has come (an
+    /// autopilot does): poses before the rig are dropped, not counted as
+    /// out of order.
+    const POSES_STREAM: bool;
 
     fn new(serial: Self::Serial) -> Self;
     /// The next input among the bytes waiting; None once no byte waits.

@@ -34,6 +34,7 @@ impl<S: Read + ReadReady + Write> Lines<S> {
 impl<S: Read + ReadReady + Write> Protocol for Lines<S> {
     type Serial = S;
     type PoseError = NoPoseError;
+    const POSES_STREAM: bool = false;
 
     fn new(serial: S) -> Self {
         Lines { port: SerialPort::new(serial), decoder: Decoder::new() }

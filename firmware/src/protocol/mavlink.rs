@@ -10,7 +10,8 @@
 //!   the counters at the end.
 //! - In: `ODOMETRY`, or `LOCAL_POSITION_NED` with the latest `ATTITUDE`
 //!   (when no `ODOMETRY` has come), each one starting the next camera frame
-//!   with that pose sample; the rig as the line protocol's `$FLRIG` (once,
+//!   with that pose sample (poses before the rig are dropped: an autopilot
+//!   streams them regardless); the rig as the line protocol's `$FLRIG` (once,
 //!   from a PC or companion; MAVLink has no message for it) and `$FLEND`
 //!   (the emulated runs' end). Lines are told apart from frames by their
 //!   `$` between MAVLink frames. Garbage, damaged, foreign and MAVLink 1
@@ -118,6 +119,7 @@ fn short(args: core::fmt::Arguments) -> heapless::String<50> {
 impl<S: Read + ReadReady + Write> Protocol for Mavlink<S> {
     type Serial = S;
     type PoseError = PoseError;
+    const POSES_STREAM: bool = true;
 
     fn new(serial: S) -> Self {
         Mavlink {
