@@ -13,10 +13,18 @@
 //! as [`Monitor::poll`] runs more often than every 35 minutes (the loop polls
 //! continuously while it waits).
 //!
+//! [`FailSafe`] drives the alarm pin (an `embedded_hal` output) from the
+//! monitor: the frame loop tells it what each frame came to and when it
+//! waits, and the pin follows; host tests drive it with a mock pin.
+//!
 //! [`Health`] is what a status output reports (the line protocol's `$FLERR`
 //! codes, a MAVLink `HEARTBEAT.system_status` and `STATUSTEXT`).
 
 use core::fmt;
+
+use embedded_hal::digital::OutputPin;
+
+use crate::pipeline::Outcome;
 
 /// A camera that delivers no frame this long after it was asked is lost.
 pub const CAMERA_TIMEOUT_US: u32 = 500_000;
@@ -180,6 +188,129 @@ impl Monitor {
         self.verdict = Verdict::Unknown;
         self.fault = Some(SensorFault::OdometryTimeout);
         Some(SensorFault::OdometryTimeout)
+    }
+}
+
+/// The alarm pin (high = alarm) driven by a [`Monitor`]: asserted from
+/// the start, released only right after a frame judged clear, asserted
+/// again by anything else and at the end of input. The pin is written, and
+/// the change logged (defmt builds), only when its level changes.
+pub struct FailSafe<P> {
+    pin: P,
+    monitor: Monitor,
+    asserted: bool,
+    /// The last frame whose pose came (0 before any): what a timeout names.
+    last_frame: u32,
+}
+
+/// A change of the alarm pin, for the log (read only by defmt builds).
+#[derive(Clone, Copy)]
+#[cfg_attr(not(feature = "defmt"), allow(dead_code))]
+enum AlarmChange {
+    Start,
+    On { frame: u32, health: Health },
+    Off { frame: u32 },
+    End,
+}
+
+impl<P: OutputPin> FailSafe<P> {
+    /// Asserts `pin` (the board should have already) with a monitor at reset.
+    pub fn new(mut pin: P) -> Self {
+        let _ = pin.set_high();
+        log_change(AlarmChange::Start);
+        FailSafe { pin, monitor: Monitor::new(), asserted: true, last_frame: 0 }
+    }
+
+    /// Whether the pin is asserted.
+    pub fn alarm(&self) -> bool {
+        self.asserted
+    }
+
+    pub fn health(&self) -> Health {
+        self.monitor.health()
+    }
+
+    /// The last frame whose pose came (0 before any).
+    pub fn last_frame(&self) -> u32 {
+        self.last_frame
+    }
+
+    /// The pose that starts `frame` came at `now_us`.
+    pub fn pose(&mut self, frame: u32, now_us: u32) {
+        self.monitor.odometry(now_us);
+        self.last_frame = frame;
+    }
+
+    /// `frame` ended: judged (its report's alarm), or without a verdict (it
+    /// only (re)started the keyframe, or was not judged), or lost to `fault`.
+    /// The pin first: it is what the robot acts on.
+    pub fn frame_done(&mut self, frame: u32, result: Result<&Outcome, SensorFault>) {
+        match result {
+            Ok(Outcome::Compared(report)) => self.monitor.judged(report.alarm),
+            Ok(Outcome::NotJudged(_) | Outcome::Keyframe { .. }) => self.monitor.unjudged(),
+            Err(fault) => self.monitor.frame_failed(fault),
+        }
+        self.follow(frame);
+    }
+
+    /// `frame` was skipped before any of it was read (its pose was refused).
+    pub fn frame_skipped(&mut self, frame: u32) {
+        self.monitor.unjudged();
+        self.follow(frame);
+    }
+
+    /// The loop finished its work at `now_us` and waits for input.
+    pub fn waiting(&mut self, now_us: u32) {
+        self.monitor.waiting(now_us);
+    }
+
+    /// While the loop waits: checks the odometry timer at `now_us`. Returns
+    /// the fault when it is newly raised (to be reported once), the pin
+    /// already asserted.
+    pub fn poll(&mut self, now_us: u32) -> Option<SensorFault> {
+        let fault = self.monitor.poll(now_us)?;
+        self.follow(self.last_frame);
+        Some(fault)
+    }
+
+    /// No more frames will be judged: asserted for good. The pin is handed
+    /// back to be kept (dropping it could float it on a real board).
+    pub fn end_of_input(mut self) -> P {
+        if !self.asserted {
+            self.asserted = true;
+            let _ = self.pin.set_high();
+            log_change(AlarmChange::End);
+        }
+        self.pin
+    }
+
+    /// The pin follows the monitor; `frame` is the frame that changed it.
+    fn follow(&mut self, frame: u32) {
+        let asserted = self.monitor.alarm();
+        if asserted == self.asserted {
+            return;
+        }
+        self.asserted = asserted;
+        if asserted {
+            let _ = self.pin.set_high();
+            log_change(AlarmChange::On { frame, health: self.monitor.health() });
+        } else {
+            let _ = self.pin.set_low();
+            log_change(AlarmChange::Off { frame });
+        }
+    }
+}
+
+/// The target's log of the pin (QEMU models no GPIO: the fail-safe tests
+/// read these lines). Host builds log nothing; their tests read the pin.
+#[cfg_attr(not(feature = "defmt"), allow(unused_variables))]
+fn log_change(change: AlarmChange) {
+    #[cfg(feature = "defmt")]
+    match change {
+        AlarmChange::Start => defmt::info!("alarm: on (start)"),
+        AlarmChange::On { frame, health } => defmt::info!("alarm: on (frame {=u32}: {})", frame, health),
+        AlarmChange::Off { frame } => defmt::info!("alarm: off (frame {=u32} clear)", frame),
+        AlarmChange::End => defmt::info!("alarm: on (end of input)"),
     }
 }
 

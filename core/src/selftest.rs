@@ -80,6 +80,7 @@ checks! {
         floats_round_trip_bit_for_bit,
         longest_rig_fits_a_line,
         known_lines_match_documentation,
+        tables_keep_the_documented_order,
         non_finite_is_refused_by_encoder,
         malformed_lines_give_typed_errors,
         decoder_resynchronises_after_garbage,

@@ -10,7 +10,7 @@ use flatland_core::gpa::{Gpa, GpaConfig, SEED_COUNT_LEVEL, SEED_SUM_LEVEL};
 use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::limits::MAX_SEARCH_RADIUS;
 use flatland_core::motion::{Attitude, Motion, Pose};
-use flatland_core::protocol::{encode_line, Decoder, Fault, FaultCode, LinkStats, Message, Odometry, RigRecord};
+use flatland_core::protocol::{encode_line, Decoder, DecoderStats, Fault, FaultCode, LinkStats, LoopStats, Message, Odometry, RigRecord};
 use flatland_core::remap::{remap_frame, Line, RemapTable, StreamingRemap};
 use flatland_core::report::{FrameReport, NotJudged, Status, SHIFT_SCALE};
 use flatland_core::selftest::xorshift32;
@@ -387,8 +387,8 @@ fn message() -> impl Strategy<Value = Message> {
         odometry().prop_map(Message::Odometry),
         frame_report().prop_map(Message::Frame),
         any::<[u32; 10]>().prop_map(|c| Message::Stats(LinkStats {
-            frames: c[0], garbage_bytes: c[1], truncated: c[2], too_long: c[3], bad_checksum: c[4],
-            unknown_type: c[5], bad_field: c[6], out_of_order: c[7], frame_gaps: c[8], aborted: c[9],
+            decoder: DecoderStats { garbage_bytes: c[1], truncated: c[2], too_long: c[3], bad_checksum: c[4], unknown_type: c[5], bad_field: c[6] },
+            frame_loop: LoopStats { frames: c[0], out_of_order: c[7], frame_gaps: c[8], aborted: c[9] },
         })),
         (0usize..codes.len(), any::<u32>()).prop_map(move |(c, frame)| Message::Fault(Fault { code: codes[c], frame })),
     ]

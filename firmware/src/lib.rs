@@ -11,8 +11,7 @@
 
 pub mod board;
 pub mod frame_loop;
-#[cfg(feature = "mavlink")]
-pub mod mavlink_loop;
+pub mod protocol;
 pub mod rt;
 
 use embedded_hal::digital::OutputPin;
@@ -20,6 +19,13 @@ use embedded_io::{Read, ReadReady, Write};
 
 use board::{Clock, CycleCounter, RowSource, Watchdog};
 use frame_loop::{Board, Options};
+
+/// The protocol the serial port speaks: the line protocol, or MAVLink 2 in
+/// the `mavlink` build.
+#[cfg(not(feature = "mavlink"))]
+type Speaking<S> = protocol::lines::Lines<S>;
+#[cfg(feature = "mavlink")]
+type Speaking<S> = protocol::mavlink::Mavlink<S>;
 
 /// The frame loop's options, from the semihosting command line (QEMU's
 /// `-append`): `bench` adds instruction counts to the log (`profile_clock`
@@ -55,22 +61,20 @@ where
     W: Watchdog,
 {
     defmt::info!("flatland firmware {=str} ({=str})", env!("CARGO_PKG_VERSION"), board_name);
-    #[cfg(not(feature = "mavlink"))]
-    let stats = frame_loop::run(take(), options);
-    #[cfg(feature = "mavlink")]
-    let stats = mavlink_loop::run(take(), options);
+    let stats = frame_loop::FrameLoop::<Speaking<S>, _, _, _, _, _>::run(take(), options);
+    let (input, frames) = (stats.decoder, stats.frame_loop);
     defmt::info!(
         "done: {=u32} frames; serial garbage {=u32} B, truncated {=u32}, too long {=u32}, bad checksum {=u32}, unknown {=u32}, bad field {=u32}, out of order {=u32}, frame gaps {=u32}, aborted {=u32}",
-        stats.frames,
-        stats.garbage_bytes,
-        stats.truncated,
-        stats.too_long,
-        stats.bad_checksum,
-        stats.unknown_type,
-        stats.bad_field,
-        stats.out_of_order,
-        stats.frame_gaps,
-        stats.aborted
+        frames.frames,
+        input.garbage_bytes,
+        input.truncated,
+        input.too_long,
+        input.bad_checksum,
+        input.unknown_type,
+        input.bad_field,
+        frames.out_of_order,
+        frames.frame_gaps,
+        frames.aborted
     );
     let stack = rt::stack_use();
     defmt::info!("stack high-water mark: {=usize} of {=usize} bytes", stack.high_water, stack.size);

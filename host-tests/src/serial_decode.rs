@@ -192,7 +192,7 @@ mod tests {
         let (session, csv) = (pieces[1].trim_start(), pieces[3].trim_start());
         let mut out = Vec::new();
         let summary = run_serial_decode(&mut session.as_bytes(), &mut out).unwrap();
-        assert_eq!((summary.rows, summary.stats.map(|s| s.frames)), (3, Some(4)));
+        assert_eq!((summary.rows, summary.stats.map(|s| s.frame_loop.frames)), (3, Some(4)));
         assert_eq!(String::from_utf8(out).unwrap(), csv);
     }
 

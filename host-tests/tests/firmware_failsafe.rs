@@ -173,9 +173,9 @@ fn serial_noise_without_odometry_never_leaves_a_stale_clear() {
     );
     check_releases(&outcome, &changes);
     let stats = outcome.serial.stats.expect("$FLSTA");
-    assert_eq!(stats.bad_checksum, 5, "{stats:?}");
-    assert_eq!(stats.out_of_order, 10, "{stats:?}");
-    assert!(stats.garbage_bytes > 2000, "{stats:?}");
+    assert_eq!(stats.decoder.bad_checksum, 5, "{stats:?}");
+    assert_eq!(stats.frame_loop.out_of_order, 10, "{stats:?}");
+    assert!(stats.decoder.garbage_bytes > 2000, "{stats:?}");
 }
 
 /// A drop raises the alarm pin as an obstacle does (issue 14): on ledge,
@@ -235,7 +235,7 @@ fn a_frame_not_judged_asserts_the_alarm_and_says_why() {
     let changes = alarm_changes(&outcome);
     assert_eq!(changes, [Change::On("start".into()), Change::Off(1), Change::On("frame 4: Starting".into())]);
     assert!(faults(&outcome).is_empty(), "{:?}", faults(&outcome));
-    assert_eq!(outcome.serial.stats.expect("$FLSTA").frames, 8, "every frame processed");
+    assert_eq!(outcome.serial.stats.expect("$FLSTA").frame_loop.frames, 8, "every frame processed");
 }
 
 /// A uniform floor from the first frame, no odometry: nothing is ever

@@ -56,14 +56,14 @@ fn garbage_truncated_and_oversized_serial_input_is_counted_not_fatal() {
     let (csv, summary) = decoded(&outcome);
     assert_eq!(csv, detect_csv(&dir), "damaged lines between good ones change nothing");
     let stats = summary.stats.expect("$FLSTA");
-    assert_eq!(stats.garbage_bytes, 9, "{stats:?}");
-    assert_eq!(stats.truncated, 1, "{stats:?}");
-    assert_eq!(stats.too_long, 1, "{stats:?}");
-    assert_eq!(stats.bad_checksum, 1, "{stats:?}");
-    assert_eq!(stats.unknown_type, 1, "{stats:?}");
-    assert_eq!(stats.bad_field, 3, "{stats:?}");
-    assert_eq!(stats.out_of_order, 1, "{stats:?}");
-    assert_eq!((stats.frame_gaps, stats.aborted), (0, 0), "{stats:?}");
+    assert_eq!(stats.decoder.garbage_bytes, 9, "{stats:?}");
+    assert_eq!(stats.decoder.truncated, 1, "{stats:?}");
+    assert_eq!(stats.decoder.too_long, 1, "{stats:?}");
+    assert_eq!(stats.decoder.bad_checksum, 1, "{stats:?}");
+    assert_eq!(stats.decoder.unknown_type, 1, "{stats:?}");
+    assert_eq!(stats.decoder.bad_field, 3, "{stats:?}");
+    assert_eq!(stats.frame_loop.out_of_order, 1, "{stats:?}");
+    assert_eq!((stats.frame_loop.frame_gaps, stats.frame_loop.aborted), (0, 0), "{stats:?}");
 }
 
 #[test]
@@ -75,7 +75,7 @@ fn input_that_ends_early_or_is_all_garbage_ends_the_run_cleanly() {
     script.extend_from_slice(encode_line(&Message::End).unwrap().as_bytes());
     let outcome = run(&dir, script);
     let stats = outcome.serial.stats.expect("$FLSTA");
-    assert_eq!((stats.frames, stats.garbage_bytes), (0, noise), "{stats:?}");
+    assert_eq!((stats.frame_loop.frames, stats.decoder.garbage_bytes), (0, noise), "{stats:?}");
 }
 
 #[test]
@@ -91,8 +91,8 @@ fn frame_source_that_stops_mid_frame_is_abandoned_and_reported() {
     let codes: Vec<(FaultCode, u32)> = faults(&outcome).iter().map(|f| (f.code, f.frame)).collect();
     assert_eq!(codes, [(FaultCode::FrameRead, 3), (FaultCode::FrameRead, 5)]);
     let stats = summary.stats.expect("$FLSTA");
-    assert_eq!(stats.aborted, 1, "only frame 3 stopped mid-frame: {stats:?}");
-    assert_eq!(stats.frame_gaps, 2, "frames 4 and 6 restart the keyframe: {stats:?}");
+    assert_eq!(stats.frame_loop.aborted, 1, "only frame 3 stopped mid-frame: {stats:?}");
+    assert_eq!(stats.frame_loop.frame_gaps, 2, "frames 4 and 6 restart the keyframe: {stats:?}");
     // Reports before the break stand; the frames after each break restart
     // the keyframe, and their rows say so.
     assert_eq!(row_frames(&csv), [1, 2, 4, 6, 7], "{csv}");
@@ -123,7 +123,7 @@ fn gaps_in_frames_poses_or_time_reset_the_keyframe() {
     let codes: Vec<(FaultCode, u32)> = faults(&outcome).iter().map(|f| (f.code, f.frame)).collect();
     assert_eq!(codes, [(FaultCode::FrameMissing, 10)]);
     let stats = summary.stats.expect("$FLSTA");
-    assert_eq!(stats.frame_gaps, 3, "frames 11, 21 and 31 restart the keyframe (30 is skipped): {stats:?}");
+    assert_eq!(stats.frame_loop.frame_gaps, 3, "frames 11, 21 and 31 restart the keyframe (30 is skipped): {stats:?}");
     let rows = row_frames(&csv);
     for lost in [10, 20, 30] {
         assert!(!rows.contains(&lost), "frame {lost} was not processed: {csv}");
@@ -174,7 +174,7 @@ fn odometry_out_of_sequence_on_the_wire_resets_the_keyframe() {
             assert!(judged.clone().count() == 5 && judged.clone().all(|l| l.split(',').nth(2) == Some("0")), "no false alarm: {csv}");
         }
         let stats = summary.stats.expect("$FLSTA");
-        assert_eq!(stats.frame_gaps, 2, "odometry {odometry}: frame 5 and the repeated 6: {stats:?}");
+        assert_eq!(stats.frame_loop.frame_gaps, 2, "odometry {odometry}: frame 5 and the repeated 6: {stats:?}");
     }
 }
 

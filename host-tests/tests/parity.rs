@@ -37,8 +37,8 @@ fn parity_with(name: &str, sensors: Sensors) {
     assert!(expected.lines().count() > 1, "{name}: detect produced no rows; nothing was compared");
     let stats = summary.stats.expect("the firmware sends $FLSTA");
     let frames = std::fs::read_dir(dir.join("frames")).expect("frames").count() as u32;
-    assert_eq!(stats.frames, frames, "{name}: every frame processed");
-    assert_eq!((stats.frame_gaps, stats.aborted, stats.garbage_bytes, stats.bad_checksum), (0, 0, 0, 0), "{name}: {stats:?}");
+    assert_eq!(stats.frame_loop.frames, frames, "{name}: every frame processed");
+    assert_eq!((stats.frame_loop.frame_gaps, stats.frame_loop.aborted, stats.decoder.garbage_bytes, stats.decoder.bad_checksum), (0, 0, 0, 0), "{name}: {stats:?}");
 }
 
 #[test]

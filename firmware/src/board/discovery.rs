@@ -794,6 +794,12 @@ impl Clock for Tim2Clock {
     fn now_us(&self) -> u32 {
         uptime_us()
     }
+
+    /// On the timer itself: the same length at any flash wait states.
+    fn delay_us(&self, us: u32) {
+        let start = uptime_us();
+        while uptime_us().wrapping_sub(start) < us {}
+    }
 }
 
 /// The independent watchdog, started: it resets the chip unless fed within

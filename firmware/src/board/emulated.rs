@@ -148,7 +148,16 @@ impl Clock for Tim5Clock {
     fn now_us(&self) -> u32 {
         uptime_us()
     }
+
+    /// Counted in instructions, as the real board's 168 MHz core would run
+    /// them (QEMU's virtual time is the host's).
+    fn delay_us(&self, us: u32) {
+        cortex_m::asm::delay(us.saturating_mul(MODELLED_CPU_MHZ));
+    }
 }
+
+/// The modelled core's clock (the STM32F4's 168 MHz), for [`Tim5Clock::delay_us`].
+const MODELLED_CPU_MHZ: u32 = 168;
 
 /// SysTick periods left before the emulated watchdog fires; u32::MAX: not started.
 static WATCHDOG_TICKS_LEFT: AtomicU32 = AtomicU32::new(u32::MAX);

@@ -4,7 +4,7 @@
 //! - a serial port: `embedded_io::Read + Write`;
 //! - an alarm pin: `embedded_hal::digital::OutputPin`, high = alarm, set
 //!   high by the board before the loop runs;
-//! - a [`CycleCounter`] (benchmarks) and a [`Clock`] (timeouts);
+//! - a [`CycleCounter`] (benchmarks) and a [`Clock`] (timeouts, pauses);
 //! - a [`Watchdog`] the loop feeds.
 //!
 //! [`assert_alarm_after_fault`] is for the panic and fault handlers, which
@@ -69,10 +69,14 @@ pub trait CycleCounter {
     fn now(&self) -> u32;
 }
 
-/// Monotonic time for the fail-safe timeouts (`flatland_core::health`).
+/// Monotonic time for the fail-safe timeouts (`flatland_core::health`),
+/// and short pauses.
 pub trait Clock {
     /// Microseconds since some start; wraps at 2^32 (71 minutes).
     fn now_us(&self) -> u32;
+    /// Busy-waits about `us` microseconds (the loop's pause between two
+    /// polls of an idle serial port).
+    fn delay_us(&self, us: u32);
 }
 
 /// A watchdog that resets the board (or, emulated, ends the run) when the

@@ -199,7 +199,16 @@ fn describe(message: &Message) -> Option<String> {
         Message::Fault(f) => Some(format!("FAULT {} at frame {}", f.code.as_str(), f.frame)),
         Message::Stats(s) => Some(format!(
             "stats: {} frames; serial garbage {} B, truncated {}, too long {}, bad checksum {}, unknown {}, bad field {}, out of order {}, frame gaps {}, aborted {}",
-            s.frames, s.garbage_bytes, s.truncated, s.too_long, s.bad_checksum, s.unknown_type, s.bad_field, s.out_of_order, s.frame_gaps, s.aborted
+            s.frame_loop.frames,
+            s.decoder.garbage_bytes,
+            s.decoder.truncated,
+            s.decoder.too_long,
+            s.decoder.bad_checksum,
+            s.decoder.unknown_type,
+            s.decoder.bad_field,
+            s.frame_loop.out_of_order,
+            s.frame_loop.frame_gaps,
+            s.frame_loop.aborted
         )),
         _ => None,
     }
