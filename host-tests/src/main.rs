@@ -293,47 +293,89 @@ fn run_kg(recording: &Path, frames: Option<Range<u32>>, out: &Path, mm_per_px: O
     ExitCode::SUCCESS
 }
 
+/// One `detect --format json` row: the csv's fields (the attitude ones
+/// left out) and the scan.
+#[derive(serde::Serialize)]
+struct JsonRow {
+    frame: u32,
+    ref_frame: u32,
+    alarm: bool,
+    nearest_mm: Option<i32>,
+    left_mm: Option<i32>,
+    right_mm: Option<i32>,
+    sad: u32,
+    count50: u32,
+    shift_k: Decimal,
+    shift_g: Decimal,
+    tx_mm: Decimal,
+    tz_mm: Decimal,
+    obstacle_h_mm: Option<i32>,
+    status: String,
+    scan: JsonScan,
+}
+
 /// The scan as JSON: hazard ranges in mm, `"inf"` free, null unknown.
-fn json_scan(scan: &Scan) -> String {
-    let layout = scan.layout();
-    let sectors: Vec<String> = scan
-        .sectors()
-        .map(|sector| match sector {
-            Sector::Unknown => "null".to_string(),
-            Sector::Free => "\"inf\"".to_string(),
-            Sector::Hazard(range) => range.to_string(),
-        })
-        .collect();
-    format!(
-        "{{\"angle_start_deg\":{},\"increment_deg\":{},\"range_min_mm\":{},\"range_max_mm\":{},\"ranges_mm\":[{}]}}",
-        f64::from(layout.angle_start_mdeg()) / 1000.0,
-        f64::from(SCAN_INCREMENT_MDEG) / 1000.0,
-        layout.range_min_mm,
-        layout.range_max_mm,
-        sectors.join(",")
-    )
+#[derive(serde::Serialize)]
+struct JsonScan {
+    angle_start_deg: Decimal,
+    increment_deg: Decimal,
+    range_min_mm: u16,
+    range_max_mm: u16,
+    ranges_mm: Vec<JsonRange>,
+}
+
+/// A fixed-point value written as the csv writes it: shortest decimal, no
+/// `.0` on whole numbers.
+struct Decimal(f64);
+
+impl serde::Serialize for Decimal {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        if self.0.fract() == 0.0 {
+            serializer.serialize_i64(self.0 as i64)
+        } else {
+            serializer.serialize_f64(self.0)
+        }
+    }
+}
+
+struct JsonRange(Sector);
+
+impl serde::Serialize for JsonRange {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        match self.0 {
+            Sector::Unknown => serializer.serialize_none(),
+            Sector::Free => serializer.serialize_str("inf"),
+            Sector::Hazard(range) => serializer.serialize_u16(range),
+        }
+    }
 }
 
 fn json_row(report: &FrameReport, scan: &Scan) -> String {
-    let optional = |v: Option<i32>| v.map_or("null".to_string(), |v| v.to_string());
-    format!(
-        "{{\"frame\":{},\"ref_frame\":{},\"alarm\":{},\"nearest_mm\":{},\"left_mm\":{},\"right_mm\":{},\"sad\":{},\"count50\":{},\"shift_k\":{},\"shift_g\":{},\"tx_mm\":{},\"tz_mm\":{},\"obstacle_h_mm\":{},\"status\":\"{}\",\"scan\":{}}}",
-        report.frame,
-        report.ref_frame,
-        report.alarm,
-        optional(report.nearest_mm),
-        optional(report.left_mm),
-        optional(report.right_mm),
-        report.sad,
-        report.count50,
-        f64::from(report.shift_k) / f64::from(SHIFT_SCALE),
-        f64::from(report.shift_g) / f64::from(SHIFT_SCALE),
-        f64::from(report.tx) / f64::from(MOTION_SCALE),
-        f64::from(report.tz) / f64::from(MOTION_SCALE),
-        optional(report.obstacle_h_mm),
-        report.status,
-        json_scan(scan),
-    )
+    let layout = scan.layout();
+    let row = JsonRow {
+        frame: report.frame,
+        ref_frame: report.ref_frame,
+        alarm: report.alarm,
+        nearest_mm: report.nearest_mm,
+        left_mm: report.left_mm,
+        right_mm: report.right_mm,
+        sad: report.sad,
+        count50: report.count50,
+        shift_k: Decimal(f64::from(report.shift_k) / f64::from(SHIFT_SCALE)),
+        shift_g: Decimal(f64::from(report.shift_g) / f64::from(SHIFT_SCALE)),
+        tx_mm: Decimal(f64::from(report.tx) / f64::from(MOTION_SCALE)),
+        tz_mm: Decimal(f64::from(report.tz) / f64::from(MOTION_SCALE)),
+        obstacle_h_mm: report.obstacle_h_mm,
+        status: report.status.to_string(),
+        scan: JsonScan {
+            angle_start_deg: Decimal(f64::from(layout.angle_start_mdeg()) / 1000.0),
+            increment_deg: Decimal(f64::from(SCAN_INCREMENT_MDEG) / 1000.0),
+            range_min_mm: layout.range_min_mm,
+            range_max_mm: layout.range_max_mm,
+            ranges_mm: scan.sectors().map(JsonRange).collect(),
+        },
+    };
+    serde_json::to_string(&row).expect("plain fields serialise")
 }
 
 /// Which pictures `detect` writes, and whether they compensate the attitude.
