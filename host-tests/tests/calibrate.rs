@@ -210,10 +210,11 @@ fn perturbed_mounts_come_back_on_the_rocking_recordings() {
 /// All sixteen corners of the box on every bundled recording and on
 /// the directories in FLATLAND_CALIBRATE_DATA (comma-separated, e.g. the
 /// shared recordings; a `real_` one has no true mount and only has to come
-/// back without a panic). Ignored: about 15 minutes on 2 cores. Run with
+/// back without a panic). Ignored: roughly 15 minutes on 2 free cores
+/// (estimated from single runs, not timed). Run with
 /// `cargo test --release -p flatland-host --test calibrate -- --ignored --nocapture`.
 #[test]
-#[ignore = "sweep: 16 starts per recording, about 15 minutes"]
+#[ignore = "sweep: 16 starts per recording, roughly 15 minutes"]
 fn every_corner_on_every_recording() {
     let extra = std::env::var("FLATLAND_CALIBRATE_DATA").unwrap_or_default();
     // Every folder of data/ with a rig (qvga_low has no truth.toml), then the extra ones.
