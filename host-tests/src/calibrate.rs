@@ -23,11 +23,15 @@
 //! A real body rocks (RECORDING.md's body attitude): each frame's pitch and
 //! roll are unknowns too, turning the ground map as GPA's estimate does
 //! (`GroundMap`). Their mean over each connected set of pairs is held at
-//! zero: the mount is the camera's attitude on the body at rest, and a
-//! constant body attitude is indistinguishable from it.
+//! zero: a constant body attitude is indistinguishable from the mount, so
+//! the mount is measured relative to the body's mean attitude over the drive
+//! (Flatland's nominal attitude).
+//!
+//! The user's AOI plays no part: the solve's rigs ([`ground_rig`]) check
+//! only that the mount sees the ground.
 
 use crate::recording::{Frame, Recording, RecordingError};
-use flatland_core::geometry::{Intrinsics, Mount, Pixel, Rig, RigError};
+use flatland_core::geometry::{Aoi, AoiEdge, Intrinsics, Mount, Pixel, Rig, RigError};
 use flatland_core::motion::{Attitude, GroundMap, GroundMotion, Motion};
 use std::fmt;
 
@@ -96,7 +100,8 @@ pub enum CalibrationError {
     NoMotion { largest_mm: f64 },
     /// The ground flow does not determine the mount (the normal matrix is singular).
     Underdetermined,
-    /// The estimate left the valid rigs (the AOI no longer in view, a tilt beyond 90 degrees...).
+    /// The estimate left the possible mounts (a tilt outside (0, 90) degrees,
+    /// a roll or yaw beyond 30): the images fit no mount near the start.
     Diverged(RigError),
 }
 
@@ -110,7 +115,10 @@ impl fmt::Display for CalibrationError {
                 "the robot does not move (largest motion between frames {largest_mm:.1} mm): calibration needs a drive over flat ground of at least {MIN_PAIR_MOTION_MM} mm between frames"
             ),
             CalibrationError::Underdetermined => f.write_str("the ground's motion in the images does not determine the mount (too little texture or motion)"),
-            CalibrationError::Diverged(e) => write!(f, "the estimate left the valid mounts ({e}): start from a rig.toml nearer the truth"),
+            CalibrationError::Diverged(e) => write!(
+                f,
+                "the estimate left the possible mounts ({e}): the images fit no mount near rig.toml's (is the drive over flat ground, is [camera] right?)"
+            ),
         }
     }
 }
@@ -353,14 +361,56 @@ fn attitude_unknowns(pairs: &[Pair], frames: usize) -> (Vec<usize>, Vec<Unknown>
 /// The calibration problem at one pyramid level.
 struct Level<'a> {
     camera: Intrinsics,
-    base: &'a Rig,
     images: &'a [Image],
 }
 
 impl Level<'_> {
     fn rig(&self, state: &State) -> Result<Rig, RigError> {
-        Rig::new_checked(self.camera, state.mount(), *self.base.aoi())
+        ground_rig(self.camera, state.mount())
     }
+}
+
+/// A rig with `aoi` limited to what the image sees at `mount`: a rig.toml
+/// whose mount is wrong may put part of its AOI out of view, which does not
+/// matter to calibration (it samples the ground it sees). The edge a refusal
+/// names is pulled in until the AOI fits; the first refusal when it cannot.
+pub fn rig_with_aoi_in_view(camera: Intrinsics, mount: Mount, aoi: Aoi) -> Result<Rig, RigError> {
+    let mut fitted = aoi;
+    let mut first_error = None;
+    for _ in 0..200 {
+        let error = match Rig::new_checked(camera, mount, fitted) {
+            Ok(rig) => return Ok(rig),
+            Err(e) => e,
+        };
+        let first = *first_error.get_or_insert(error);
+        let depth = fitted.far_mm - fitted.near_mm;
+        match error {
+            RigError::AoiOutsideImage(AoiEdge::Near) => fitted.near_mm += 0.02 * depth,
+            RigError::AoiOutsideImage(AoiEdge::Far) | RigError::AoiBeyondHorizon => fitted.far_mm -= 0.02 * depth,
+            RigError::AoiOutsideImage(AoiEdge::Left | AoiEdge::Right) => fitted.half_width_mm *= 0.95,
+            _ => return Err(first),
+        }
+    }
+    Err(first_error.unwrap_or(RigError::AoiEmpty))
+}
+
+/// A rig for `mount` that checks what calibration needs (the camera, a
+/// mount that sees the ground) and not the user's AOI: on the way from a
+/// wrong start, that AOI may leave the image while the ground stays in view.
+/// Its AOI is a small patch straight ahead where the image sees the ground.
+fn ground_rig(camera: Intrinsics, mount: Mount) -> Result<Rig, RigError> {
+    // Where the optical axis meets the ground, then nearer and farther.
+    let axis_mm = mount.height_mm / mount.tilt_deg.to_radians().tan();
+    let mut first_error = None;
+    for fraction in [1.0, 0.7, 1.4, 0.5, 2.0] {
+        let near_mm = axis_mm * fraction;
+        let aoi = Aoi { half_width_mm: 0.01 * near_mm, near_mm, far_mm: 1.01 * near_mm };
+        match Rig::new_checked(camera, mount, aoi) {
+            Ok(rig) => return Ok(rig),
+            Err(e) => _ = first_error.get_or_insert(e),
+        }
+    }
+    Err(first_error.unwrap_or(RigError::Tilt))
 }
 
 /// Residual of one sample, with its gradient image values: (r, value, gu, gv, warped).
@@ -679,10 +729,12 @@ pub fn calibrate_with(recording: &Recording, config: &CalibrationConfig, body: B
     let start = state.clone();
     // The height stays nominal: each pair's scale takes up the flow's size.
     let mut unknowns: Vec<Unknown> = [0, 2, 3].map(Unknown::Mount).to_vec();
-    // With odometry its turns are trusted (a free turn trades off against
-    // the roll on diagonal drives); without, each pair's turn is free too.
-    let components = if odometry { 1 } else { 2 };
-    unknowns.extend((0..pairs.len()).flat_map(|p| (0..components).map(move |c| Unknown::Step(p, c))));
+    // Each pair's turn is free, also with odometry: the odometry's turn
+    // errors (0.05 deg a step on video_rate) otherwise go into the roll, which
+    // moves the ground's flow much like a turn does (roll off by 0.75 deg).
+    // The price: on sideways drives a free turn trades off against roll and
+    // tilt (diagonal: 0.09 / 0.08 deg off instead of 0.006 / 0.001).
+    unknowns.extend((0..pairs.len()).flat_map(|p| (0..2).map(move |c| Unknown::Step(p, c))));
     let rocking = body == Body::Rocking;
     let (anchors, attitude_unknowns_now) = attitude_unknowns(&pairs, frames.len());
     state.anchors = anchors;
@@ -697,7 +749,7 @@ pub fn calibrate_with(recording: &Recording, config: &CalibrationConfig, body: B
     let mut last = None;
     for level_index in (0..LEVELS).rev() {
         let images = images_at(level_index);
-        let level = Level { camera: level_camera(rig.camera(), level_index), base: &rig, images: &images };
+        let level = Level { camera: level_camera(rig.camera(), level_index), images: &images };
         let level_rig = level.rig(&state).map_err(CalibrationError::Diverged)?;
         // Samples: later-frame pixels on the ground within reach, every
         // second pixel at full resolution.
@@ -838,7 +890,7 @@ pub fn calibrate_with(recording: &Recording, config: &CalibrationConfig, body: B
     }
     // The residual after, at full resolution with the same samples.
     let images = images_at(0);
-    let level = Level { camera: *rig.camera(), base: &rig, images: &images };
+    let level = Level { camera: *rig.camera(), images: &images };
     let final_rig = level.rig(&state).map_err(CalibrationError::Diverged)?;
     fit_photometry(&level, &final_rig, &mut pairs, &state, None, false);
     let residual_after = residuals(&level, &pairs, &state).map_or(f64::NAN, |all| rms(&all));

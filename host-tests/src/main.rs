@@ -702,7 +702,7 @@ fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Sou
     use flatland_host::calibrate::{
         calibrate, calibrated_rig_toml, camera_values, parse_camera_info, report, with_section_values, CalibrationConfig,
     };
-    let mut recording = match Recording::open(path) {
+    let mut recording = match Recording::open_for_calibration(path) {
         Ok(r) => r,
         Err(e) => return fatal(e),
     };
@@ -728,7 +728,7 @@ fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Sou
             cy: (info.cy + 0.5) / n - 0.5,
             distortion: info.distortion.map(flatland_core::geometry::Distortion::from_coefficients),
         };
-        recording.rig = match flatland_core::geometry::Rig::new_checked(camera, *recording.rig.mount(), *recording.rig.aoi()) {
+        recording.rig = match flatland_host::calibrate::rig_with_aoi_in_view(camera, *recording.rig.mount(), *recording.rig.aoi()) {
             Ok(rig) => rig,
             Err(e) => return fatal(format!("rig with the camera_info intrinsics: {e}")),
         };

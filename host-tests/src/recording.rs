@@ -3,7 +3,8 @@
 //!
 //! Every error names the file and, where there is one, the line.
 
-use flatland_core::geometry::{AoiEdge, Rig, RigError};
+use crate::calibrate::rig_with_aoi_in_view;
+use flatland_core::geometry::{Aoi, AoiEdge, Distortion, Intrinsics, Mount, Rig, RigError};
 use flatland_core::limits::MAX_IMAGE_SIDE;
 use flatland_core::motion::{Attitude, Pose};
 use flatland_core::pgm::{Pgm, PgmError};
@@ -257,11 +258,39 @@ impl Binning {
 /// Parses rig.toml text (the path is only for messages): the rig the
 /// pipeline sees, its camera binned as [`Binning`] says, and that binning.
 pub fn parse_rig(path: &Path, text: &str) -> Result<(Rig, Binning), RecordingError> {
+    parse_rig_with(path, text, |record| Rig::try_from(record))
+}
+
+/// [`parse_rig`] for calibration: an AOI partly out of view at rig.toml's
+/// mount, which may be wrong (calibration finds it), is limited to the view
+/// ([`rig_with_aoi_in_view`]); the AOI does not matter to calibration.
+pub fn parse_rig_for_calibration(path: &Path, text: &str) -> Result<(Rig, Binning), RecordingError> {
+    parse_rig_with(path, text, |record| {
+        let rig = Rig::try_from(record);
+        if !matches!(rig, Err(RigError::AoiOutsideImage(_) | RigError::AoiBeyondHorizon)) {
+            return rig;
+        }
+        let camera = Intrinsics {
+            width: record.width,
+            height: record.height,
+            fx: record.fx,
+            fy: record.fy,
+            cx: record.cx,
+            cy: record.cy,
+            distortion: record.distortion.map(Distortion::from_coefficients),
+        };
+        let mount = Mount { height_mm: record.height_mm, tilt_deg: record.tilt_deg, roll_deg: record.roll_deg, yaw_deg: record.yaw_deg };
+        let aoi = Aoi { half_width_mm: record.aoi_half_width_mm, near_mm: record.aoi_near_mm, far_mm: record.aoi_far_mm };
+        rig_with_aoi_in_view(camera, mount, aoi)
+    })
+}
+
+fn parse_rig_with(path: &Path, text: &str, build: impl Fn(&RigRecord) -> Result<Rig, RigError>) -> Result<(Rig, Binning), RecordingError> {
     let file: RigFile = parse_toml(path, text)?;
     let mut record = RigRecord::from(file);
     let binning = Binning::for_frames(usize::from(record.width), usize::from(record.height));
     binning.scale(&mut record);
-    let rig = Rig::try_from(&record).map_err(|error| {
+    let rig = build(&record).map_err(|error| {
         // For NaN/inf, point at the first offending key when we can find it.
         let line = if error == RigError::NotFinite {
             text.lines().position(|l| {
@@ -592,11 +621,23 @@ pub struct Recording {
     pub frames: Vec<u32>,
 }
 
+/// How rig.toml's text becomes the rig: [`parse_rig`] or [`parse_rig_for_calibration`].
+type ReadRig = fn(&Path, &str) -> Result<(Rig, Binning), RecordingError>;
+
 impl Recording {
     pub fn open(dir: impl AsRef<Path>) -> Result<Recording, RecordingError> {
+        Recording::open_with(dir, parse_rig)
+    }
+
+    /// [`Recording::open`] with rig.toml read by [`parse_rig_for_calibration`].
+    pub fn open_for_calibration(dir: impl AsRef<Path>) -> Result<Recording, RecordingError> {
+        Recording::open_with(dir, parse_rig_for_calibration)
+    }
+
+    fn open_with(dir: impl AsRef<Path>, read_rig: ReadRig) -> Result<Recording, RecordingError> {
         let dir = dir.as_ref().to_path_buf();
         let rig_path = dir.join("rig.toml");
-        let (rig, binning) = parse_rig(&rig_path, &read_text(&rig_path)?)?;
+        let (rig, binning) = read_rig(&rig_path, &read_text(&rig_path)?)?;
         let poses_path = dir.join("poses.csv");
         let poses = parse_poses(&poses_path, &read_text(&poses_path)?)?;
         let truth_path = dir.join("truth.toml");
