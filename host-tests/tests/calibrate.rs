@@ -198,6 +198,7 @@ fn a_rocking_body_is_found_and_its_mean_taken_as_level() {
 /// constant body attitude cannot be told from the mount, so calibration
 /// measures the mount relative to the body's mean.
 #[test]
+#[cfg_attr(not(feature = "long-tests"), ignore = "long tier: cargo test -p flatland-host --features long-tests")]
 fn perturbed_mounts_come_back_on_the_rocking_recordings() {
     let mut failures = Vec::new();
     for name in ROCKING {
