@@ -81,21 +81,29 @@ impl From<&Rig> for RigRecord {
     }
 }
 
+impl RigRecord {
+    /// The rig's parts as recorded, not yet checked against each other.
+    pub fn parts(&self) -> (Intrinsics, Mount, Aoi) {
+        let camera = Intrinsics {
+            width: self.width,
+            height: self.height,
+            fx: self.fx,
+            fy: self.fy,
+            cx: self.cx,
+            cy: self.cy,
+            distortion: self.distortion.map(Distortion::from_coefficients),
+        };
+        let mount = Mount { roll_deg: self.roll_deg, yaw_deg: self.yaw_deg, ..Mount::level(self.height_mm, self.tilt_deg) };
+        let aoi = Aoi { half_width_mm: self.aoi_half_width_mm, near_mm: self.aoi_near_mm, far_mm: self.aoi_far_mm };
+        (camera, mount, aoi)
+    }
+}
+
 impl TryFrom<&RigRecord> for Rig {
     type Error = RigError;
 
     fn try_from(record: &RigRecord) -> Result<Rig, RigError> {
-        let camera = Intrinsics {
-            width: record.width,
-            height: record.height,
-            fx: record.fx,
-            fy: record.fy,
-            cx: record.cx,
-            cy: record.cy,
-            distortion: record.distortion.map(Distortion::from_coefficients),
-        };
-        let mount = Mount { roll_deg: record.roll_deg, yaw_deg: record.yaw_deg, ..Mount::level(record.height_mm, record.tilt_deg) };
-        let aoi = Aoi { half_width_mm: record.aoi_half_width_mm, near_mm: record.aoi_near_mm, far_mm: record.aoi_far_mm };
+        let (camera, mount, aoi) = record.parts();
         Rig::new_checked(camera, mount, aoi)
     }
 }

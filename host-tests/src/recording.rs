@@ -4,7 +4,7 @@
 //! Every error names the file and, where there is one, the line.
 
 use crate::calibrate::rig_with_aoi_in_view;
-use flatland_core::geometry::{Aoi, AoiEdge, Distortion, Intrinsics, Mount, Rig, RigError};
+use flatland_core::geometry::{AoiEdge, Rig, RigError};
 use flatland_core::limits::MAX_IMAGE_SIDE;
 use flatland_core::motion::{Attitude, Pose};
 use flatland_core::pgm::{Pgm, PgmError};
@@ -270,17 +270,7 @@ pub fn parse_rig_for_calibration(path: &Path, text: &str) -> Result<(Rig, Binnin
         if !matches!(rig, Err(RigError::AoiOutsideImage(_) | RigError::AoiBeyondHorizon)) {
             return rig;
         }
-        let camera = Intrinsics {
-            width: record.width,
-            height: record.height,
-            fx: record.fx,
-            fy: record.fy,
-            cx: record.cx,
-            cy: record.cy,
-            distortion: record.distortion.map(Distortion::from_coefficients),
-        };
-        let mount = Mount { height_mm: record.height_mm, tilt_deg: record.tilt_deg, roll_deg: record.roll_deg, yaw_deg: record.yaw_deg };
-        let aoi = Aoi { half_width_mm: record.aoi_half_width_mm, near_mm: record.aoi_near_mm, far_mm: record.aoi_far_mm };
+        let (camera, mount, aoi) = record.parts();
         rig_with_aoi_in_view(camera, mount, aoi)
     })
 }
