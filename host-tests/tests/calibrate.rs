@@ -350,6 +350,7 @@ fn a_recording_without_motion_is_refused() {
 }
 
 #[test]
+#[cfg_attr(not(feature = "long-tests"), ignore = "long tier: cargo test -p flatland-host --features long-tests")]
 fn cli_prints_the_keys_and_writes_a_rig_that_parses() {
     let copy = TempRecording::copy_of("flat_marks", "calibrate-cli");
     let output = Command::new(env!("CARGO_BIN_EXE_flatland")).args(["calibrate", "--write"]).arg(&copy.dir).output().unwrap();
@@ -394,13 +395,19 @@ rectification_matrix:
 ";
 
 #[test]
-fn camera_info_is_read_and_written() {
+fn camera_info_is_read() {
     let info = parse_camera_info(CAMERA_INFO).unwrap();
     assert_eq!((info.width, info.height, info.fx, info.fy, info.cx, info.cy), (256, 256, 240.0, 240.0, 127.5, 127.5));
     assert_eq!(info.distortion, Some([-0.01, 0.002, 0.0, 0.0, 0.0]));
     assert!(parse_camera_info(&CAMERA_INFO.replace("plumb_bob", "equidistant")).is_err());
     assert!(parse_camera_info(&CAMERA_INFO.replace("127.5,\n         0.0, 0.0, 1.0", "127.5")).is_err());
+}
 
+/// `calibrate --camera-info` end to end (a calibration: the long tier).
+#[test]
+#[cfg_attr(not(feature = "long-tests"), ignore = "long tier: cargo test -p flatland-host --features long-tests")]
+fn camera_info_is_written_into_the_calibrated_rig() {
+    let info = parse_camera_info(CAMERA_INFO).unwrap();
     let copy = TempRecording::copy_of("flat_marks", "camera-info");
     let file = copy.dir.join("camera_info.yaml");
     std::fs::write(&file, CAMERA_INFO).unwrap();
