@@ -170,6 +170,10 @@ fn bad_rig_toml_gives_each_error() {
     assert!(err.contains("fx"), "{err}");
 }
 
+/// Clear floors rendered for calibration (data/README.md): no truth.toml,
+/// so the detection suites, which take every recording with one, skip them.
+const CALIBRATION_ONLY: [&str; 2] = ["busy_floor", "qvga_low"];
+
 #[test]
 fn every_bundled_recording_opens_and_remaps() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
@@ -183,8 +187,9 @@ fn every_bundled_recording_opens_and_remaps() {
         let mut front_end = KgFrontEnd::new(&recording.rig, &GridConfig::default()).unwrap();
         let kg = front_end.remap(&recording.load_frame(recording.frames[0]).unwrap()).unwrap();
         assert!(kg.iter().any(|&p| p != 0));
-        assert!(recording.truth.is_some());
+        let calibration_only = CALIBRATION_ONLY.iter().any(|name| path.ends_with(name));
+        assert_eq!(recording.truth.is_some(), !calibration_only, "{}", path.display());
         seen += 1;
     }
-    assert_eq!(seen, 13);
+    assert_eq!(seen, 15);
 }
