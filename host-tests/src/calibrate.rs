@@ -31,7 +31,7 @@
 //! only that the mount sees the ground.
 
 use crate::recording::{Frame, Recording, RecordingError};
-use flatland_core::geometry::{Aoi, AoiEdge, Intrinsics, Mount, Pixel, Rig, RigError};
+use flatland_core::geometry::{Aoi, AoiEdge, Distortion, Intrinsics, Mount, Pixel, Rig, RigError};
 use flatland_core::motion::{Attitude, GroundMap, GroundMotion, Motion};
 use std::fmt;
 
@@ -1020,19 +1020,10 @@ pub fn with_section_values(original: &str, section: &str, values: &[(&str, Strin
     Ok(document.to_string())
 }
 
-/// A ROS `sensor_msgs/CameraInfo` YAML file (camera_calibration's output):
-/// the image size, the camera matrix and plumb_bob distortion.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct CameraInfo {
-    pub width: u16,
-    pub height: u16,
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    /// `[k1, k2, p1, p2, k3]`; None when all are zero or absent.
-    pub distortion: Option<[f64; 5]>,
-}
+/// A ROS `sensor_msgs/CameraInfo` YAML file (camera_calibration's output)
+/// as flatland uses it: the camera at the recorded size, its matrix and
+/// plumb_bob distortion (None when all coefficients are zero or absent).
+pub type CameraInfo = Intrinsics;
 
 /// Why a camera_info file could not be used.
 #[derive(Debug)]
@@ -1098,10 +1089,10 @@ pub fn parse_camera_info(text: &str) -> Result<CameraInfo, CameraInfoError> {
     let d = yaml.distortion_coefficients.map(|m| m.data).unwrap_or_default();
     let distortion = match d.len() {
         0 => None,
-        5 => Some([d[0], d[1], d[2], d[3], d[4]]).filter(|c| c.iter().any(|v| *v != 0.0)),
+        5 => Some([d[0], d[1], d[2], d[3], d[4]]).filter(|c| c.iter().any(|v| *v != 0.0)).map(Distortion::from_coefficients),
         n => return Err(CameraInfoError::MatrixSize { matrix: "distortion_coefficients", numbers: n, expected: 5 }),
     };
-    Ok(CameraInfo { width: yaml.image_width, height: yaml.image_height, fx: k[0], fy: k[4], cx: k[2], cy: k[5], distortion })
+    Ok(Intrinsics { width: yaml.image_width, height: yaml.image_height, fx: k[0], fy: k[4], cx: k[2], cy: k[5], distortion })
 }
 
 /// The `[camera]` values of a camera_info, for [`with_section_values`].
@@ -1114,7 +1105,7 @@ pub fn camera_values(info: &CameraInfo) -> Vec<(&'static str, String)> {
         ("cx", format!("{}", info.cx)),
         ("cy", format!("{}", info.cy)),
     ];
-    if let Some(d) = info.distortion {
+    if let Some(d) = info.distortion.map(|d| d.coefficients()) {
         values.push(("distortion", format!("[{}, {}, {}, {}, {}]", d[0], d[1], d[2], d[3], d[4])));
     }
     values

@@ -726,7 +726,7 @@ fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Sou
             fy: info.fy / n,
             cx: (info.cx + 0.5) / n - 0.5,
             cy: (info.cy + 0.5) / n - 0.5,
-            distortion: info.distortion.map(flatland_core::geometry::Distortion::from_coefficients),
+            distortion: info.distortion,
         };
         recording.rig = match flatland_host::calibrate::rig_with_aoi_in_view(camera, *recording.rig.mount(), *recording.rig.aoi()) {
             Ok(rig) => rig,
