@@ -22,8 +22,10 @@ use libm::{cos, hypot, sin, sqrt};
 
 use crate::limits::MAX_IMAGE_SIDE;
 
-/// OpenCV plumb_bob lens distortion coefficients.
+/// OpenCV plumb_bob lens distortion coefficients. In rig.toml and
+/// camera_info: the list `[k1, k2, p1, p2, k3]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Deserialize), serde(from = "[f64; 5]"))]
 pub struct Distortion {
     pub k1: f64,
     pub k2: f64,
@@ -32,8 +34,9 @@ pub struct Distortion {
     pub k3: f64,
 }
 
-/// Pinhole intrinsics in pixels, with optional distortion.
+/// Pinhole intrinsics in pixels, with optional distortion (rig.toml's `[camera]`).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Deserialize), serde(deny_unknown_fields))]
 pub struct Intrinsics {
     pub width: u16,
     pub height: u16,
@@ -44,18 +47,22 @@ pub struct Intrinsics {
     pub distortion: Option<Distortion>,
 }
 
-/// How the camera sits on the robot.
+/// How the camera sits on the robot (rig.toml's `[mount]`).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Deserialize), serde(deny_unknown_fields))]
 pub struct Mount {
     /// H: optical centre above the ground, mm.
     pub height_mm: f64,
     /// alpha: optical axis below the horizontal, degrees, in (0, 90).
     pub tilt_deg: f64,
     /// Roll about the optical axis, degrees, positive when the camera's
-    /// right side dips; within +-[`MAX_MOUNT_ROLL_DEG`]. 0 on a level mount.
+    /// right side dips; within +-[`MAX_MOUNT_ROLL_DEG`]. 0 on a level mount
+    /// (and when rig.toml leaves it out).
+    #[cfg_attr(feature = "serde", serde(default))]
     pub roll_deg: f64,
     /// The optical axis turned from the robot's z axis, degrees, positive to
     /// the left; within +-[`MAX_MOUNT_YAW_DEG`]. 0 on a straight mount.
+    #[cfg_attr(feature = "serde", serde(default))]
     pub yaw_deg: f64,
 }
 
@@ -78,6 +85,7 @@ impl Mount {
 
 /// Area of interest on the ground, robot frame, mm: |x| <= half_width, near <= z <= far.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Deserialize), serde(deny_unknown_fields))]
 pub struct Aoi {
     pub half_width_mm: f64,
     pub near_mm: f64,
@@ -200,6 +208,12 @@ pub struct Rig {
 const UNDISTORT_ITERATIONS: usize = 20;
 /// Round-trip tolerance (pixels) for accepting an undistortion.
 const UNDISTORT_TOLERANCE_PX: f64 = 1e-4;
+
+impl From<[f64; 5]> for Distortion {
+    fn from(coefficients: [f64; 5]) -> Distortion {
+        Distortion::from_coefficients(coefficients)
+    }
+}
 
 impl Distortion {
     /// From OpenCV's coefficient order `[k1, k2, p1, p2, k3]` (rig.toml, the wire).

@@ -34,68 +34,36 @@ pub const PROTOCOL_VERSION: u32 = 3;
 /// One encoded line.
 pub type Line = heapless::String<MAX_LINE>;
 
-/// The rig as it travels on the wire: rig.toml's values, unvalidated.
-/// `Rig::try_from(&record)` validates it (`Rig::new_checked`);
-/// `RigRecord::from(&rig)` gives it back with the same f64 values.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// The rig as it travels on the wire and as rig.toml writes it: its
+/// `[camera]`, `[mount]` and `[aoi]`, unvalidated (with the `serde`
+/// feature the host deserialises rig.toml into it). `Rig::try_from(&record)`
+/// validates it (`Rig::new_checked`); `RigRecord::from(&rig)` gives it back
+/// with the same f64 values.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Deserialize), serde(deny_unknown_fields))]
 pub struct RigRecord {
-    pub width: u16,
-    pub height: u16,
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    /// OpenCV plumb_bob `[k1, k2, p1, p2, k3]`; `None` when the lens has none.
-    pub distortion: Option<[f64; 5]>,
-    pub height_mm: f64,
-    pub tilt_deg: f64,
-    /// Mount roll and yaw (0 on a level mount). On the wire: two optional
-    /// trailing fields, written only when either is nonzero, so a level rig's
-    /// message is the version-2 message it always was.
-    pub roll_deg: f64,
-    pub yaw_deg: f64,
-    pub aoi_half_width_mm: f64,
-    pub aoi_near_mm: f64,
-    pub aoi_far_mm: f64,
+    pub camera: Intrinsics,
+    /// Roll and yaw on the wire: two optional trailing fields, written only
+    /// when either is nonzero, so a level rig's message is the version-2
+    /// message it always was.
+    pub mount: Mount,
+    pub aoi: Aoi,
 }
 
-impl From<&Rig> for RigRecord {
-    fn from(rig: &Rig) -> RigRecord {
-        let (camera, mount, aoi) = (rig.camera(), rig.mount(), rig.aoi());
+/// All zeros (no lens): the decoder fills it in wire order.
+impl Default for RigRecord {
+    fn default() -> RigRecord {
         RigRecord {
-            width: camera.width,
-            height: camera.height,
-            fx: camera.fx,
-            fy: camera.fy,
-            cx: camera.cx,
-            cy: camera.cy,
-            distortion: camera.distortion.map(|d| d.coefficients()),
-            height_mm: mount.height_mm,
-            tilt_deg: mount.tilt_deg,
-            roll_deg: mount.roll_deg,
-            yaw_deg: mount.yaw_deg,
-            aoi_half_width_mm: aoi.half_width_mm,
-            aoi_near_mm: aoi.near_mm,
-            aoi_far_mm: aoi.far_mm,
+            camera: Intrinsics { width: 0, height: 0, fx: 0.0, fy: 0.0, cx: 0.0, cy: 0.0, distortion: None },
+            mount: Mount { height_mm: 0.0, tilt_deg: 0.0, roll_deg: 0.0, yaw_deg: 0.0 },
+            aoi: Aoi { half_width_mm: 0.0, near_mm: 0.0, far_mm: 0.0 },
         }
     }
 }
 
-impl RigRecord {
-    /// The rig's parts as recorded, not yet checked against each other.
-    pub fn parts(&self) -> (Intrinsics, Mount, Aoi) {
-        let camera = Intrinsics {
-            width: self.width,
-            height: self.height,
-            fx: self.fx,
-            fy: self.fy,
-            cx: self.cx,
-            cy: self.cy,
-            distortion: self.distortion.map(Distortion::from_coefficients),
-        };
-        let mount = Mount { roll_deg: self.roll_deg, yaw_deg: self.yaw_deg, ..Mount::level(self.height_mm, self.tilt_deg) };
-        let aoi = Aoi { half_width_mm: self.aoi_half_width_mm, near_mm: self.aoi_near_mm, far_mm: self.aoi_far_mm };
-        (camera, mount, aoi)
+impl From<&Rig> for RigRecord {
+    fn from(rig: &Rig) -> RigRecord {
+        RigRecord { camera: *rig.camera(), mount: *rig.mount(), aoi: *rig.aoi() }
     }
 }
 
@@ -103,8 +71,7 @@ impl TryFrom<&RigRecord> for Rig {
     type Error = RigError;
 
     fn try_from(record: &RigRecord) -> Result<Rig, RigError> {
-        let (camera, mount, aoi) = record.parts();
-        Rig::new_checked(camera, mount, aoi)
+        Rig::new_checked(record.camera, record.mount, record.aoi)
     }
 }
 
@@ -526,10 +493,10 @@ macro_rules! named_field {
 named_field!(Status: Status::from_name, FaultCode: FaultCode::from_wire);
 
 /// A lens: five coefficients, or five empty fields for none.
-impl Field for Option<[f64; 5]> {
+impl Field for Option<Distortion> {
     fn write<W: Write>(&self, out: &mut W) -> Result<(), EncodeError> {
         match self {
-            Some(coefficients) => coefficients.iter().try_for_each(|value| value.write(out)),
+            Some(lens) => lens.coefficients().iter().try_for_each(|value| value.write(out)),
             None => Ok(out.write_str(",,,,,")?),
         }
     }
@@ -546,7 +513,7 @@ impl Field for Option<[f64; 5]> {
         for (i, (slot, text)) in coefficients.iter_mut().zip(raw).enumerate() {
             *slot = parse_finite(text).ok_or(DecodeError::BadField { index: first + i as u8 })?;
         }
-        Ok(Some(coefficients))
+        Ok(Some(Distortion::from_coefficients(coefficients)))
     }
 }
 
@@ -601,7 +568,8 @@ layout!(LinkStats: default {
 layout!(Fault { code, frame });
 // `$FLRIG` and `$FLHEL` between the version and the mount's optional roll and yaw.
 layout!(RigRecord: default {
-    width, height, fx, fy, cx, cy, distortion, height_mm, tilt_deg, aoi_half_width_mm, aoi_near_mm, aoi_far_mm,
+    camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, camera.distortion,
+    mount.height_mm, mount.tilt_deg, aoi.half_width_mm, aoi.near_mm, aoi.far_mm,
 });
 // `$FLODO`'s optional groups.
 layout!(Pose { x_mm, z_mm, yaw_deg });
@@ -630,9 +598,9 @@ impl Field for RigRecord {
         Version.write(out)?;
         self.write_fields(out)?;
         // By bits: a -0.0 must come back as -0.0.
-        if self.roll_deg.to_bits() != 0 || self.yaw_deg.to_bits() != 0 {
-            self.roll_deg.write(out)?;
-            self.yaw_deg.write(out)?;
+        if self.mount.roll_deg.to_bits() != 0 || self.mount.yaw_deg.to_bits() != 0 {
+            self.mount.roll_deg.write(out)?;
+            self.mount.yaw_deg.write(out)?;
         }
         Ok(())
     }
@@ -641,8 +609,8 @@ impl Field for RigRecord {
         let mut rig = RigRecord::read_fields(fields)?;
         // A crooked mount adds roll and yaw; an older sender's message ends before them.
         if fields.remaining() == 2 {
-            rig.roll_deg = f64::read(fields)?;
-            rig.yaw_deg = f64::read(fields)?;
+            rig.mount.roll_deg = f64::read(fields)?;
+            rig.mount.yaw_deg = f64::read(fields)?;
         }
         Ok(rig)
     }
@@ -868,20 +836,17 @@ pub mod checks {
 
     fn sample_rig(distortion: Option<[f64; 5]>) -> RigRecord {
         RigRecord {
-            width: 320,
-            height: 240,
-            fx: 277.0,
-            fy: 281.25,
-            cx: 159.5,
-            cy: 119.5,
-            distortion,
-            height_mm: 300.0,
-            tilt_deg: 40.0,
-            roll_deg: 0.0,
-            yaw_deg: 0.0,
-            aoi_half_width_mm: 250.0,
-            aoi_near_mm: 450.0,
-            aoi_far_mm: 1400.0,
+            camera: Intrinsics {
+                width: 320,
+                height: 240,
+                fx: 277.0,
+                fy: 281.25,
+                cx: 159.5,
+                cy: 119.5,
+                distortion: distortion.map(Distortion::from_coefficients),
+            },
+            mount: Mount { height_mm: 300.0, tilt_deg: 40.0, roll_deg: 0.0, yaw_deg: 0.0 },
+            aoi: Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
         }
     }
 
@@ -954,27 +919,25 @@ pub mod checks {
     /// rig.toml's values survive record -> `Rig` -> record, with and without a lens.
     pub fn rig_converts_both_ways() -> Check {
         // A rig `Rig::new_checked` accepts (sample_rig is only a wire sample).
-        let valid = |distortion| RigRecord {
-            width: 256,
-            height: 256,
-            fx: 240.0,
-            fy: 240.0,
-            cx: 127.5,
-            cy: 127.5,
-            height_mm: 400.0,
-            tilt_deg: 32.0,
-            ..sample_rig(distortion)
+        let valid = |distortion| {
+            let sample = sample_rig(distortion);
+            RigRecord {
+                camera: Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, ..sample.camera },
+                mount: Mount { height_mm: 400.0, tilt_deg: 32.0, ..sample.mount },
+                ..sample
+            }
         };
         for distortion in [None, Some([-0.28, 0.07, 1e-4, -2.5e-4, 0.01])] {
             for (roll_deg, yaw_deg) in [(0.0, 0.0), (1.5, -2.25)] {
-                let record = RigRecord { roll_deg, yaw_deg, ..valid(distortion) };
+                let record = valid(distortion);
+                let record = RigRecord { mount: Mount { roll_deg, yaw_deg, ..record.mount }, ..record };
                 let rig = Rig::try_from(&record).map_err(|_| "valid rig refused")?;
                 ensure(RigRecord::from(&rig) == record, "rig record changed through the rig")?;
             }
         }
-        let rolled = RigRecord { roll_deg: 45.0, ..valid(None) };
+        let rolled = RigRecord { mount: Mount { roll_deg: 45.0, ..valid(None).mount }, ..valid(None) };
         ensure(Rig::try_from(&rolled) == Err(RigError::Roll), "an impossible roll was accepted")?;
-        let refused = RigRecord { tilt_deg: 90.0, ..valid(None) };
+        let refused = RigRecord { mount: Mount { tilt_deg: 90.0, ..valid(None).mount }, ..valid(None) };
         ensure(Rig::try_from(&refused) == Err(RigError::Tilt), "an impossible rig was accepted")
     }
 
@@ -995,20 +958,17 @@ pub mod checks {
     pub fn longest_rig_fits_a_line() -> Check {
         let long = -1.2345678901234567e-300;
         let rig = RigRecord {
-            width: u16::MAX,
-            height: u16::MAX,
-            fx: long,
-            fy: long,
-            cx: long,
-            cy: long,
-            distortion: Some([long; 5]),
-            height_mm: long,
-            tilt_deg: long,
-            roll_deg: long,
-            yaw_deg: long,
-            aoi_half_width_mm: long,
-            aoi_near_mm: long,
-            aoi_far_mm: long,
+            camera: Intrinsics {
+                width: u16::MAX,
+                height: u16::MAX,
+                fx: long,
+                fy: long,
+                cx: long,
+                cy: long,
+                distortion: Some(Distortion::from_coefficients([long; 5])),
+            },
+            mount: Mount { height_mm: long, tilt_deg: long, roll_deg: long, yaw_deg: long },
+            aoi: Aoi { half_width_mm: long, near_mm: long, far_mm: long },
         };
         round_trip(Message::Rig(rig))
     }

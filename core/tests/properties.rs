@@ -347,7 +347,9 @@ fn rig_record() -> impl Strategy<Value = RigRecord> {
     let mount = prop_oneof![Just([0.0, 0.0]), [finite(), finite()]];
     (any::<u16>(), any::<u16>(), [finite(), finite(), finite(), finite()], proptest::option::of([finite(), finite(), finite(), finite(), finite()]), [finite(), finite(), finite(), finite(), finite()], mount)
         .prop_map(|(width, height, [fx, fy, cx, cy], distortion, [height_mm, tilt_deg, aoi_half_width_mm, aoi_near_mm, aoi_far_mm], [roll_deg, yaw_deg])| RigRecord {
-            width, height, fx, fy, cx, cy, distortion, height_mm, tilt_deg, roll_deg, yaw_deg, aoi_half_width_mm, aoi_near_mm, aoi_far_mm,
+            camera: Intrinsics { width, height, fx, fy, cx, cy, distortion: distortion.map(Distortion::from_coefficients) },
+            mount: Mount { height_mm, tilt_deg, roll_deg, yaw_deg },
+            aoi: Aoi { half_width_mm: aoi_half_width_mm, near_mm: aoi_near_mm, far_mm: aoi_far_mm },
         })
 }
 
@@ -399,8 +401,9 @@ fn same_bits(a: &Message, b: &Message) -> bool {
     let bits = |m: &Message| -> Vec<u64> {
         match m {
             Message::Rig(r) | Message::Hello(r) => {
-                let mut v: Vec<u64> = [r.fx, r.fy, r.cx, r.cy, r.height_mm, r.tilt_deg, r.roll_deg, r.yaw_deg, r.aoi_half_width_mm, r.aoi_near_mm, r.aoi_far_mm].iter().map(|x| x.to_bits()).collect();
-                v.extend(r.distortion.iter().flatten().map(|x| x.to_bits()));
+                let (c, m, a) = (&r.camera, &r.mount, &r.aoi);
+                let mut v: Vec<u64> = [c.fx, c.fy, c.cx, c.cy, m.height_mm, m.tilt_deg, m.roll_deg, m.yaw_deg, a.half_width_mm, a.near_mm, a.far_mm].iter().map(|x| x.to_bits()).collect();
+                v.extend(c.distortion.iter().flat_map(|d| d.coefficients()).map(|x| x.to_bits()));
                 v
             }
             Message::Odometry(o) => {

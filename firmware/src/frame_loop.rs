@@ -245,8 +245,8 @@ pub struct Options {
 #[inline(never)] // start-up only: its locals stay out of the frame loop's stack
 fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Result<(Rig, KgGrid), SetupError> {
     let rig = Rig::try_from(record).map_err(SetupError::Rig)?;
-    if usize::from(record.width) > MAX_CAMERA_WIDTH {
-        return Err(SetupError::CameraTooWide { width: usize::from(record.width) });
+    if usize::from(record.camera.width) > MAX_CAMERA_WIDTH {
+        return Err(SetupError::CameraTooWide { width: usize::from(record.camera.width) });
     }
     let grid_config = if options.no_margins {
         GridConfig::without_margins(options.mm_per_px)
@@ -457,8 +457,8 @@ where
             let build_instructions = self.counter.now().wrapping_sub(started);
             defmt::info!(
                 "rig accepted: camera {=u16}x{=u16}, KG grid {=usize}x{=usize}, table {=usize} B, ring {=usize} of {=usize} B, keyframe {=usize} of {=usize} B",
-                record.width,
-                record.height,
+                record.camera.width,
+                record.camera.height,
                 grid.width(),
                 grid.height(),
                 RemapTable::size_bytes(),

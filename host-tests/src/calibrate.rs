@@ -31,7 +31,7 @@
 //! only that the mount sees the ground.
 
 use crate::recording::{Frame, Recording, RecordingError};
-use flatland_core::geometry::{Aoi, AoiEdge, Intrinsics, Mount, Pixel, Rig, RigError};
+use flatland_core::geometry::{Aoi, AoiEdge, Distortion, Intrinsics, Mount, Pixel, Rig, RigError};
 use flatland_core::motion::{Attitude, GroundMap, GroundMotion, Motion};
 use std::fmt;
 
@@ -975,114 +975,124 @@ pub fn report(estimate: &MountEstimate) -> String {
 
 /// rig.toml's text with the `[mount]` section's values replaced (comments
 /// and the other sections kept; roll and yaw added when absent).
+///
+/// # Panics
+/// When `original` is not TOML: it is a rig.toml the recording has read
+/// (the command itself goes through [`with_section_values`], which reports).
 pub fn calibrated_rig_toml(original: &str, mount: &Mount) -> String {
-    let values = [
+    with_section_values(original, "mount", &mount_values(mount)).expect("rig.toml is TOML: the recording read it")
+}
+
+/// The `[mount]` values of an estimate, for [`with_section_values`]: the
+/// decimals rig.toml's readers need (0.1 mm, 0.001 degree).
+pub fn mount_values(mount: &Mount) -> Vec<(&'static str, String)> {
+    vec![
         ("height_mm", format!("{:.1}", mount.height_mm)),
         ("tilt_deg", format!("{:.3}", mount.tilt_deg)),
         ("roll_deg", format!("{:.3}", mount.roll_deg)),
         ("yaw_deg", format!("{:.3}", mount.yaw_deg)),
-    ];
-    with_section_values(original, "mount", &values)
+    ]
 }
 
-/// TOML text with `section`'s keys set to `values`: keys present are
-/// replaced in place, absent ones added at the section's end.
-pub fn with_section_values(original: &str, section: &str, values: &[(&str, String)]) -> String {
-    let header = format!("[{section}]");
-    let mut out = String::new();
-    let mut inside = false;
-    let mut written = vec![false; values.len()];
-    let flush = |out: &mut String, written: &mut Vec<bool>| {
-        // Before the blank lines that end the section.
-        let blanks = out.len() - out.trim_end_matches('\n').len();
-        out.truncate(out.len() - blanks.saturating_sub(1));
-        for (k, (key, value)) in values.iter().enumerate() {
-            if !written[k] {
-                out.push_str(&format!("{key} = {value}\n"));
-                written[k] = true;
+/// TOML text with `section`'s keys set to `values` (each a TOML value's
+/// text, written as given): keys present are replaced in place, keeping
+/// their comments, absent ones added after the section's last key, an
+/// absent section added at the end. toml_edit keeps everything else as the
+/// file spells it.
+pub fn with_section_values(original: &str, section: &str, values: &[(&str, String)]) -> Result<String, toml_edit::TomlError> {
+    let mut document: toml_edit::DocumentMut = original.parse()?;
+    let table = document.entry(section).or_insert_with(toml_edit::table);
+    let table = table.as_table_like_mut().expect("a [section] is a table: the recording read rig.toml's sections as tables");
+    for (key, text) in values {
+        let mut value: toml_edit::Value = text.parse()?;
+        match table.get_mut(key).and_then(|item| item.as_value_mut()) {
+            Some(old) => {
+                // The old value's spacing and trailing comment.
+                *value.decor_mut() = old.decor().clone();
+                *old = value;
+            }
+            None => {
+                value.decor_mut().clear();
+                table.insert(key, toml_edit::Item::Value(value));
             }
         }
-        out.push_str(&"\n".repeat(blanks.saturating_sub(1)));
-    };
-    for line in original.lines() {
-        let trimmed = line.trim_start();
-        if trimmed.starts_with('[') {
-            if inside {
-                flush(&mut out, &mut written);
-            }
-            inside = trimmed.starts_with(&header);
-        }
-        let key = trimmed.split('=').next().unwrap_or("").trim();
-        if let Some(k) = values.iter().position(|(name, _)| inside && *name == key && trimmed.contains('=')) {
-            out.push_str(&format!("{} = {}\n", values[k].0, values[k].1));
-            written[k] = true;
-            continue;
-        }
-        out.push_str(line);
-        out.push('\n');
     }
-    if inside {
-        flush(&mut out, &mut written);
-    }
-    out
+    Ok(document.to_string())
 }
 
-/// A ROS `sensor_msgs/CameraInfo` YAML file (camera_calibration's output):
-/// the image size, the camera matrix and plumb_bob distortion.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct CameraInfo {
-    pub width: u16,
-    pub height: u16,
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    /// `[k1, k2, p1, p2, k3]`; None when all are zero or absent.
-    pub distortion: Option<[f64; 5]>,
+/// A ROS `sensor_msgs/CameraInfo` YAML file (camera_calibration's output)
+/// as flatland uses it: the camera at the recorded size, its matrix and
+/// plumb_bob distortion (None when all coefficients are zero or absent).
+pub type CameraInfo = Intrinsics;
+
+/// Why a camera_info file could not be used.
+#[derive(Debug)]
+pub enum CameraInfoError {
+    /// Not YAML, a key missing or of the wrong type (the message names the
+    /// key and, where it can, the line and column).
+    Yaml(serde_norway::Error),
+    /// A matrix's `data` with another count of numbers than its shape.
+    MatrixSize { matrix: &'static str, numbers: usize, expected: usize },
+    /// A distortion model flatland does not implement.
+    DistortionModel(String),
+}
+
+impl fmt::Display for CameraInfoError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CameraInfoError::Yaml(e) => write!(f, "{e}"),
+            CameraInfoError::MatrixSize { matrix, numbers, expected } => {
+                write!(f, "{matrix} has {numbers} numbers, expected {expected}")?;
+                if *matrix == "distortion_coefficients" {
+                    f.write_str(" (plumb_bob)")?;
+                }
+                Ok(())
+            }
+            CameraInfoError::DistortionModel(model) => write!(f, "distortion_model {model}: only plumb_bob is supported"),
+        }
+    }
+}
+
+impl std::error::Error for CameraInfoError {}
+
+/// The keys of camera_info YAML that flatland reads; the others
+/// (camera_name, rectification and projection matrices) are ignored.
+#[derive(serde::Deserialize)]
+struct CameraInfoYaml {
+    image_width: u16,
+    image_height: u16,
+    camera_matrix: YamlMatrix,
+    distortion_model: Option<String>,
+    distortion_coefficients: Option<YamlMatrix>,
+}
+
+/// A camera_info matrix: `rows` and `cols` (not needed: each matrix's shape
+/// is fixed) and the numbers, row by row.
+#[derive(serde::Deserialize)]
+struct YamlMatrix {
+    data: Vec<f64>,
 }
 
 /// Reads the keys flatland needs from camera_info YAML: `image_width`,
 /// `image_height`, `camera_matrix: data: [...]` (9 numbers),
 /// `distortion_model` (plumb_bob, or absent) and
 /// `distortion_coefficients: data: [...]` (5 numbers, or none).
-pub fn parse_camera_info(text: &str) -> Result<CameraInfo, String> {
-    let scalar = |key: &str| -> Option<&str> {
-        text.lines().find_map(|l| l.trim().strip_prefix(key)?.trim_start().strip_prefix(':').map(str::trim))
-    };
-    // The `data: [...]` list after `block:`, possibly over several lines.
-    let list = |block: &str| -> Result<Vec<f64>, String> {
-        let start = text.find(&format!("{block}:")).ok_or_else(|| format!("no {block}"))?;
-        let rest = &text[start..];
-        let open = rest.find('[').ok_or_else(|| format!("{block}: no data list"))?;
-        let close = rest[open..].find(']').ok_or_else(|| format!("{block}: unterminated data list"))? + open;
-        rest[open + 1..close]
-            .split(',')
-            .map(str::trim)
-            .filter(|t| !t.is_empty())
-            .map(|t| t.parse::<f64>().map_err(|_| format!("{block}: {t:?} is not a number")))
-            .collect()
-    };
-    let size = |key: &str| -> Result<u16, String> {
-        scalar(key).and_then(|v| v.parse().ok()).ok_or_else(|| format!("no {key}"))
-    };
-    let (width, height) = (size("image_width")?, size("image_height")?);
-    let k = list("camera_matrix")?;
+pub fn parse_camera_info(text: &str) -> Result<CameraInfo, CameraInfoError> {
+    let yaml: CameraInfoYaml = serde_norway::from_str(text).map_err(CameraInfoError::Yaml)?;
+    let k = &yaml.camera_matrix.data;
     if k.len() != 9 {
-        return Err(format!("camera_matrix has {} numbers, expected 9", k.len()));
+        return Err(CameraInfoError::MatrixSize { matrix: "camera_matrix", numbers: k.len(), expected: 9 });
     }
-    if let Some(model) = scalar("distortion_model") {
-        let model = model.trim_matches(|c| c == '"' || c == '\'');
-        if model != "plumb_bob" {
-            return Err(format!("distortion_model {model}: only plumb_bob is supported"));
-        }
+    if let Some(model) = yaml.distortion_model.filter(|m| m != "plumb_bob") {
+        return Err(CameraInfoError::DistortionModel(model));
     }
-    let d = if text.contains("distortion_coefficients:") { list("distortion_coefficients")? } else { Vec::new() };
+    let d = yaml.distortion_coefficients.map(|m| m.data).unwrap_or_default();
     let distortion = match d.len() {
         0 => None,
-        5 => Some([d[0], d[1], d[2], d[3], d[4]]).filter(|c| c.iter().any(|v| *v != 0.0)),
-        n => return Err(format!("distortion_coefficients has {n} numbers, expected 5 (plumb_bob)")),
+        5 => Some([d[0], d[1], d[2], d[3], d[4]]).filter(|c| c.iter().any(|v| *v != 0.0)).map(Distortion::from_coefficients),
+        n => return Err(CameraInfoError::MatrixSize { matrix: "distortion_coefficients", numbers: n, expected: 5 }),
     };
-    Ok(CameraInfo { width, height, fx: k[0], fy: k[4], cx: k[2], cy: k[5], distortion })
+    Ok(Intrinsics { width: yaml.image_width, height: yaml.image_height, fx: k[0], fy: k[4], cx: k[2], cy: k[5], distortion })
 }
 
 /// The `[camera]` values of a camera_info, for [`with_section_values`].
@@ -1095,8 +1105,24 @@ pub fn camera_values(info: &CameraInfo) -> Vec<(&'static str, String)> {
         ("cx", format!("{}", info.cx)),
         ("cy", format!("{}", info.cy)),
     ];
-    if let Some(d) = info.distortion {
+    if let Some(d) = info.distortion.map(|d| d.coefficients()) {
         values.push(("distortion", format!("[{}, {}, {}, {}, {}]", d[0], d[1], d[2], d[3], d[4])));
     }
     values
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn section_values_keep_comments_and_layout() {
+        let original = "# a rig\n\n[camera]\nfx = 240.0 # from the datasheet\n\n[mount]\nheight_mm=400.0\n\n[aoi]\nnear_mm = 450.0\n";
+        let values = [("fx", "251.5".to_string()), ("fy", "251.5".to_string())];
+        let text = with_section_values(original, "camera", &values).unwrap();
+        assert_eq!(text, "# a rig\n\n[camera]\nfx = 251.5 # from the datasheet\nfy = 251.5\n\n[mount]\nheight_mm=400.0\n\n[aoi]\nnear_mm = 450.0\n");
+        let text = with_section_values(original, "extra", &[("on", "true".to_string())]).unwrap();
+        assert!(text.starts_with(original) && text.ends_with("[extra]\non = true\n"), "{text}");
+        assert!(with_section_values("[mount\n", "mount", &values).is_err());
+    }
 }

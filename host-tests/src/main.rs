@@ -700,13 +700,13 @@ fn main() -> ExitCode {
 
 fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Source, camera_info: Option<&Path>) -> ExitCode {
     use flatland_host::calibrate::{
-        calibrate, calibrated_rig_toml, camera_values, parse_camera_info, report, with_section_values, CalibrationConfig,
+        calibrate, camera_values, mount_values, parse_camera_info, report, with_section_values, CalibrationConfig,
     };
     let mut recording = match Recording::open_for_calibration(path) {
         Ok(r) => r,
         Err(e) => return fatal(e),
     };
-    let info = match camera_info.map(|file| std::fs::read_to_string(file).map_err(|e| e.to_string()).and_then(|t| parse_camera_info(&t))) {
+    let info = match camera_info.map(|file| std::fs::read_to_string(file).map_err(|e| e.to_string()).and_then(|t| parse_camera_info(&t).map_err(|e| e.to_string()))) {
         None => None,
         Some(Ok(info)) => Some(info),
         Some(Err(e)) => return fatal(format!("{}: {e}", camera_info.unwrap_or(path).display())),
@@ -726,7 +726,7 @@ fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Sou
             fy: info.fy / n,
             cx: (info.cx + 0.5) / n - 0.5,
             cy: (info.cy + 0.5) / n - 0.5,
-            distortion: info.distortion.map(flatland_core::geometry::Distortion::from_coefficients),
+            distortion: info.distortion,
         };
         recording.rig = match flatland_host::calibrate::rig_with_aoi_in_view(camera, *recording.rig.mount(), *recording.rig.aoi()) {
             Ok(rig) => rig,
@@ -746,10 +746,14 @@ fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Sou
             Err(e) => return fatal(format!("{}: {e}", original.display())),
         };
         let target = path.join("rig.calibrated.toml");
-        let mut text = calibrated_rig_toml(&text, &estimate.mount);
+        let mut edited = with_section_values(&text, "mount", &mount_values(&estimate.mount));
         if let Some(info) = &info {
-            text = with_section_values(&text, "camera", &camera_values(info));
+            edited = edited.and_then(|text| with_section_values(&text, "camera", &camera_values(info)));
         }
+        let text = match edited {
+            Ok(text) => text,
+            Err(e) => return fatal(format!("{}: {e}", original.display())),
+        };
         if let Err(e) = std::fs::write(&target, text) {
             return fatal(format!("{}: {e}", target.display()));
         }

@@ -107,83 +107,21 @@ fn parse_toml<T: for<'de> Deserialize<'de>>(path: &Path, text: &str) -> Result<T
     })
 }
 
-/// rig.toml as written: the wire's [`RigRecord`] in sections.
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RigFile {
-    camera: CameraSection,
-    mount: MountSection,
-    aoi: AoiSection,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct CameraSection {
-    width: u16,
-    height: u16,
-    fx: f64,
-    fy: f64,
-    cx: f64,
-    cy: f64,
-    distortion: Option<[f64; 5]>,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct MountSection {
-    height_mm: f64,
-    tilt_deg: f64,
-    /// Optional: absent means a level, straight mount.
-    #[serde(default)]
-    roll_deg: f64,
-    #[serde(default)]
-    yaw_deg: f64,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct AoiSection {
-    half_width_mm: f64,
-    near_mm: f64,
-    far_mm: f64,
-}
-
-impl From<RigFile> for RigRecord {
-    fn from(RigFile { camera, mount, aoi }: RigFile) -> RigRecord {
-        RigRecord {
-            width: camera.width,
-            height: camera.height,
-            fx: camera.fx,
-            fy: camera.fy,
-            cx: camera.cx,
-            cy: camera.cy,
-            distortion: camera.distortion,
-            height_mm: mount.height_mm,
-            tilt_deg: mount.tilt_deg,
-            roll_deg: mount.roll_deg,
-            yaw_deg: mount.yaw_deg,
-            aoi_half_width_mm: aoi.half_width_mm,
-            aoi_near_mm: aoi.near_mm,
-            aoi_far_mm: aoi.far_mm,
-        }
-    }
-}
-
 /// The key whose value a rig error is about (in `record`, the rig as
 /// binned), for the error's line number. Values are finite past `NotFinite`.
 fn key_of(error: RigError, record: &RigRecord) -> &'static str {
     let either = |first_at_fault: bool, first, second| if first_at_fault { first } else { second };
     match error {
         RigError::NotFinite => "width",
-        RigError::ImageSize => either(record.width == 0 || record.width > MAX_IMAGE_SIDE, "width", "height"),
-        RigError::FocalLength => either(record.fx <= 0.0, "fx", "fy"),
-        RigError::PrincipalPoint => either(record.cx < -0.5 || record.cx > f64::from(record.width) - 0.5, "cx", "cy"),
+        RigError::ImageSize => either(record.camera.width == 0 || record.camera.width > MAX_IMAGE_SIDE, "width", "height"),
+        RigError::FocalLength => either(record.camera.fx <= 0.0, "fx", "fy"),
+        RigError::PrincipalPoint => either(record.camera.cx < -0.5 || record.camera.cx > f64::from(record.camera.width) - 0.5, "cx", "cy"),
         RigError::MountHeight => "height_mm",
         RigError::Tilt => "tilt_deg",
         RigError::Roll => "roll_deg",
         RigError::Yaw => "yaw_deg",
         RigError::Distortion => "distortion",
-        RigError::AoiEmpty => either(record.aoi_half_width_mm <= 0.0, "half_width_mm", "near_mm"),
+        RigError::AoiEmpty => either(record.aoi.half_width_mm <= 0.0, "half_width_mm", "near_mm"),
         RigError::AoiBehindCamera | RigError::AoiOutsideImage(AoiEdge::Near) => "near_mm",
         RigError::AoiBeyondHorizon | RigError::AoiOutsideImage(AoiEdge::Far) => "far_mm",
         RigError::AoiOutsideImage(AoiEdge::Left | AoiEdge::Right) => "half_width_mm",
@@ -224,11 +162,12 @@ impl Binning {
         let n = self.factor as f64;
         let (width, height) = self.size();
         // No larger than the u16 they came from.
-        (record.width, record.height) = (width as u16, height as u16);
-        record.fx /= n;
-        record.fy /= n;
-        record.cx = (record.cx + 0.5) / n - 0.5;
-        record.cy = (record.cy + 0.5) / n - 0.5;
+        let camera = &mut record.camera;
+        (camera.width, camera.height) = (width as u16, height as u16);
+        camera.fx /= n;
+        camera.fy /= n;
+        camera.cx = (camera.cx + 0.5) / n - 0.5;
+        camera.cy = (camera.cy + 0.5) / n - 0.5;
     }
 
     /// A recorded frame, binned (as it is when the factor is 1).
@@ -270,15 +209,14 @@ pub fn parse_rig_for_calibration(path: &Path, text: &str) -> Result<(Rig, Binnin
         if !matches!(rig, Err(RigError::AoiOutsideImage(_) | RigError::AoiBeyondHorizon)) {
             return rig;
         }
-        let (camera, mount, aoi) = record.parts();
-        rig_with_aoi_in_view(camera, mount, aoi)
+        rig_with_aoi_in_view(record.camera, record.mount, record.aoi)
     })
 }
 
 fn parse_rig_with(path: &Path, text: &str, build: impl Fn(&RigRecord) -> Result<Rig, RigError>) -> Result<(Rig, Binning), RecordingError> {
-    let file: RigFile = parse_toml(path, text)?;
-    let mut record = RigRecord::from(file);
-    let binning = Binning::for_frames(usize::from(record.width), usize::from(record.height));
+    // rig.toml's sections are the record's parts (core's `serde` feature).
+    let mut record: RigRecord = parse_toml(path, text)?;
+    let binning = Binning::for_frames(usize::from(record.camera.width), usize::from(record.camera.height));
     binning.scale(&mut record);
     let rig = build(&record).map_err(|error| {
         // For NaN/inf, point at the first offending key when we can find it.

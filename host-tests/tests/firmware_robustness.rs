@@ -192,8 +192,8 @@ fn rig_that_does_not_fit_the_target_is_refused_with_a_typed_fault() {
     assert!(Gpa::image_bytes(&grid) > IMAGE_CAPACITY, "{}x{} fits", grid.width, grid.height);
     assert!(Gpa::image_bytes(&KgGrid::for_rig(&base.rig, &GridConfig::default()).unwrap()) <= IMAGE_CAPACITY);
     let mut too_wide = RigRecord::from(&base.rig);
-    too_wide.width = 800;
-    too_wide.cx = 399.5;
+    too_wide.camera.width = 800;
+    too_wide.camera.cx = 399.5;
     let script = qemu::encode_script(&[Message::Rig(RigRecord::from(&base.rig)), Message::Rig(too_wide), Message::End]).unwrap();
     let outcome = run_at_resolution(&data("qvga_curb"), script, TOO_FINE_MM);
     let codes: Vec<FaultCode> = faults(&outcome).iter().map(|f| f.code).collect();

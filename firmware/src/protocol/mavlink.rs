@@ -162,7 +162,7 @@ impl<S: Read + ReadReady + Write> Protocol for Mavlink<S> {
     }
 
     fn rig_accepted(&mut self, record: &RigRecord) {
-        self.text(MavSeverity::MAV_SEVERITY_INFO, &short(format_args!("rig {}x{} accepted", record.width, record.height)));
+        self.text(MavSeverity::MAV_SEVERITY_INFO, &short(format_args!("rig {}x{} accepted", record.camera.width, record.camera.height)));
     }
 
     fn setup_failed(&mut self, error: &SetupError) {

@@ -182,7 +182,7 @@ fn describe(message: &Message) -> Option<String> {
     match message {
         Message::Hello(rig) => Some(format!(
             "firmware ready: camera {}x{}, H {} mm, tilt {} deg",
-            rig.width, rig.height, rig.height_mm, rig.tilt_deg
+            rig.camera.width, rig.camera.height, rig.mount.height_mm, rig.mount.tilt_deg
         )),
         Message::Frame(r) if r.alarm => {
             let mm = |v: Option<i32>| v.map_or("?".to_string(), |v| v.to_string());
