@@ -48,11 +48,25 @@ impl Autopilot {
 
     /// What this reader makes of `message` in the direction `angle_deg`.
     pub fn reading(self, message: &OBSTACLE_DISTANCE_DATA, angle_deg: f64) -> Reading {
+        self.readings(message)[self.bin(angle_deg)]
+    }
+
+    /// Everything this reader takes from `message`, by its own bins.
+    fn readings(self, message: &OBSTACLE_DISTANCE_DATA) -> Vec<Reading> {
+        match self {
+            Autopilot::ArduPilot => ardupilot_faces(message).to_vec(),
+            Autopilot::Px4Bins36 => px4_bins_36(message).to_vec(),
+            Autopilot::Px4Bins72 => px4_bins_72(message).to_vec(),
+        }
+    }
+
+    /// The bin (ArduPilot: the face) that holds the direction `angle_deg`.
+    fn bin(self, angle_deg: f64) -> usize {
         let angle = angle_deg.rem_euclid(360.0);
         match self {
-            Autopilot::ArduPilot => ardupilot_faces(message)[(((angle + 22.5) / 45.0) as usize) % 8],
-            Autopilot::Px4Bins36 => px4_bins_36(message)[(angle / 10.0).round() as usize % 36],
-            Autopilot::Px4Bins72 => px4_bins_72(message)[(angle / 5.0).round() as usize % 72],
+            Autopilot::ArduPilot => (((angle + 22.5) / 45.0) as usize) % 8,
+            Autopilot::Px4Bins36 => (angle / 10.0).round() as usize % 36,
+            Autopilot::Px4Bins72 => (angle / 5.0).round() as usize % 72,
         }
     }
 }
@@ -154,12 +168,14 @@ pub fn lost_hazards(message: &OBSTACLE_DISTANCE_DATA, scan: &Scan) -> Vec<String
     if let Some(j) = message.distances.iter().position(|&cm| cm == message.max_distance) {
         problems.push(format!("element {j} at max_distance {} cm", message.max_distance));
     }
+    // Each reader's bins once per message, then every hazard looked up.
+    let readers = Autopilot::ALL.map(|autopilot| (autopilot, autopilot.readings(message)));
     let start = scan.layout().angle_start_mdeg();
     for (k, sector) in scan.sectors().enumerate() {
         let Sector::Hazard(mm) = sector else { continue };
         let angle_deg = f64::from(start + k as i32 * SCAN_INCREMENT_MDEG) / 1000.0;
-        for autopilot in Autopilot::ALL {
-            match autopilot.reading(message, angle_deg) {
+        for (autopilot, readings) in &readers {
+            match readings[autopilot.bin(angle_deg)] {
                 Reading::Obstacle(cm) if u32::from(cm) * 10 <= u32::from(mm) => {}
                 reading => problems.push(format!("{autopilot:?} at {angle_deg} deg: {reading:?} for a hazard at {mm} mm")),
             }
