@@ -103,7 +103,7 @@ impl core::error::Error for GpaError {}
 /// [`Gpa::set_clock`] (0 without one).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct GpaProfile {
-    /// Usable columns and the warped keyframe band (2S+1 rows per KG row).
+    /// The row's warp line, its usable columns and the warped keyframe band (2S+1 rows per KG row).
     pub warp: u32,
     /// Tolerant residue and the per-cell residue counts.
     pub residue: u32,

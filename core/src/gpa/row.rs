@@ -13,15 +13,16 @@ impl Gpa<'_> {
     /// segments, and the shift search as block kernels.
     pub(super) fn compare_row(&mut self, keyframe: &Keyframe, j: usize, row: &[u8], exposure: Option<&[u8; 256]>) {
         let s = self.config.search_radius;
+        let mut lap = self.profiler.now();
         let warp = self.warp.row(j);
         self.cell_row_warps[j % self.layout.cells.px] = warp;
         let Some(seen) = self.coverage.seen(j) else {
+            self.profiler.charge(lap, |p| &mut p.warp);
             self.end_row(keyframe, j, exposure);
             return;
         };
         let (grid, cells, aoi) = (&self.layout.grid, &self.layout.cells, &self.layout.aoi);
         let cell_row = j / cells.px;
-        let mut lap = self.profiler.now();
         let mut runs = Runs::new();
         self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
         let in_aoi = j >= aoi.top && j < aoi.bottom;
