@@ -2,9 +2,14 @@
 //! per G shift (2S+1), padded by S columns each side for the K shifts.
 //! A ring, so that consecutive translation rows roll it instead of
 //! resampling it.
+//!
+//! The seed's own search reads it another way ([`Band::sample_current_rows`]):
+//! band row dg is the keyframe along the warp of current row j + dg - S,
+//! the seed's motion-compensated KG image shifted in the current frame's
+//! rows, so every row rolls it on by one line, turning or not.
 
 use super::keyframe::Keyframe;
-use super::warp::{RowWarp, FRAC};
+use super::warp::{RowWarp, Warp, FRAC};
 use crate::grid::MAX_GRID_SIDE;
 use crate::limits::MAX_SEARCH_RADIUS;
 use core::ops::Range;
@@ -27,15 +32,26 @@ pub(super) struct Band {
     /// The band rows (dg) that sampling left filled for its row: all
     /// 2S+1 make a band the next row can roll on.
     filled: Range<usize>,
+    /// Read by current rows: the row last sampled, and each band row's line.
+    current_row: Option<usize>,
+    current_lines: [RowWarp; MAX_WINDOW],
 }
 
 impl Band {
-    pub(super) const EMPTY: Band = Band { ring: [[0; BAND_WIDTH]; MAX_WINDOW], first: 0, source: None, filled: 0..0 };
+    pub(super) const EMPTY: Band = Band {
+        ring: [[0; BAND_WIDTH]; MAX_WINDOW],
+        first: 0,
+        source: None,
+        filled: 0..0,
+        current_row: None,
+        current_lines: [RowWarp::LEVEL; MAX_WINDOW],
+    };
 
     /// A new frame: nothing sampled to roll on from.
     pub(super) fn forget(&mut self) {
         self.source = None;
         self.filled = 0..0;
+        self.current_row = None;
     }
 
     /// Samples the band of current row `j` (warp `warp`) over the `seen`
@@ -70,10 +86,53 @@ impl Band {
         for row in in_order.iter_mut().chain(wrapped.iter_mut()).skip(to_sample.start).take(to_sample.len()) {
             let _ = lines.push(&mut row[MAX_SEARCH_RADIUS..]);
         }
+        self.current_row = None;
         let first_line = warp.moved(0, (to_sample.start as i32 - s as i32) << FRAC);
         keyframe.sample_lines(first_line, columns.clone(), &mut lines);
         self.filled = if rolls { 0..window } else { to_sample };
         self.source = Some((j, warp, columns));
+    }
+
+    /// Samples the band of current row `j` read by current rows (see the
+    /// module docs) under `warp`, and returns row `j`'s own line. Right
+    /// after row `j - 1` only band row 2S is new, else all 2S+1 are
+    /// sampled. `columns_of(r)` are the columns current row `r` compares
+    /// (None: none, or beyond the grid); a band row is sampled over those
+    /// of every row within S of it, widened by S.
+    pub(super) fn sample_current_rows(
+        &mut self,
+        keyframe: &Keyframe,
+        j: usize,
+        warp: &Warp,
+        s: usize,
+        columns_of: impl Fn(usize) -> Option<Range<usize>>,
+    ) -> RowWarp {
+        self.source = None;
+        let window = 2 * s + 1;
+        let new_rows = if self.current_row.is_some_and(|previous| previous + 1 == j) {
+            self.first = (self.first + 1) % window;
+            2 * s..window
+        } else {
+            0..window
+        };
+        for dg in new_rows {
+            let slot = (self.first + dg) % window;
+            // Row j + dg - S may lie beyond the grid's edges: the warp
+            // extends there, and its samples off the keyframe are 0.
+            let r = j as isize + dg as isize - s as isize;
+            let line = warp.row_at(r as f64);
+            let (mut lo, mut hi) = (usize::MAX, 0);
+            for reader in (r - s as isize).max(0)..=r + s as isize {
+                if let Some(columns) = columns_of(reader as usize) {
+                    (lo, hi) = (lo.min(columns.start), hi.max(columns.end));
+                }
+            }
+            let columns = if lo < hi { lo.saturating_sub(s)..(hi + s).min(keyframe.width()) } else { 0..0 };
+            keyframe.sample_line(line, columns, &mut self.ring[slot][MAX_SEARCH_RADIUS..]);
+            self.current_lines[slot] = line;
+        }
+        self.current_row = Some(j);
+        self.current_lines[(self.first + s) % window]
     }
 
     /// The band rows (dg) the last sampling left filled for its row.
@@ -103,5 +162,49 @@ impl Band {
     pub(super) fn unrolled(&mut self) -> &mut [[u8; BAND_WIDTH]; MAX_WINDOW] {
         self.first = 0;
         &mut self.ring
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::KgGrid;
+    use crate::motion::{Attitude, GroundMotion, Motion};
+
+    /// Read by current rows, every band row of every row is the keyframe
+    /// along that current row's line, sampled pixel by pixel; turning and
+    /// tilted, with rows skipped (a fresh band) and rows past the edges.
+    #[test]
+    fn current_rows_are_the_keyframe_along_their_own_lines() {
+        let grid = KgGrid { mm_per_px: 5.0, x_left_mm: -350.0, z_far_mm: 1600.0, width: 141, height: 120 };
+        let (mut first, mut second) = (std::vec![0u8; grid.len()], std::vec![0u8; grid.len()]);
+        let mut keyframe = Keyframe::new(&mut first, &mut second, &grid);
+        for j in 0..grid.height() {
+            let row: std::vec::Vec<u8> = (0..grid.width()).map(|i| ((i * 37 + j * 91 + i * j) % 251) as u8).collect();
+            keyframe.write_row(j, &row);
+        }
+        keyframe.restart();
+        keyframe.finish(0);
+        let seen = |r: usize| (r < grid.height() && r % 29 != 7).then(|| (r / 10)..grid.width() - r / 12);
+        for (yaw, pitch, roll) in [(0.0, 0.0, 0.0), (2.5, 0.0, 0.0), (-1.0, 0.8, -1.2)] {
+            let motion = GroundMotion { planar: Motion { tx_mm: 7.0, tz_mm: 60.0, dyaw_deg: yaw }, attitude: Attitude { pitch_deg: pitch, roll_deg: roll } };
+            let warp = Warp::new(&grid, &motion, &Attitude::default(), 400.0);
+            let s = 2;
+            let mut band = Band::EMPTY;
+            for j in (0..grid.height()).filter(|&j| seen(j).is_some()) {
+                let own = band.sample_current_rows(&keyframe, j, &warp, s, seen);
+                assert_eq!(own, warp.row(j));
+                let columns = seen(j).unwrap();
+                let wide = columns.start.saturating_sub(s)..(columns.end + s).min(grid.width());
+                for (dg, band_row) in band.rows(s).iter().take(2 * s + 1).enumerate() {
+                    let line = warp.row_at(j as f64 + dg as f64 - s as f64);
+                    for c in wide.clone() {
+                        let (i, jr) = line.at(c);
+                        let want = if keyframe.inside(i, jr) { keyframe.sample(i, jr) } else { 0 };
+                        assert_eq!(band_row[c + MAX_SEARCH_RADIUS], want, "yaw {yaw} row {j} dg {dg} column {c}");
+                    }
+                }
+            }
+        }
     }
 }

@@ -587,7 +587,9 @@ impl<'b> Gpa<'b> {
     /// Fills the seed's search (`self.seed`) around the `predicted` motion:
     /// the shift search's part of the row step, on every AOI row. As the
     /// seed sees it: its rig is level and it knows the planar motion only,
-    /// so its rows are straight (a translation rolls the band on).
+    /// so its rows are straight; and it shifts the motion-compensated
+    /// keyframe in the current frame's rows, so the band rolls on by a line
+    /// a row, turning or not.
     // Not inlined, nor is `compare_at`: their row buffers stay out of
     // `compare_with`'s frame, which the obstacle search stands on.
     #[inline(never)]
@@ -603,9 +605,8 @@ impl<'b> Gpa<'b> {
         let mut adjusted = [0u8; MAX_GRID_SIDE];
         for j in aoi.top..aoi.bottom.min(self.layout.analysis_rows) {
             let Some(seen) = self.coverage.seen(j) else { continue };
-            let row_warp = warp.row(j);
-            self.coverage.usable_runs(row_warp, seen.clone(), grid, &mut runs);
-            rows.band.sample(store, j, row_warp, seen, s, s);
+            let row_warp = rows.band.sample_current_rows(store, j, &warp, s, |r| self.coverage.seen_within(r, grid));
+            self.coverage.usable_runs(row_warp, seen, grid, &mut runs);
             let row = exposed(store.current_row(j), exposure, &mut adjusted);
             rows.seed.add_row(row, &rows.band.rows(s), s, &runs, aoi, self.layout.in_far_half(j));
         }

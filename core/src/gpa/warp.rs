@@ -23,11 +23,18 @@ fn to_q16_f32(value: f32) -> i32 {
 }
 
 /// Fraction bits of a row's bend, per column squared: Q16.16 positions
-/// with 16 more bits (a 1 degree roll bends by ~1/4000 px per column squared).
-pub(super) const BEND_FRAC: u32 = 32;
+/// with 8 more bits (a 1 degree roll bends by ~1/4000 px per column
+/// squared, ~4,200 units; rounding to a unit moves column 255 by at most
+/// 1/512 px).
+pub(super) const BEND_FRAC: u32 = 24;
+
+/// Bends below this in magnitude (a roll of up to ~8 degrees) keep c^2 bend
+/// within an i32 at every grid column (c <= 256): their rows step in 32
+/// bits, which on the M4 is a third of the cost of 64.
+const COMPACT_BEND: u32 = 1 << 15;
 
 /// One row's warp: keyframe position of current column 0, its per-column
-/// step, Q16.16, and its bend per column squared, Q32.
+/// step, Q16.16, and its bend per column squared, Q24.
 ///
 /// Under a roll a row still maps onto a line, but a projective one: its
 /// columns land unevenly spaced (by r x^2 / H in ground mm), by 1.3 px in
@@ -59,6 +66,12 @@ impl RowWarp {
         self.i_bend != 0 || self.j_bend != 0
     }
 
+    /// Bent little enough for [`Self::compact_positions`].
+    #[inline(always)]
+    pub(super) fn is_compact(&self) -> bool {
+        self.i_bend.unsigned_abs() < COMPACT_BEND && self.j_bend.unsigned_abs() < COMPACT_BEND
+    }
+
     /// Keyframe position (i, j) of current column `c`.
     #[inline(always)]
     pub(super) fn at(&self, c: usize) -> (i32, i32) {
@@ -72,7 +85,18 @@ impl RowWarp {
     /// [`Self::at`] of the columns `first`, `first + 1`, ... in turn, by
     /// exact differences: no multiply per column on the M4.
     #[inline(always)]
-    pub(super) fn positions(&self, first: usize) -> Positions {
+    pub(super) fn positions(&self, first: usize) -> Positions<i64> {
+        Positions {
+            i: Coordinate::new(self.i_start, self.i_step, self.i_bend, first),
+            j: Coordinate::new(self.j_start, self.j_step, self.j_bend, first),
+        }
+    }
+
+    /// [`Self::positions`] in 32 bits, for a row [`Self::is_compact`] and
+    /// columns within the grid.
+    #[inline(always)]
+    pub(super) fn compact_positions(&self, first: usize) -> Positions<i32> {
+        debug_assert!(self.is_compact() && first <= MAX_GRID_SIDE);
         Positions {
             i: Coordinate::new(self.i_start, self.i_step, self.i_bend, first),
             j: Coordinate::new(self.j_start, self.j_step, self.j_bend, first),
@@ -170,7 +194,11 @@ impl Warp {
 
     /// The warp of current row `j`.
     pub(super) fn row(&self, j: usize) -> RowWarp {
-        let jf = j as f64;
+        self.row_at(j as f64)
+    }
+
+    /// The warp of current row `jf`, which may lie beyond the grid's rows.
+    pub(super) fn row_at(&self, jf: f64) -> RowWarp {
         if let Some(bent) = &self.bent {
             let jf = jf as f32;
             let last = (self.grid.width().max(2) - 1) as f32;
@@ -201,50 +229,80 @@ impl Warp {
     }
 }
 
-/// One coordinate of a [`RowWarp`] stepped column by column: the same
-/// Q16 value as [`RowWarp::at`] (a linear part that wraps as its i32
-/// sums do, and the quadratic part from the exact i64 c^2 bend).
-struct Coordinate {
-    linear: i32,
-    step: i32,
-    squared_bend: i64,
-    increment: i64,
-    bend_step: i64,
+/// The c^2 bend sums of a [`Coordinate`]: `i64` for any row, `i32` for a
+/// compact one (exactly the same values there).
+pub(super) trait BendSum: Copy + core::ops::Add<Output = Self> {
+    fn from_exact(value: i64) -> Self;
+    /// The sum in Q16 (its bend's fraction bits dropped, rounding down).
+    fn to_q16(self) -> i32;
 }
 
-impl Coordinate {
+impl BendSum for i64 {
     #[inline(always)]
-    fn new(start: i32, step: i32, bend: i32, c: usize) -> Coordinate {
+    fn from_exact(value: i64) -> i64 {
+        value
+    }
+    #[inline(always)]
+    fn to_q16(self) -> i32 {
+        (self >> (BEND_FRAC - FRAC)) as i32
+    }
+}
+
+impl BendSum for i32 {
+    #[inline(always)]
+    fn from_exact(value: i64) -> i32 {
+        value as i32
+    }
+    #[inline(always)]
+    fn to_q16(self) -> i32 {
+        self >> (BEND_FRAC - FRAC)
+    }
+}
+
+/// One coordinate of a [`RowWarp`] stepped column by column: the same
+/// Q16 value as [`RowWarp::at`] (a linear part that wraps as its i32
+/// sums do, and the quadratic part from the exact c^2 bend).
+struct Coordinate<T> {
+    linear: i32,
+    step: i32,
+    squared_bend: T,
+    increment: T,
+    bend_step: T,
+}
+
+impl<T: BendSum> Coordinate<T> {
+    #[inline(always)]
+    fn new(start: i32, step: i32, bend: i32, c: usize) -> Coordinate<T> {
         let (c, bend) = (c as i64, i64::from(bend));
         Coordinate {
             linear: start.wrapping_add((c as i32).wrapping_mul(step)),
             step,
-            squared_bend: c * c * bend,
-            increment: (2 * c + 1) * bend,
-            bend_step: 2 * bend,
+            squared_bend: T::from_exact(c * c * bend),
+            increment: T::from_exact((2 * c + 1) * bend),
+            bend_step: T::from_exact(2 * bend),
         }
     }
 
     #[inline(always)]
     fn value(&self) -> i32 {
-        self.linear.wrapping_add((self.squared_bend >> (BEND_FRAC - FRAC)) as i32)
+        self.linear.wrapping_add(self.squared_bend.to_q16())
     }
 
     #[inline(always)]
     fn advance(&mut self) {
         self.linear = self.linear.wrapping_add(self.step);
-        self.squared_bend += self.increment;
-        self.increment += self.bend_step;
+        self.squared_bend = self.squared_bend + self.increment;
+        self.increment = self.increment + self.bend_step;
     }
 }
 
 /// A row's keyframe positions, column by column ([`RowWarp::positions`]).
-pub(super) struct Positions {
-    i: Coordinate,
-    j: Coordinate,
+pub(super) struct Positions<T> {
+    i: Coordinate<T>,
+    j: Coordinate<T>,
 }
 
-impl Positions {
+impl<T: BendSum> Positions<T> {
     /// This column's position; then on to the next column.
     #[inline(always)]
     pub(super) fn take(&mut self) -> (i32, i32) {
@@ -318,6 +376,11 @@ impl Coverage {
     pub(super) fn seen(&self, j: usize) -> Option<Range<usize>> {
         let (lo, hi) = self.current[j];
         (hi > lo).then_some(usize::from(lo)..usize::from(hi))
+    }
+
+    /// [`Self::seen`] of any row index: None beyond the grid's rows.
+    pub(super) fn seen_within(&self, j: usize, grid: &KgGrid) -> Option<Range<usize>> {
+        (j < grid.height()).then(|| self.seen(j)).flatten()
     }
 
     /// Whether current column `c` under `warp` has its whole search
@@ -537,7 +600,7 @@ mod tests {
             checked += usize::from(!runs.is_empty());
             // The same row bent (a roll of up to ~2 degrees bends by ~1/2000 px per column squared).
             let mut bend = |range: u32| next(2 * range + 1) as i32 - range as i32;
-            let bent = RowWarp { i_bend: bend(1 << 21), j_bend: bend(1 << 21), ..warp };
+            let bent = RowWarp { i_bend: bend(1 << 13), j_bend: bend(1 << 13), ..warp };
             if bent.is_bent() {
                 let mut runs = Runs::new();
                 assert!(coverage.bent_runs(bent, seen.clone(), &grid, &mut runs));

@@ -162,7 +162,12 @@ impl Keyframe<'_> {
     /// `span` in turn, the positions stepped by the same sums as `line.at(c)`.
     #[inline(always)]
     fn for_positions(line: RowWarp, span: Range<usize>, mut visit: impl FnMut(usize, (i32, i32))) {
-        if line.is_bent() {
+        if line.is_bent() && line.is_compact() {
+            let mut positions = line.compact_positions(span.start);
+            for t in 0..span.len() {
+                visit(t, positions.take());
+            }
+        } else if line.is_bent() {
             let mut positions = line.positions(span.start);
             for t in 0..span.len() {
                 visit(t, positions.take());
@@ -210,7 +215,7 @@ impl Keyframe<'_> {
         let image: &[u8] = &self.images[self.key_half][..self.height * self.width];
         let width = self.width;
         let mut outs = outs.map(|out| &mut out[span.clone()]);
-        Self::for_positions(line, span, |t, (i, j)| {
+        Self::for_positions(line, span, #[inline(always)] |t, (i, j)| {
             let index = (j >> FRAC) as usize * width + (i >> FRAC) as usize;
             let (wx, wy) = ((i >> 8) & 0xFF, (j >> 8) & 0xFF);
             // SAFETY: line N - 1 at this column lies inside the grid (see
@@ -320,7 +325,7 @@ fn straight_span(line: RowWarp, columns: Range<usize>, limits: (i32, i32)) -> Op
 }
 
 /// The whole part of a bent coordinate's turning point t = -step / (2 bend)
-/// (columns; `step` Q16, `bend` Q32) when `first < t < last`. In integers
+/// (columns; `step` Q16, `bend` Q24) when `first < t < last`. In integers
 /// (no software f64 on the M4): each comparison multiplied by the
 /// denominator, flipped when it is negative.
 fn turning_column(step: i32, bend: i32, first: usize, last: usize) -> Option<usize> {
