@@ -144,10 +144,24 @@ impl Keyframe<'_> {
                 return Span::Inside(span);
             }
         }
-        let Some(first) = columns.clone().find(|&c| inside(c)) else {
+        // Where to look: both ends inside (most lines) settle it; else the
+        // columns certainly inside and possibly inside, from the straight
+        // lines that bound a bent one (all of them when those cannot be
+        // solved), and only the columns between are tested.
+        let (surely, maybe) = if inside(columns.start) && inside(columns.end - 1) {
+            (columns.clone(), columns.clone())
+        } else {
+            bent_bounds(line, columns.clone(), (i_limit, j_limit)).unwrap_or((columns.start..columns.start, columns.clone()))
+        };
+        let first = match surely.is_empty() {
+            true => maybe.clone().find(|&c| inside(c)),
+            false => (maybe.start..surely.start).find(|&c| inside(c)).or(Some(surely.start)),
+        };
+        let Some(first) = first else {
             return Span::Inside(columns.start..columns.start);
         };
-        let end = (first + 1..columns.end).rev().find(|&c| inside(c)).map_or(first + 1, |c| c + 1);
+        let floor = if surely.is_empty() { first + 1 } else { surely.end };
+        let end = (floor..maybe.end).rev().find(|&c| inside(c)).map_or(floor, |c| c + 1);
         if line.is_bent() {
             // A quadratic's turning point is where it could leave the grid.
             let leaves = |step: i32, bend: i32| turning_column(step, bend, first, end - 1).is_some_and(|c| !inside(c) || !inside(c + 1));
@@ -324,6 +338,42 @@ fn straight_span(line: RowWarp, columns: Range<usize>, limits: (i32, i32)) -> Op
     Some(if from < to { from as usize..to as usize } else { columns.start..columns.start })
 }
 
+/// The columns of `columns` where a bent `line` surely lies inside the
+/// limits, and those where it may: each coordinate is its straight part
+/// plus c^2 bend, which over the columns ranges between its values at
+/// their ends (c^2 is monotonic for c >= 0), so two straight lines bound
+/// it, solved as [`straight_span`] does. None where those cannot be
+/// solved (positions beyond any sane grid).
+fn bent_bounds(line: RowWarp, columns: Range<usize>, limits: (i32, i32)) -> Option<(Range<usize>, Range<usize>)> {
+    if columns.is_empty() {
+        return None;
+    }
+    let bent_part = |bend: i32| {
+        let at = |c: usize| unwrapped(0, 0, bend, c);
+        let (a, b) = (at(columns.start), at(columns.end - 1));
+        (a.min(b), a.max(b))
+    };
+    let ((i_low, i_high), (j_low, j_high)) = (bent_part(line.i_bend), bent_part(line.j_bend));
+    const SANE: i64 = 1 << 28;
+    let sane = |v: i64| v.abs() < SANE;
+    if ![i_low, i_high, j_low, j_high, i64::from(limits.0), i64::from(limits.1)].into_iter().all(sane) {
+        return None;
+    }
+    let straight = |i_shift: i64, j_shift: i64| RowWarp {
+        i_start: line.i_start.checked_add(i_shift as i32).unwrap_or(i32::MAX),
+        j_start: line.j_start.checked_add(j_shift as i32).unwrap_or(i32::MAX),
+        i_bend: 0,
+        j_bend: 0,
+        ..line
+    };
+    let (i_spread, j_spread) = ((i_high - i_low) as i32, (j_high - j_low) as i32);
+    // Surely inside: 0 <= straight + low and straight + high < limit.
+    let surely = straight_span(straight(i_low, j_low), columns.clone(), (limits.0 - i_spread, limits.1 - j_spread))?;
+    // Maybe inside: 0 <= straight + high and straight + low < limit.
+    let maybe = straight_span(straight(i_high, j_high), columns, (limits.0 + i_spread, limits.1 + j_spread))?;
+    Some((surely, maybe))
+}
+
 /// The whole part of a bent coordinate's turning point t = -step / (2 bend)
 /// (columns; `step` Q16, `bend` Q24) when `first < t < last`. In integers
 /// (no software f64 on the M4): each comparison multiplied by the
@@ -415,5 +465,37 @@ mod tests {
             nonempty += usize::from(!solved.is_empty());
         }
         assert!(nonempty > 3_000, "too few lines inside the grid: {nonempty}");
+    }
+
+    /// Bent lines found from their bounding straight lines give the scan's
+    /// interval (or wrap where a turning point could leave the grid):
+    /// bends of either sign up to a few degrees of roll, lines crossing
+    /// every edge of the grid.
+    #[test]
+    fn bent_spans_equal_the_scan() {
+        let (width, height) = (141, 255);
+        let (mut first, mut second) = (std::vec![0u8; width * height], std::vec![0u8; width * height]);
+        let grid = crate::grid::KgGrid { mm_per_px: 5.0, x_left_mm: -350.0, z_far_mm: 1600.0, width: width as u16, height: height as u16 };
+        let keyframe = Keyframe::new(&mut first, &mut second, &grid);
+        let limits = (keyframe.columns_limit(), keyframe.rows_limit());
+        let mut seed = 0xBE47_0001u32;
+        let mut next = move |n: u32| crate::selftest::xorshift32(&mut seed) % n;
+        let (mut nonempty, mut partial) = (0, 0);
+        for _ in 0..20_000 {
+            let yaw = (f64::from(next(4001)) - 2000.0) * 1e-4;
+            let (sin, cos) = libm::sincos(yaw);
+            let (i_start, j_start) = (next(260 << FRAC) as i32 - (60 << FRAC), next(300 << FRAC) as i32 - (20 << FRAC));
+            let (i_bend, j_bend) = (next(1 << 15) as i32 - (1 << 14), next(1 << 15) as i32 - (1 << 14));
+            let line = RowWarp { i_start, i_step: (cos * 65536.0) as i32, i_bend, j_start, j_step: (sin * 65536.0) as i32, j_bend };
+            let start = next(60) as usize;
+            let columns = start..start + 1 + next(140) as usize;
+            if let Span::Inside(span) = keyframe.inside_span(line, columns.clone()) {
+                let want = scanned(line, columns.clone(), limits);
+                assert_eq!(span, want, "{line:?} {columns:?}");
+                nonempty += usize::from(!span.is_empty());
+                partial += usize::from(!span.is_empty() && span != columns);
+            }
+        }
+        assert!(nonempty > 3_000 && partial > 1_000, "too few lines inside or across the edges: {nonempty}, {partial}");
     }
 }
