@@ -55,6 +55,9 @@ pub(super) struct Hypotheses {
     /// The shallowest drop (mm) whose lag this frame tells from the ground
     /// (infinite when none: too short a baseline).
     pub(super) shallowest_drop_mm: f64,
+    /// Rows above this one are far enough for a heading error to blur
+    /// them sideways by more than half a pixel ([`Self::ground_tolerance`]).
+    yaw_blurred_rows: usize,
 }
 
 impl Hypotheses {
@@ -65,6 +68,7 @@ impl Hypotheses {
         full_tolerance: (false, false),
         ground_like: GROUND_RANK..GROUND_RANK + 1,
         shallowest_drop_mm: f64::INFINITY,
+        yaw_blurred_rows: 0,
     };
 
     /// The hypotheses of a frame at `predicted` from the keyframe, `step`
@@ -100,7 +104,27 @@ impl Hypotheses {
         let hidden_lag_mm = tolerance_mm + half_px;
         let shallowest_drop_mm =
             if baseline > hidden_lag_mm { camera_height_mm * hidden_lag_mm / (baseline - hidden_lag_mm) } else { f64::INFINITY };
-        Hypotheses { offset, displacement, usable: HEIGHT_FRACTIONS.len(), full_tolerance, ground_like, shallowest_drop_mm }
+        // The rows where a heading error blurs the ground sideways by more
+        // than half a pixel: the far ones, so the first row that is not
+        // blurred, found by bisection (the test falls with the row).
+        let yaw_blurred = |j: usize| {
+            let (_, row_z) = grid.pixel_to_ground(0.0, j as f64);
+            row_z * config.odometry_yaw_error_deg.to_radians() > half_px
+        };
+        let (mut blurred, mut sharp) = (0, grid.height());
+        if !yaw_blurred(0) {
+            sharp = 0;
+        }
+        while blurred + 1 < sharp {
+            let middle = (blurred + sharp) / 2;
+            if yaw_blurred(middle) {
+                blurred = middle;
+            } else {
+                sharp = middle;
+            }
+        }
+        let yaw_blurred_rows = sharp;
+        Hypotheses { offset, displacement, usable: HEIGHT_FRACTIONS.len(), full_tolerance, ground_like, shallowest_drop_mm, yaw_blurred_rows }
     }
 
     /// The hypotheses this frame compares besides the ground.
@@ -111,10 +135,8 @@ impl Hypotheses {
     /// How far (K, G) the ground hypothesis's residue of row `j` reaches: a
     /// full pixel along an axis the odometry may be that far off, sideways
     /// also where a heading error moves far ground by more than half a pixel.
-    pub(super) fn ground_tolerance(&self, j: usize, grid: &KgGrid, config: &GpaConfig) -> (bool, bool) {
-        let (_, row_z) = grid.pixel_to_ground(0.0, j as f64);
-        let yaw_blur = row_z * config.odometry_yaw_error_deg.to_radians() > 0.5 * grid.mm_per_px;
-        (self.full_tolerance.0 || yaw_blur, self.full_tolerance.1)
+    pub(super) fn ground_tolerance(&self, j: usize) -> (bool, bool) {
+        (self.full_tolerance.0 || j < self.yaw_blurred_rows, self.full_tolerance.1)
     }
 
     /// The height (as a fraction of H, negative below the ground) that a

@@ -33,7 +33,7 @@ impl Gpa<'_> {
 
         let in_cells = cell_row < cells.high;
         if in_cells {
-            let full = self.parallax.hypotheses.ground_tolerance(j, grid, &self.config);
+            let full = self.parallax.hypotheses.ground_tolerance(j);
             let threshold = self.noise.residue_threshold();
             rows.residue.add_row(j, row, &band, s, &runs, full, threshold, cells, cell_row, &mut self.parallax.sums);
         }
