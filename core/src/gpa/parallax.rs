@@ -361,10 +361,26 @@ impl Parallax {
             return;
         }
         let min_pixels = (cells.px * cells.px / 2) as u16;
+        // `residue < min_gain * pixels` in integers: for a whole residue R
+        // and a product x, R < x exactly when R < ceil(x) (saturated: `as`
+        // makes a NaN or negative ceiling 0, which no R is below, as no R
+        // is below x then). Most cells are whole, so the last pixel
+        // count's ceiling is kept.
+        let mut least: Option<(u16, u32)> = None;
         for column in 0..cells.wide {
             let pixels = u16::from(self.sums.pixels[0][column]);
-            let residue = f64::from(self.sums.sad[0][column]);
-            if pixels < min_pixels || residue < min_gain * f64::from(pixels) {
+            if pixels < min_pixels {
+                continue;
+            }
+            let least_residue = match least {
+                Some((counted, ceiling)) if counted == pixels => ceiling,
+                _ => {
+                    let ceiling = libm::ceil(min_gain * f64::from(pixels)) as u32;
+                    least = Some((pixels, ceiling));
+                    ceiling
+                }
+            };
+            if u32::from(self.sums.sad[0][column]) < least_residue {
                 continue;
             }
             let columns = column * cells.px..(column + 1) * cells.px;
