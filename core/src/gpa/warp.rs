@@ -148,7 +148,8 @@ pub(super) struct Warp {
     grid: KgGrid,
     /// The planar part as an affine map (exact without attitude).
     origin: (f64, f64),
-    column: (f64, f64),
+    /// The step along a row in Q16 (the same on every row).
+    column_q16: (i32, i32),
     row: (f64, f64),
 }
 
@@ -164,7 +165,7 @@ impl Warp {
         bent: None,
         grid: KgGrid { mm_per_px: 1.0, x_left_mm: 0.0, z_far_mm: 0.0, width: 0, height: 0 },
         origin: (0.0, 0.0),
-        column: (0.0, 0.0),
+        column_q16: (0, 0),
         row: (0.0, 0.0),
     };
 
@@ -187,7 +188,7 @@ impl Warp {
             }),
             grid: *grid,
             origin,
-            column: (along.0 - origin.0, along.1 - origin.1),
+            column_q16: (to_q16(along.0 - origin.0), to_q16(along.1 - origin.1)),
             row: (down.0 - origin.0, down.1 - origin.1),
         }
     }
@@ -221,9 +222,9 @@ impl Warp {
         }
         RowWarp {
             i_start: to_q16(self.origin.0 + self.row.0 * jf),
-            i_step: to_q16(self.column.0),
+            i_step: self.column_q16.0,
             j_start: to_q16(self.origin.1 + self.row.1 * jf),
-            j_step: to_q16(self.column.1),
+            j_step: self.column_q16.1,
             ..RowWarp::default()
         }
     }
