@@ -85,11 +85,15 @@ impl Keyframe<'_> {
         let one_row_down = |k: usize| line.moved(0, (k as i32) << FRAC);
         let mut spans: [Range<usize>; MAX_STACK] = Default::default();
         let mut common = columns.clone();
+        // The lines differ only by whole rows: where all of them stay
+        // within the grid's rows at every column, only the columns limit
+        // them, alike, and the first line's span is every line's.
+        let rows_inside = !columns.is_empty() && self.rows_within(line, columns.clone(), outs.len());
         let stackable = !line.is_translation()
             && !columns.is_empty()
             && outs.len() <= MAX_STACK
             && outs.iter().all(|out| out.len() >= columns.end)
-            && (0..outs.len()).all(|k| match self.inside_span(one_row_down(k), columns.clone()) {
+            && (0..outs.len()).all(|k| match if rows_inside && k > 0 { Span::Inside(spans[0].clone()) } else { self.inside_span(one_row_down(k), columns.clone()) } {
                 Span::Inside(span) => {
                     common = common.start.max(span.start)..common.end.min(span.end);
                     spans[k] = span;
@@ -170,6 +174,17 @@ impl Keyframe<'_> {
             }
         }
         Span::Inside(first..end)
+    }
+
+    /// Whether `count` lines, `line` and each a row below the last, lie
+    /// within the grid's rows at every one of `columns` (not empty), by a
+    /// bound: the straight part's and the bend's least and most there.
+    fn rows_within(&self, line: RowWarp, columns: Range<usize>, count: usize) -> bool {
+        let at = |start: i32, step: i32, bend: i32, c: usize| (unwrapped(start, step, 0, c), unwrapped(0, 0, bend, c));
+        let (first, last) = (at(line.j_start, line.j_step, line.j_bend, columns.start), at(line.j_start, line.j_step, line.j_bend, columns.end - 1));
+        let least = first.0.min(last.0) + first.1.min(last.1);
+        let most = first.0.max(last.0) + first.1.max(last.1) + ((count.max(1) as i64 - 1) << FRAC);
+        least >= 0 && most < i64::from(self.rows_limit())
     }
 
     /// Calls `visit(t, position)` for the columns `span.start + t` of
