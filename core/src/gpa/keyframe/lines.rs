@@ -133,6 +133,9 @@ impl Keyframe<'_> {
     /// between the columns found inside from both ends, they are one
     /// interval and no pixel in it needs a test.
     fn inside_span(&self, line: RowWarp, columns: Range<usize>) -> Span {
+        if !columns.is_empty() && self.surely_inside(line, columns.clone()) {
+            return Span::Inside(columns);
+        }
         let (i_limit, j_limit) = (self.columns_limit(), self.rows_limit());
         let exact = |c: usize| (unwrapped(line.i_start, line.i_step, line.i_bend, c), unwrapped(line.j_start, line.j_step, line.j_bend, c));
         let fits = |(i, j): (i64, i64)| i32::try_from(i).is_ok() && i32::try_from(j).is_ok();
@@ -177,14 +180,17 @@ impl Keyframe<'_> {
     }
 
     /// Whether `count` lines, `line` and each a row below the last, lie
-    /// within the grid's rows at every one of `columns` (not empty), by a
-    /// bound: the straight part's and the bend's least and most there.
+    /// within the grid's rows at every one of `columns` (not empty).
     fn rows_within(&self, line: RowWarp, columns: Range<usize>, count: usize) -> bool {
-        let at = |start: i32, step: i32, bend: i32, c: usize| (unwrapped(start, step, 0, c), unwrapped(0, 0, bend, c));
-        let (first, last) = (at(line.j_start, line.j_step, line.j_bend, columns.start), at(line.j_start, line.j_step, line.j_bend, columns.end - 1));
-        let least = first.0.min(last.0) + first.1.min(last.1);
-        let most = first.0.max(last.0) + first.1.max(last.1) + ((count.max(1) as i64 - 1) << FRAC);
-        least >= 0 && most < i64::from(self.rows_limit())
+        let (least, most) = coordinate_bounds(line.j_start, line.j_step, line.j_bend, columns);
+        least >= 0 && most + ((count.max(1) as i64 - 1) << FRAC) < i64::from(self.rows_limit())
+    }
+
+    /// Whether `line` lies inside the grid at every one of `columns` (not
+    /// empty), by the bounds of its coordinates.
+    fn surely_inside(&self, line: RowWarp, columns: Range<usize>) -> bool {
+        let (i_least, i_most) = coordinate_bounds(line.i_start, line.i_step, line.i_bend, columns.clone());
+        i_least >= 0 && i_most < i64::from(self.columns_limit()) && self.rows_within(line, columns, 1)
     }
 
     /// Calls `visit(t, position)` for the columns `span.start + t` of
@@ -351,6 +357,14 @@ fn straight_span(line: RowWarp, columns: Range<usize>, limits: (i32, i32)) -> Op
     let from = i_from.max(j_from).max(columns.start as i32);
     let to = i_to.min(j_to).min(columns.end as i32);
     Some(if from < to { from as usize..to as usize } else { columns.start..columns.start })
+}
+
+/// Bounds of a coordinate (Q16) over `columns` (not empty): its straight
+/// part's and its bend's least and most there (each is monotonic in c >= 0).
+fn coordinate_bounds(start: i32, step: i32, bend: i32, columns: Range<usize>) -> (i64, i64) {
+    let at = |c: usize| (unwrapped(start, step, 0, c), unwrapped(0, 0, bend, c));
+    let (first, last) = (at(columns.start), at(columns.end - 1));
+    (first.0.min(last.0) + first.1.min(last.1), first.0.max(last.0) + first.1.max(last.1))
 }
 
 /// The columns of `columns` where a bent `line` surely lies inside the
