@@ -4,13 +4,11 @@
 //! continue tracks, and the weak ones (half the threshold) that only
 //! established tracks may continue on.
 
-use super::fits::median;
 use super::lines::LineSamples;
 use super::GtiConfig;
 use crate::limits::{MAX_EDGES_PER_LINE, MAX_LINE_SAMPLES, MAX_WEAK_EDGES_PER_LINE};
 use crate::subpixel::maximum_offset;
 use heapless::Vec;
-use libm::fabsf;
 
 /// Samples either side of an edge in its matching patch.
 pub(super) const PATCH_RADIUS: usize = 3;
@@ -61,20 +59,27 @@ impl LineEdges {
         if n < 2 * (PATCH_RADIUS + REACH) + 3 {
             return;
         }
-        let value = |r: usize| values.get(r).map_or(0.0, |&v| f32::from(v));
-        let smooth = |r: usize| 0.25 * (value(r - 1) + 2.0 * value(r) + value(r + 1));
-        let mut gradient = [0f32; MAX_LINE_SAMPLES];
+        // The gradient is exact in sixteenths of a gray level: with integer
+        // samples, 0.25 * (s(r+2) - s(r-2)) of the smoothing s = 0.25 * (a + 2b + c)
+        // is (S(r+2) - S(r-2)) / 16 of the integer sums S, within +-1020. So it
+        // is computed, compared and its noise medians selected in integers, and
+        // converted to f32 (exactly) only where a value leaves: the same
+        // thresholds and edges as f32 arithmetic, for a fraction of the M4's work.
+        let sum = |r: usize| match values.get(r - 1..=r + 1) {
+            Some(&[a, b, c]) => i16::from(a) + 2 * i16::from(b) + i16::from(c),
+            _ => 0,
+        };
+        let mut gradient = [0i16; MAX_LINE_SAMPLES];
         let (first, last) = (valid.start + REACH, valid.end - REACH); // gradient defined on [first, last)
-        for r in first..last {
-            if let Some(g) = gradient.get_mut(r) {
-                *g = 0.25 * (smooth(r + 2) - smooth(r - 2));
-            }
+        for (r, g) in gradient.iter_mut().enumerate().take(last).skip(first) {
+            *g = sum(r + 2) - sum(r - 2);
         }
         // The line's noise (sensor noise plus floor texture) is measured locally,
         // per block of NOISE_BLOCK samples: the near floor's sharp texture must
         // not hide the soft edges of far, magnified ground.
-        let mut block_sigma = [0f32; MAX_LINE_SAMPLES / NOISE_BLOCK + 1];
-        for (b, sigma) in block_sigma.iter_mut().enumerate() {
+        let floor = config.min_edge_contrast * 0.5;
+        let mut block_threshold = [floor; MAX_LINE_SAMPLES / NOISE_BLOCK + 1];
+        for (b, threshold) in block_threshold.iter_mut().enumerate() {
             let start = first + b * NOISE_BLOCK;
             if start >= last {
                 break;
@@ -82,26 +87,26 @@ impl LineEdges {
             // A short last block borrows samples from its predecessor.
             let end = (start + NOISE_BLOCK).min(last);
             let start = end.saturating_sub(NOISE_BLOCK).max(first);
-            let mut magnitudes = [0f32; NOISE_BLOCK];
+            let mut magnitudes = [0u16; NOISE_BLOCK];
             for (slot, g) in magnitudes.iter_mut().zip(gradient.get(start..end).unwrap_or(&[])) {
-                *slot = fabsf(*g);
+                *slot = g.unsigned_abs();
             }
             // Median |g| of a zero-mean Gaussian is 0.6745 sigma.
-            *sigma = magnitudes.get_mut(..end - start).and_then(median).unwrap_or(0.0) / 0.6745;
+            let sigma = magnitudes.get_mut(..end - start).and_then(median_sixteenths).unwrap_or(0.0) / 0.6745;
+            *threshold = (config.edge_threshold_sigma * sigma).max(floor);
         }
-        let floor = config.min_edge_contrast * 0.5;
-        let threshold_at = |r: usize| {
-            let sigma = block_sigma.get((r - first) / NOISE_BLOCK).copied().unwrap_or(0.0);
-            (config.edge_threshold_sigma * sigma).max(floor)
-        };
-        let magnitude = |r: usize| gradient.get(r).map_or(0.0, |g| fabsf(*g));
+        let magnitude = |r: usize| gradient.get(r).map_or(0, |g| g.unsigned_abs());
         // Patches must lie inside the valid run.
         for r in (first + 1).max(valid.start + PATCH_RADIUS)..(last - 1).min(valid.end - PATCH_RADIUS) {
             let (before, here, after) = (magnitude(r - 1), magnitude(r), magnitude(r + 1));
-            let threshold = threshold_at(r);
+            if !(here >= before && here > after) {
+                continue;
+            }
+            let threshold = block_threshold.get((r - first) / NOISE_BLOCK).copied().unwrap_or(floor);
             // The weak threshold is the lower (the threshold is never negative).
             let weak_threshold = WEAK_EDGE_SCALE * threshold;
-            if !(here > weak_threshold && here >= before && here > after) {
+            let [before, here, after] = [before, here, after].map(sixteenths);
+            if !(here > weak_threshold) {
                 continue;
             }
             let mut patch = [0u8; PATCH];
@@ -111,7 +116,7 @@ impl LineEdges {
             let edge = Edge {
                 row: r as f32 + maximum_offset(before, here, after),
                 strength: here / weak_threshold,
-                rising: gradient.get(r).is_some_and(|g| *g > 0.0),
+                rising: gradient.get(r).is_some_and(|g| *g > 0),
                 patch,
             };
             keep_strongest(&mut self.weak, edge);
@@ -121,6 +126,28 @@ impl LineEdges {
         }
         self.strong.sort_unstable_by(|a, b| b.strength.total_cmp(&a.strength));
         self.weak.sort_unstable_by(|a, b| b.strength.total_cmp(&a.strength));
+    }
+}
+
+/// A gradient magnitude in sixteenths of a gray level, in gray levels (exact).
+fn sixteenths(magnitude: u16) -> f32 {
+    f32::from(magnitude) / 16.0
+}
+
+/// [`median`] of magnitudes in sixteenths, in gray levels: the same value
+/// (the middle or the mean of the middle two, each exact in f32), selected
+/// in integers. Reorders `values`; None when empty.
+fn median_sixteenths(values: &mut [u16]) -> Option<f32> {
+    let n = values.len();
+    if n == 0 {
+        return None;
+    }
+    let (below, &mut upper, _) = values.select_nth_unstable(n / 2);
+    if n % 2 == 1 {
+        Some(sixteenths(upper))
+    } else {
+        let lower = below.iter().copied().max()?;
+        Some(0.5 * (sixteenths(lower) + sixteenths(upper)))
     }
 }
 

@@ -125,8 +125,7 @@ impl Gti {
         let mm_per_px = self.grid.mm_per_px as f32;
         let mut deltas: heapless::Vec<f32, MAX_TRACKS> = heapless::Vec::new();
         for l in 0..self.config.lines {
-            let Some(line) = self.lines.line(l).copied() else { continue };
-            let line = &line;
+            let Some(line) = self.lines.line(l) else { continue };
             edges.find(self.lines.samples(l), &self.config);
             for track in self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l) {
                 if let Some(delta) = self.floor_displacement(track, line, &edges.strong, d, length, mm_per_px) {
