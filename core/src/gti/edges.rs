@@ -46,6 +46,17 @@ impl LineEdges {
     /// above `edge_threshold_sigma` robust sigmas of the gradient around them
     /// (floor texture and sensor noise), or above the contrast floor.
     pub(super) fn find(&mut self, samples: &LineSamples, config: &GtiConfig) {
+        self.find_sets(samples, config, true);
+    }
+
+    /// [`LineEdges::find`]'s strong edges only (the weak set left empty):
+    /// the same strong set without the weak one's upkeep, most of the work
+    /// on a textured floor.
+    pub(super) fn find_strong(&mut self, samples: &LineSamples, config: &GtiConfig) {
+        self.find_sets(samples, config, false);
+    }
+
+    fn find_sets(&mut self, samples: &LineSamples, config: &GtiConfig, with_weak: bool) {
         self.strong.clear();
         self.weak.clear();
         let valid = samples.valid();
@@ -106,7 +117,7 @@ impl LineEdges {
             // The weak threshold is the lower (the threshold is never negative).
             let weak_threshold = WEAK_EDGE_SCALE * threshold;
             let [before, here, after] = [before, here, after].map(sixteenths);
-            if !(here > weak_threshold) {
+            if !(here > weak_threshold) || !(with_weak || here > threshold) {
                 continue;
             }
             let mut patch = [0u8; PATCH];
@@ -119,7 +130,9 @@ impl LineEdges {
                 rising: gradient.get(r).is_some_and(|g| *g > 0),
                 patch,
             };
-            keep_strongest(&mut self.weak, edge);
+            if with_weak {
+                keep_strongest(&mut self.weak, edge);
+            }
             if here > threshold {
                 keep_strongest(&mut self.strong, Edge { strength: here / threshold, ..edge });
             }

@@ -78,6 +78,25 @@ impl Travel {
     }
 }
 
+/// For a floor track (matched last frame, fitted slope near 1, its axis
+/// along the step's direction `d`): how far its axis runs along `d`.
+fn floor_track_along(track: &Track, d: [f32; 2]) -> Option<f32> {
+    // Three observations give a slope to tell floor from obstacle; waiting
+    // for more would leave the first steps' error in every track.
+    if track.misses != 0 || track.observations.len() < 3 {
+        return None;
+    }
+    let (along, _) = along_across(d, track.axis);
+    if along < 0.7 {
+        return None; // the track's axis is not the travel's: its y says little
+    }
+    let fit = track.fit()?;
+    if fabsf(-fit.slope - 1.0) > FLOOR_SLOPE_BAND {
+        return None;
+    }
+    Some(along)
+}
+
 impl Gti {
     /// Moves the pose by the odometry since the previous frame (`motion`),
     /// scaled by odometry's learned scale, and corrects the step with the
@@ -126,7 +145,12 @@ impl Gti {
         let mut deltas: heapless::Vec<f32, MAX_TRACKS> = heapless::Vec::new();
         for l in 0..self.config.lines {
             let Some(line) = self.lines.line(l) else { continue };
-            edges.find(self.lines.samples(l), &self.config);
+            // A line without a floor track needs no edges (finding them is
+            // most of this pass), and the others only the strong ones.
+            if !self.tracks.iter().flatten().any(|t| usize::from(t.line) == l && floor_track_along(t, d).is_some()) {
+                continue;
+            }
+            edges.find_strong(self.lines.samples(l), &self.config);
             for track in self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l) {
                 if let Some(delta) = self.floor_displacement(track, line, &edges.strong, d, length, mm_per_px) {
                     let _ = deltas.push(delta);
@@ -169,19 +193,7 @@ impl Gti {
         length: f32,
         mm_per_px: f32,
     ) -> Option<f32> {
-        // Three observations give a slope to tell floor from obstacle; waiting
-        // for more would leave the first steps' error in every track.
-        if track.misses != 0 || track.observations.len() < 3 {
-            return None;
-        }
-        let (along, _) = along_across(d, track.axis);
-        if along < 0.7 {
-            return None; // the track's axis is not the travel's: its y says little
-        }
-        let fit = track.fit()?;
-        if fabsf(-fit.slope - 1.0) > FLOOR_SLOPE_BAND {
-            return None;
-        }
+        let along = floor_track_along(track, d)?;
         // Where it is with slope 1 and the odometry step.
         let predicted = track.predict_apparent(&self.travel, 1.0, None)?;
         let (row, lateral) = self.row_of_level(line, predicted);
