@@ -76,14 +76,15 @@ impl LineEdges {
         // is computed, compared and its noise medians selected in integers, and
         // converted to f32 (exactly) only where a value leaves: the same
         // thresholds and edges as f32 arithmetic, for a fraction of the M4's work.
-        let sum = |r: usize| match values.get(r - 1..=r + 1) {
-            Some(&[a, b, c]) => i16::from(a) + 2 * i16::from(b) + i16::from(c),
-            _ => 0,
-        };
         let mut gradient = [0i16; MAX_LINE_SAMPLES];
         let (first, last) = (valid.start + REACH, valid.end - REACH); // gradient defined on [first, last)
-        for (r, g) in gradient.iter_mut().enumerate().take(last).skip(first) {
-            *g = sum(r + 2) - sum(r - 2);
+        // Row r's window is r-3..=r+3: S(r+2) - S(r-2).
+        let windows = values.get(valid.clone()).unwrap_or(&[]).windows(2 * REACH + 1);
+        for (g, window) in gradient.get_mut(first..last).unwrap_or(&mut []).iter_mut().zip(windows) {
+            if let &[a, b, c, _, e, f, h] = window {
+                let sum = |x: u8, y: u8, z: u8| i16::from(x) + 2 * i16::from(y) + i16::from(z);
+                *g = sum(e, f, h) - sum(a, b, c);
+            }
         }
         // The line's noise (sensor noise plus floor texture) is measured locally,
         // per block of NOISE_BLOCK samples: the near floor's sharp texture must
