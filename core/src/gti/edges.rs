@@ -6,7 +6,7 @@
 
 use super::lines::LineSamples;
 use super::GtiConfig;
-use crate::limits::{MAX_EDGES_PER_LINE, MAX_LINE_SAMPLES, MAX_WEAK_EDGES_PER_LINE};
+use crate::limits::{MAX_EDGES_PER_LINE, MAX_LINES, MAX_LINE_SAMPLES, MAX_WEAK_EDGES_PER_LINE};
 use crate::subpixel::maximum_offset;
 use heapless::Vec;
 
@@ -17,6 +17,8 @@ pub(super) const PATCH: usize = 2 * PATCH_RADIUS + 1;
 const WEAK_EDGE_SCALE: f32 = 0.5;
 /// Samples per block in which a line's noise is measured.
 const NOISE_BLOCK: usize = 32;
+/// Noise blocks a line can have.
+const NOISE_BLOCKS: usize = MAX_LINE_SAMPLES / NOISE_BLOCK + 1;
 
 /// An edge on a line in the current frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -37,26 +39,32 @@ pub(super) struct LineEdges {
     /// Above [`WEAK_EDGE_SCALE`] times the threshold (the strong ones too,
     /// with their strength over that), at most [`MAX_WEAK_EDGES_PER_LINE`].
     pub weak: Vec<Edge, MAX_WEAK_EDGES_PER_LINE>,
+    /// Each line's threshold per noise block, once a search has measured it:
+    /// a frame searches a line twice (travel correction, association), and
+    /// the noise medians are a large part of a search. Valid for one frame's
+    /// samples: a new frame starts from [`LineEdges::NONE`].
+    thresholds: [Option<[f32; NOISE_BLOCKS]>; MAX_LINES],
 }
 
 impl LineEdges {
-    pub(super) const NONE: LineEdges = LineEdges { strong: Vec::new(), weak: Vec::new() };
+    pub(super) const NONE: LineEdges = LineEdges { strong: Vec::new(), weak: Vec::new(), thresholds: [None; MAX_LINES] };
 
     /// The edges of one line's samples: extrema of the smoothed gradient
     /// above `edge_threshold_sigma` robust sigmas of the gradient around them
     /// (floor texture and sensor noise), or above the contrast floor.
-    pub(super) fn find(&mut self, samples: &LineSamples, config: &GtiConfig) {
-        self.find_sets(samples, config, true);
+    /// `l` is the line's index, `samples` its samples in this frame.
+    pub(super) fn find(&mut self, l: usize, samples: &LineSamples, config: &GtiConfig) {
+        self.find_sets(l, samples, config, true);
     }
 
     /// [`LineEdges::find`]'s strong edges only (the weak set left empty):
     /// the same strong set without the weak one's upkeep, most of the work
     /// on a textured floor.
-    pub(super) fn find_strong(&mut self, samples: &LineSamples, config: &GtiConfig) {
-        self.find_sets(samples, config, false);
+    pub(super) fn find_strong(&mut self, l: usize, samples: &LineSamples, config: &GtiConfig) {
+        self.find_sets(l, samples, config, false);
     }
 
-    fn find_sets(&mut self, samples: &LineSamples, config: &GtiConfig, with_weak: bool) {
+    fn find_sets(&mut self, l: usize, samples: &LineSamples, config: &GtiConfig, with_weak: bool) {
         self.strong.clear();
         self.weak.clear();
         let valid = samples.valid();
@@ -90,22 +98,10 @@ impl LineEdges {
         // per block of NOISE_BLOCK samples: the near floor's sharp texture must
         // not hide the soft edges of far, magnified ground.
         let floor = config.min_edge_contrast * 0.5;
-        let mut block_threshold = [floor; MAX_LINE_SAMPLES / NOISE_BLOCK + 1];
-        for (b, threshold) in block_threshold.iter_mut().enumerate() {
-            let start = first + b * NOISE_BLOCK;
-            if start >= last {
-                break;
-            }
-            // A short last block borrows samples from its predecessor.
-            let end = (start + NOISE_BLOCK).min(last);
-            let start = end.saturating_sub(NOISE_BLOCK).max(first);
-            let mut magnitudes = [0u16; NOISE_BLOCK];
-            for (slot, g) in magnitudes.iter_mut().zip(gradient.get(start..end).unwrap_or(&[])) {
-                *slot = g.unsigned_abs();
-            }
-            // Median |g| of a zero-mean Gaussian is 0.6745 sigma.
-            let sigma = magnitudes.get_mut(..end - start).and_then(median_sixteenths).unwrap_or(0.0) / 0.6745;
-            *threshold = (config.edge_threshold_sigma * sigma).max(floor);
+        let known = self.thresholds.get(l).copied().flatten();
+        let block_threshold = known.unwrap_or_else(|| block_thresholds(&gradient, first, last, config));
+        if let Some(slot) = self.thresholds.get_mut(l) {
+            *slot = Some(block_threshold);
         }
         let magnitude = |r: usize| gradient.get(r).map_or(0, |g| g.unsigned_abs());
         // Patches must lie inside the valid run.
@@ -141,6 +137,31 @@ impl LineEdges {
         self.strong.sort_unstable_by(|a, b| b.strength.total_cmp(&a.strength));
         self.weak.sort_unstable_by(|a, b| b.strength.total_cmp(&a.strength));
     }
+}
+
+/// A line's edge threshold per noise block from its `gradient` (defined on
+/// `first..last`): `edge_threshold_sigma` robust sigmas of the block's
+/// gradient, at least the contrast floor.
+fn block_thresholds(gradient: &[i16; MAX_LINE_SAMPLES], first: usize, last: usize, config: &GtiConfig) -> [f32; NOISE_BLOCKS] {
+    let floor = config.min_edge_contrast * 0.5;
+    let mut block_threshold = [floor; NOISE_BLOCKS];
+    for (b, threshold) in block_threshold.iter_mut().enumerate() {
+        let start = first + b * NOISE_BLOCK;
+        if start >= last {
+            break;
+        }
+        // A short last block borrows samples from its predecessor.
+        let end = (start + NOISE_BLOCK).min(last);
+        let start = end.saturating_sub(NOISE_BLOCK).max(first);
+        let mut magnitudes = [0u16; NOISE_BLOCK];
+        for (slot, g) in magnitudes.iter_mut().zip(gradient.get(start..end).unwrap_or(&[])) {
+            *slot = g.unsigned_abs();
+        }
+        // Median |g| of a zero-mean Gaussian is 0.6745 sigma.
+        let sigma = magnitudes.get_mut(..end - start).and_then(median_sixteenths).unwrap_or(0.0) / 0.6745;
+        *threshold = (config.edge_threshold_sigma * sigma).max(floor);
+    }
+    block_threshold
 }
 
 /// A gradient magnitude in sixteenths of a gray level, in gray levels (exact).
@@ -205,7 +226,7 @@ mod tests {
             samples.take(r, Some((step + texture) as u8));
         }
         let mut edges = LineEdges::NONE;
-        edges.find(&samples, &GtiConfig::DEFAULT);
+        edges.find(0, &samples, &GtiConfig::DEFAULT);
         assert_eq!(edges.strong.len(), 1, "{:?}", edges.strong);
         assert!(edges.strong[0].rising);
         assert!((edges.strong[0].row - 100.3).abs() < 0.3, "row {}", edges.strong[0].row);

@@ -351,7 +351,7 @@ impl Gti {
             track.matched_row = None;
         }
         for l in 0..self.config.lines {
-            edges.find(self.lines.samples(l), &self.config);
+            edges.find(l, self.lines.samples(l), &self.config);
             self.associate_line(l, &edges);
         }
         self.end_lost_tracks();

@@ -150,7 +150,7 @@ impl Gti {
             if !self.tracks.iter().flatten().any(|t| usize::from(t.line) == l && floor_track_along(t, d).is_some()) {
                 continue;
             }
-            edges.find_strong(self.lines.samples(l), &self.config);
+            edges.find_strong(l, self.lines.samples(l), &self.config);
             for track in self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l) {
                 if let Some(delta) = self.floor_displacement(track, line, &edges.strong, d, length, mm_per_px) {
                     let _ = deltas.push(delta);
