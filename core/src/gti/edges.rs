@@ -4,13 +4,11 @@
 //! continue tracks, and the weak ones (half the threshold) that only
 //! established tracks may continue on.
 
-use super::fits::median;
 use super::lines::LineSamples;
 use super::GtiConfig;
-use crate::limits::{MAX_EDGES_PER_LINE, MAX_LINE_SAMPLES, MAX_WEAK_EDGES_PER_LINE};
+use crate::limits::{MAX_EDGES_PER_LINE, MAX_LINES, MAX_LINE_SAMPLES, MAX_WEAK_EDGES_PER_LINE};
 use crate::subpixel::maximum_offset;
 use heapless::Vec;
-use libm::fabsf;
 
 /// Samples either side of an edge in its matching patch.
 pub(super) const PATCH_RADIUS: usize = 3;
@@ -19,6 +17,8 @@ pub(super) const PATCH: usize = 2 * PATCH_RADIUS + 1;
 const WEAK_EDGE_SCALE: f32 = 0.5;
 /// Samples per block in which a line's noise is measured.
 const NOISE_BLOCK: usize = 32;
+/// Noise blocks a line can have.
+const NOISE_BLOCKS: usize = MAX_LINE_SAMPLES / NOISE_BLOCK + 1;
 
 /// An edge on a line in the current frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -39,15 +39,32 @@ pub(super) struct LineEdges {
     /// Above [`WEAK_EDGE_SCALE`] times the threshold (the strong ones too,
     /// with their strength over that), at most [`MAX_WEAK_EDGES_PER_LINE`].
     pub weak: Vec<Edge, MAX_WEAK_EDGES_PER_LINE>,
+    /// Each line's threshold per noise block, once a search has measured it:
+    /// a frame searches a line twice (travel correction, association), and
+    /// the noise medians are a large part of a search. Valid for one frame's
+    /// samples: a new frame starts from [`LineEdges::NONE`].
+    thresholds: [Option<[f32; NOISE_BLOCKS]>; MAX_LINES],
 }
 
 impl LineEdges {
-    pub(super) const NONE: LineEdges = LineEdges { strong: Vec::new(), weak: Vec::new() };
+    pub(super) const NONE: LineEdges = LineEdges { strong: Vec::new(), weak: Vec::new(), thresholds: [None; MAX_LINES] };
 
     /// The edges of one line's samples: extrema of the smoothed gradient
     /// above `edge_threshold_sigma` robust sigmas of the gradient around them
     /// (floor texture and sensor noise), or above the contrast floor.
-    pub(super) fn find(&mut self, samples: &LineSamples, config: &GtiConfig) {
+    /// `l` is the line's index, `samples` its samples in this frame.
+    pub(super) fn find(&mut self, l: usize, samples: &LineSamples, config: &GtiConfig) {
+        self.find_sets(l, samples, config, true);
+    }
+
+    /// [`LineEdges::find`]'s strong edges only (the weak set left empty):
+    /// the same strong set without the weak one's upkeep, most of the work
+    /// on a textured floor.
+    pub(super) fn find_strong(&mut self, l: usize, samples: &LineSamples, config: &GtiConfig) {
+        self.find_sets(l, samples, config, false);
+    }
+
+    fn find_sets(&mut self, l: usize, samples: &LineSamples, config: &GtiConfig, with_weak: bool) {
         self.strong.clear();
         self.weak.clear();
         let valid = samples.valid();
@@ -61,47 +78,43 @@ impl LineEdges {
         if n < 2 * (PATCH_RADIUS + REACH) + 3 {
             return;
         }
-        let value = |r: usize| values.get(r).map_or(0.0, |&v| f32::from(v));
-        let smooth = |r: usize| 0.25 * (value(r - 1) + 2.0 * value(r) + value(r + 1));
-        let mut gradient = [0f32; MAX_LINE_SAMPLES];
+        // The gradient is exact in sixteenths of a gray level: with integer
+        // samples, 0.25 * (s(r+2) - s(r-2)) of the smoothing s = 0.25 * (a + 2b + c)
+        // is (S(r+2) - S(r-2)) / 16 of the integer sums S, within +-1020. So it
+        // is computed, compared and its noise medians selected in integers, and
+        // converted to f32 (exactly) only where a value leaves: the same
+        // thresholds and edges as f32 arithmetic, for a fraction of the M4's work.
+        let mut gradient = [0i16; MAX_LINE_SAMPLES];
         let (first, last) = (valid.start + REACH, valid.end - REACH); // gradient defined on [first, last)
-        for r in first..last {
-            if let Some(g) = gradient.get_mut(r) {
-                *g = 0.25 * (smooth(r + 2) - smooth(r - 2));
+        // Row r's window is r-3..=r+3: S(r+2) - S(r-2).
+        let windows = values.get(valid.clone()).unwrap_or(&[]).windows(2 * REACH + 1);
+        for (g, window) in gradient.get_mut(first..last).unwrap_or(&mut []).iter_mut().zip(windows) {
+            if let &[a, b, c, _, e, f, h] = window {
+                let sum = |x: u8, y: u8, z: u8| i16::from(x) + 2 * i16::from(y) + i16::from(z);
+                *g = sum(e, f, h) - sum(a, b, c);
             }
         }
         // The line's noise (sensor noise plus floor texture) is measured locally,
         // per block of NOISE_BLOCK samples: the near floor's sharp texture must
         // not hide the soft edges of far, magnified ground.
-        let mut block_sigma = [0f32; MAX_LINE_SAMPLES / NOISE_BLOCK + 1];
-        for (b, sigma) in block_sigma.iter_mut().enumerate() {
-            let start = first + b * NOISE_BLOCK;
-            if start >= last {
-                break;
-            }
-            // A short last block borrows samples from its predecessor.
-            let end = (start + NOISE_BLOCK).min(last);
-            let start = end.saturating_sub(NOISE_BLOCK).max(first);
-            let mut magnitudes = [0f32; NOISE_BLOCK];
-            for (slot, g) in magnitudes.iter_mut().zip(gradient.get(start..end).unwrap_or(&[])) {
-                *slot = fabsf(*g);
-            }
-            // Median |g| of a zero-mean Gaussian is 0.6745 sigma.
-            *sigma = magnitudes.get_mut(..end - start).and_then(median).unwrap_or(0.0) / 0.6745;
-        }
         let floor = config.min_edge_contrast * 0.5;
-        let threshold_at = |r: usize| {
-            let sigma = block_sigma.get((r - first) / NOISE_BLOCK).copied().unwrap_or(0.0);
-            (config.edge_threshold_sigma * sigma).max(floor)
-        };
-        let magnitude = |r: usize| gradient.get(r).map_or(0.0, |g| fabsf(*g));
+        let known = self.thresholds.get(l).copied().flatten();
+        let block_threshold = known.unwrap_or_else(|| block_thresholds(&gradient, first, last, config));
+        if let Some(slot) = self.thresholds.get_mut(l) {
+            *slot = Some(block_threshold);
+        }
+        let magnitude = |r: usize| gradient.get(r).map_or(0, |g| g.unsigned_abs());
         // Patches must lie inside the valid run.
         for r in (first + 1).max(valid.start + PATCH_RADIUS)..(last - 1).min(valid.end - PATCH_RADIUS) {
             let (before, here, after) = (magnitude(r - 1), magnitude(r), magnitude(r + 1));
-            let threshold = threshold_at(r);
+            if !(here >= before && here > after) {
+                continue;
+            }
+            let threshold = block_threshold.get((r - first) / NOISE_BLOCK).copied().unwrap_or(floor);
             // The weak threshold is the lower (the threshold is never negative).
             let weak_threshold = WEAK_EDGE_SCALE * threshold;
-            if !(here > weak_threshold && here >= before && here > after) {
+            let [before, here, after] = [before, here, after].map(sixteenths);
+            if !(here > weak_threshold) || !(with_weak || here > threshold) {
                 continue;
             }
             let mut patch = [0u8; PATCH];
@@ -111,16 +124,65 @@ impl LineEdges {
             let edge = Edge {
                 row: r as f32 + maximum_offset(before, here, after),
                 strength: here / weak_threshold,
-                rising: gradient.get(r).is_some_and(|g| *g > 0.0),
+                rising: gradient.get(r).is_some_and(|g| *g > 0),
                 patch,
             };
-            keep_strongest(&mut self.weak, edge);
+            if with_weak {
+                keep_strongest(&mut self.weak, edge);
+            }
             if here > threshold {
                 keep_strongest(&mut self.strong, Edge { strength: here / threshold, ..edge });
             }
         }
         self.strong.sort_unstable_by(|a, b| b.strength.total_cmp(&a.strength));
         self.weak.sort_unstable_by(|a, b| b.strength.total_cmp(&a.strength));
+    }
+}
+
+/// A line's edge threshold per noise block from its `gradient` (defined on
+/// `first..last`): `edge_threshold_sigma` robust sigmas of the block's
+/// gradient, at least the contrast floor.
+fn block_thresholds(gradient: &[i16; MAX_LINE_SAMPLES], first: usize, last: usize, config: &GtiConfig) -> [f32; NOISE_BLOCKS] {
+    let floor = config.min_edge_contrast * 0.5;
+    let mut block_threshold = [floor; NOISE_BLOCKS];
+    for (b, threshold) in block_threshold.iter_mut().enumerate() {
+        let start = first + b * NOISE_BLOCK;
+        if start >= last {
+            break;
+        }
+        // A short last block borrows samples from its predecessor.
+        let end = (start + NOISE_BLOCK).min(last);
+        let start = end.saturating_sub(NOISE_BLOCK).max(first);
+        let mut magnitudes = [0u16; NOISE_BLOCK];
+        for (slot, g) in magnitudes.iter_mut().zip(gradient.get(start..end).unwrap_or(&[])) {
+            *slot = g.unsigned_abs();
+        }
+        // Median |g| of a zero-mean Gaussian is 0.6745 sigma.
+        let sigma = magnitudes.get_mut(..end - start).and_then(median_sixteenths).unwrap_or(0.0) / 0.6745;
+        *threshold = (config.edge_threshold_sigma * sigma).max(floor);
+    }
+    block_threshold
+}
+
+/// A gradient magnitude in sixteenths of a gray level, in gray levels (exact).
+fn sixteenths(magnitude: u16) -> f32 {
+    f32::from(magnitude) / 16.0
+}
+
+/// [`median`] of magnitudes in sixteenths, in gray levels: the same value
+/// (the middle or the mean of the middle two, each exact in f32), selected
+/// in integers. Reorders `values`; None when empty.
+fn median_sixteenths(values: &mut [u16]) -> Option<f32> {
+    let n = values.len();
+    if n == 0 {
+        return None;
+    }
+    let (below, &mut upper, _) = values.select_nth_unstable(n / 2);
+    if n % 2 == 1 {
+        Some(sixteenths(upper))
+    } else {
+        let lower = below.iter().copied().max()?;
+        Some(0.5 * (sixteenths(lower) + sixteenths(upper)))
     }
 }
 
@@ -164,7 +226,7 @@ mod tests {
             samples.take(r, Some((step + texture) as u8));
         }
         let mut edges = LineEdges::NONE;
-        edges.find(&samples, &GtiConfig::DEFAULT);
+        edges.find(0, &samples, &GtiConfig::DEFAULT);
         assert_eq!(edges.strong.len(), 1, "{:?}", edges.strong);
         assert!(edges.strong[0].rising);
         assert!((edges.strong[0].row - 100.3).abs() < 0.3, "row {}", edges.strong[0].row);

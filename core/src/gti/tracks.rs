@@ -11,7 +11,7 @@ use super::travel::{along_across, Travel};
 use super::{Gti, HeightPoint};
 use crate::grid::KgGrid;
 use crate::limits::{MAX_EDGES_PER_LINE, MAX_OBSERVATIONS, MAX_TRACKS, MAX_WEAK_EDGES_PER_LINE};
-use heapless::{Deque, Vec};
+use heapless::Vec;
 use crate::kernels::sqrtf;
 use libm::{fabsf, roundf};
 
@@ -44,7 +44,7 @@ pub(super) struct Track {
     /// Latest apparent position across u (mm) and travel across u then.
     w_last: f32,
     across_last: f32,
-    pub observations: Deque<[i16; 2], MAX_OBSERVATIONS>,
+    pub observations: Observations,
     /// KG row (1/[`ROW_UNITS`]) of the observation matched this frame (for drawing).
     pub matched_row: Option<u16>,
 }
@@ -52,12 +52,12 @@ pub(super) struct Track {
 impl Track {
     /// A track for `edge` on line `l`, found at ground point `point` (robot frame).
     fn start(id: u32, l: usize, line: &GtLine, point: [f32; 2], edge: &Edge, travel: &Travel) -> Track {
-        let rotation = travel.rotation().to_f32();
+        let rotation = travel.rotation_f32();
         let q = rotation.to_world(point);
         let axis = rotation.to_world(line.direction);
         let position = travel.position();
-        let mut observations = Deque::new();
-        let _ = observations.push_back([0i16, 0i16]);
+        let mut observations = Observations::EMPTY;
+        observations.push([0i16, 0i16]);
         Track {
             id,
             line: l as u8,
@@ -77,23 +77,14 @@ impl Track {
 
     /// Robust line fit of the observations, in mm.
     pub(super) fn fit(&self) -> Option<LineFit> {
-        let mut c = [0f32; MAX_OBSERVATIONS];
-        let mut y = [0f32; MAX_OBSERVATIONS];
-        let n = self.observations.len();
-        for (i, &[ci, yi]) in self.observations.iter().enumerate() {
-            if let (Some(cs), Some(ys)) = (c.get_mut(i), y.get_mut(i)) {
-                *cs = f32::from(ci) / OBS_UNITS_PER_MM;
-                *ys = f32::from(yi) / OBS_UNITS_PER_MM;
-            }
-        }
-        robust_line_fit(c.get(..n)?, y.get(..n)?)
+        self.observations.fit()
     }
 
     /// Apparent position (robot frame, mm) of the feature in the current
     /// frame, for slope `slope`, from its latest observation (or on `fit`).
     pub(super) fn predict_apparent(&self, travel: &Travel, slope: f32, fit: Option<&LineFit>) -> Option<[f32; 2]> {
         let (c_now, across_now) = travel.since(self.origin, self.axis);
-        let &[c_last, y_last] = self.observations.back()?;
+        let [c_last, y_last] = self.observations.last()?;
         let (c_last, y_last) = (f32::from(c_last) / OBS_UNITS_PER_MM, f32::from(y_last) / OBS_UNITS_PER_MM);
         let y = match fit {
             Some(fit) => fit.intercept + fit.slope * c_now,
@@ -102,12 +93,12 @@ impl Track {
         let w = self.w_last - slope * (across_now - self.across_last);
         let u = self.axis;
         // q = y u + w u_perp, with u_perp = (u_z, -u_x) as in `Travel::since`.
-        Some(travel.rotation().to_f32().to_robot([y * u[0] + w * u[1], y * u[1] - w * u[0]]))
+        Some(travel.rotation_f32().to_robot([y * u[0] + w * u[1], y * u[1] - w * u[0]]))
     }
 
     /// Records a matched edge at ground point `point` (robot frame).
     fn observe(&mut self, travel: &Travel, point: [f32; 2], edge: &Edge) {
-        let q = travel.rotation().to_f32().to_world(point);
+        let q = travel.rotation_f32().to_world(point);
         let (c, across) = travel.since(self.origin, self.axis);
         let (along, w) = along_across(q, self.axis);
         let y = along - self.y0;
@@ -115,16 +106,82 @@ impl Track {
             self.misses = u8::MAX; // outgrew its storage: end it
             return;
         }
-        if self.observations.is_full() {
-            self.observations.pop_front();
-        }
-        let _ = self.observations.push_back([roundf(c * OBS_UNITS_PER_MM) as i16, roundf(y * OBS_UNITS_PER_MM) as i16]);
+        self.observations.push([roundf(c * OBS_UNITS_PER_MM) as i16, roundf(y * OBS_UNITS_PER_MM) as i16]);
         self.w_last = w;
         self.across_last = across;
         self.misses = 0;
         self.patch = edge.patch;
         self.strength = encode_strength(edge.strength);
         self.matched_row = encode_row(edge.row);
+    }
+}
+
+/// A track's latest [`MAX_OBSERVATIONS`] observations `(c, y)` (1/4 mm,
+/// oldest first) and their robust fit. The fit is refitted only when an
+/// observation arrives: a track is asked for it several times a frame (its
+/// gate, the travel correction, the end test, every query of the points),
+/// and the Theil-Sen medians are most of GTI's work on the M4.
+#[derive(Clone, Debug)]
+pub(super) struct Observations {
+    values: [[i16; 2]; MAX_OBSERVATIONS],
+    len: u8,
+    /// The fit's slope, intercept, residual and sxx ([`LineFit`]), in mm;
+    /// `fit_inliers` is 0 when there is no fit. Kept apart rather than as an
+    /// `Option<LineFit>` (its `usize` and tag) to stay in GTI's RAM budget.
+    fit: [f32; 4],
+    fit_inliers: u8,
+}
+
+impl Observations {
+    const EMPTY: Observations = Observations { values: [[0; 2]; MAX_OBSERVATIONS], len: 0, fit: [0.0; 4], fit_inliers: 0 };
+
+    pub(super) fn len(&self) -> usize {
+        usize::from(self.len)
+    }
+
+    fn as_slice(&self) -> &[[i16; 2]] {
+        self.values.get(..self.len()).unwrap_or(&[])
+    }
+
+    fn last(&self) -> Option<[i16; 2]> {
+        self.as_slice().last().copied()
+    }
+
+    /// Appends an observation (dropping the oldest when full) and refits.
+    fn push(&mut self, observation: [i16; 2]) {
+        let len = self.len();
+        if len == MAX_OBSERVATIONS {
+            self.values.copy_within(1.., 0);
+            if let Some(slot) = self.values.last_mut() {
+                *slot = observation;
+            }
+        } else if let Some(slot) = self.values.get_mut(len) {
+            *slot = observation;
+            self.len += 1;
+        }
+        let fit = self.refit();
+        self.fit = fit.map_or([0.0; 4], |f| [f.slope, f.intercept, f.residual, f.sxx]);
+        // A fit has at least 2 inliers (and at most MAX_OBSERVATIONS).
+        self.fit_inliers = fit.map_or(0, |f| f.inliers as u8);
+    }
+
+    fn fit(&self) -> Option<LineFit> {
+        let [slope, intercept, residual, sxx] = self.fit;
+        (self.fit_inliers > 0).then_some(LineFit { slope, intercept, residual, inliers: usize::from(self.fit_inliers), sxx })
+    }
+
+    /// Robust line fit of the observations, in mm.
+    fn refit(&self) -> Option<LineFit> {
+        let mut c = [0f32; MAX_OBSERVATIONS];
+        let mut y = [0f32; MAX_OBSERVATIONS];
+        let n = self.len();
+        for (i, &[ci, yi]) in self.as_slice().iter().enumerate() {
+            if let (Some(cs), Some(ys)) = (c.get_mut(i), y.get_mut(i)) {
+                *cs = f32::from(ci) / OBS_UNITS_PER_MM;
+                *ys = f32::from(yi) / OBS_UNITS_PER_MM;
+            }
+        }
+        robust_line_fit(c.get(..n)?, y.get(..n)?)
     }
 }
 

@@ -33,12 +33,16 @@ const FLOOR_SLOPE_BAND: f32 = 0.08;
 pub(super) struct Travel {
     position: [f64; 2],
     yaw_rad: f64,
+    /// `Rotation::from_radians(yaw_rad)` and its f32 copy, worked out once
+    /// per step: f64 sines are software on the M4, and every track turns
+    /// through them several times a frame. None: not yet (the start's yaw).
+    turn: Option<(Rotation<f64>, Rotation<f32>)>,
     /// Step lengths the floor measured, and odometry's for the same steps.
     step_sums: [f64; 2],
 }
 
 impl Travel {
-    pub(super) const START: Travel = Travel { position: [0.0; 2], yaw_rad: 0.0, step_sums: [0.0; 2] };
+    pub(super) const START: Travel = Travel { position: [0.0; 2], yaw_rad: 0.0, turn: None, step_sums: [0.0; 2] };
 
     pub(super) fn position(&self) -> [f64; 2] {
         self.position
@@ -46,7 +50,12 @@ impl Travel {
 
     /// The robot's axes in the odometry world.
     pub(super) fn rotation(&self) -> Rotation<f64> {
-        Rotation::from_radians(self.yaw_rad)
+        self.turn.map_or_else(|| Rotation::from_radians(self.yaw_rad), |(turn, _)| turn)
+    }
+
+    /// [`Travel::rotation`] in single precision.
+    pub(super) fn rotation_f32(&self) -> Rotation<f32> {
+        self.turn.map_or_else(|| Rotation::from_radians(self.yaw_rad).to_f32(), |(_, turn)| turn)
     }
 
     /// Distance travelled along and across `axis` (world, unit) since the
@@ -63,8 +72,29 @@ impl Travel {
         self.position[0] += step[0];
         self.position[1] += step[1];
         self.yaw_rad += motion.dyaw_deg.to_radians();
+        let turn = Rotation::from_radians(self.yaw_rad);
+        self.turn = Some((turn, turn.to_f32()));
         [self.position[0] - before[0], self.position[1] - before[1]]
     }
+}
+
+/// For a floor track (matched last frame, fitted slope near 1, its axis
+/// along the step's direction `d`): how far its axis runs along `d`.
+fn floor_track_along(track: &Track, d: [f32; 2]) -> Option<f32> {
+    // Three observations give a slope to tell floor from obstacle; waiting
+    // for more would leave the first steps' error in every track.
+    if track.misses != 0 || track.observations.len() < 3 {
+        return None;
+    }
+    let (along, _) = along_across(d, track.axis);
+    if along < 0.7 {
+        return None; // the track's axis is not the travel's: its y says little
+    }
+    let fit = track.fit()?;
+    if fabsf(-fit.slope - 1.0) > FLOOR_SLOPE_BAND {
+        return None;
+    }
+    Some(along)
 }
 
 impl Gti {
@@ -115,7 +145,12 @@ impl Gti {
         let mut deltas: heapless::Vec<f32, MAX_TRACKS> = heapless::Vec::new();
         for l in 0..self.config.lines {
             let Some(line) = self.lines.line(l) else { continue };
-            edges.find(self.lines.samples(l), &self.config);
+            // A line without a floor track needs no edges (finding them is
+            // most of this pass), and the others only the strong ones.
+            if !self.tracks.iter().flatten().any(|t| usize::from(t.line) == l && floor_track_along(t, d).is_some()) {
+                continue;
+            }
+            edges.find_strong(l, self.lines.samples(l), &self.config);
             for track in self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l) {
                 if let Some(delta) = self.floor_displacement(track, line, &edges.strong, d, length, mm_per_px) {
                     let _ = deltas.push(delta);
@@ -158,19 +193,7 @@ impl Gti {
         length: f32,
         mm_per_px: f32,
     ) -> Option<f32> {
-        // Three observations give a slope to tell floor from obstacle; waiting
-        // for more would leave the first steps' error in every track.
-        if track.misses != 0 || track.observations.len() < 3 {
-            return None;
-        }
-        let (along, _) = along_across(d, track.axis);
-        if along < 0.7 {
-            return None; // the track's axis is not the travel's: its y says little
-        }
-        let fit = track.fit()?;
-        if fabsf(-fit.slope - 1.0) > FLOOR_SLOPE_BAND {
-            return None;
-        }
+        let along = floor_track_along(track, d)?;
         // Where it is with slope 1 and the odometry step.
         let predicted = track.predict_apparent(&self.travel, 1.0, None)?;
         let (row, lateral) = self.row_of_level(line, predicted);
@@ -189,7 +212,7 @@ impl Gti {
             }
         }
         let (observed_row, _) = best?;
-        let rotation = self.travel.rotation().to_f32();
+        let rotation = self.travel.rotation_f32();
         let y_of = |p: [f32; 2]| along_across(rotation.to_world(p), track.axis).0;
         let y_predicted = y_of(self.level_point(line, row));
         let y_observed = y_of(self.level_point(line, observed_row));
