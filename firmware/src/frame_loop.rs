@@ -64,7 +64,7 @@ pub const IMAGE_CAPACITY: usize = MAX_GRID_SIDE * MAX_GRID_SIDE;
 static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
 static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
 static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY);
-/// The GTI stage (`size_of::<GtiStage>()`, 19.6 KB), configured in place,
+/// The GTI stage (`size_of::<GtiStage>()`, 20.6 KB), configured in place,
 /// in the CCM beside the second image (the CPU alone reads it; RAM holds
 /// the detector). Not zeroed at reset: see [`ccm_gti`].
 #[cfg(not(feature = "full-frame"))]
@@ -142,7 +142,7 @@ impl Memory {
     }
 
     /// The detector (initialised in place in its static: by value LLVM
-    /// keeps stack temporaries of it, and it is kilobytes), GTI (19.6 KB,
+    /// keeps stack temporaries of it, and it is kilobytes), GTI (20.6 KB,
     /// configured in place too) and the pipeline over them, for the rig the
     /// table was built for.
     fn into_pipeline(self, rig: &Rig, grid: &KgGrid) -> Result<Pipeline<'static, 'static, 'static, 'static>, SetupError> {
