@@ -256,13 +256,17 @@ impl Keyframe<'_> {
             // SAFETY: line N - 1 at this column lies inside the grid (see
             // `sample_span`): its row index j0 + N - 1 is at most height - 2,
             // so index + N * width + 1 < image.len().
-            let across = |index: usize| {
-                let (left, right) = unsafe { (*image.get_unchecked(index), *image.get_unchecked(index + 1)) };
+            // One pointer walks down the rows (the M4 then loads at an
+            // offset from it, with no index to rebuild per row).
+            let across = |pixel: *const u8| {
+                let (left, right) = unsafe { (*pixel, *pixel.add(1)) };
                 (i32::from(left) << 8) + (i32::from(right) - i32::from(left)) * wx
             };
-            let mut top = across(index);
-            for (k, out) in outs.iter_mut().enumerate() {
-                let bottom = across(index + (k + 1) * width);
+            let mut pixel = unsafe { image.as_ptr().add(index) };
+            let mut top = across(pixel);
+            for out in outs.iter_mut() {
+                pixel = unsafe { pixel.add(width) };
+                let bottom = across(pixel);
                 // SAFETY: each out holds the span's columns, and t < span.len().
                 unsafe { *out.get_unchecked_mut(t) = between(top, bottom, wy) };
                 top = bottom;
