@@ -73,7 +73,7 @@ use keyframe::Keyframe;
 use layout::{Layout, MAX_CELL_PX};
 use parallax::{Hypotheses, Parallax};
 use prediction::Prediction;
-use warp::{Coverage, RowWarp, Warp};
+use warp::{Coverage, KeptRuns, RowWarp, Warp};
 use workspace::Workspace;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -212,6 +212,8 @@ pub struct Gpa<'b> {
     /// its hypotheses' pass reads them again at its last row (a tilted
     /// body's row costs a few thousand M4 instructions of `f64`).
     cell_row_warps: [RowWarp; MAX_CELL_PX],
+    /// And their usable runs, where few.
+    cell_row_runs: [KeptRuns; MAX_CELL_PX],
     parallax: Parallax,
     noise: Noise,
     alarm: Alarm,
@@ -270,6 +272,7 @@ impl<'b> Gpa<'b> {
         velocity_known: false,
         warp: Warp::NONE,
         cell_row_warps: [RowWarp::LEVEL; MAX_CELL_PX],
+        cell_row_runs: [KeptRuns::NONE; MAX_CELL_PX],
         parallax: Parallax::EMPTY,
         noise: Noise::NONE,
         alarm: Alarm::NONE,

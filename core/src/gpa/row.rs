@@ -2,7 +2,7 @@
 //! its per-pixel reference (the tests' oracle for the whole-line passes).
 
 use super::keyframe::Keyframe;
-use super::warp::Runs;
+use super::warp::{KeptRuns, Runs};
 use super::Gpa;
 
 impl Gpa<'_> {
@@ -25,6 +25,7 @@ impl Gpa<'_> {
         let cell_row = j / cells.px;
         let mut runs = Runs::new();
         self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
+        self.cell_row_runs[j % cells.px] = KeptRuns::keep(&runs);
         let in_aoi = j >= aoi.top && j < aoi.bottom;
         let rows = self.workspace.rows();
         rows.band.sample(keyframe, j, warp, seen.clone(), s, if in_aoi { s } else { 1 });
@@ -61,17 +62,19 @@ impl Gpa<'_> {
             let mut spans = super::parallax::CellSpans::new();
             self.parallax.spans_to_try(&cells, min_gain, &mut spans);
             if !spans.is_empty() {
-                // The rows' usable runs and exposure-adjusted values are
-                // made again here (their warps were kept): keeping a cell
-                // row's would cost ~8 KB of RAM, and on open ground few
-                // cell rows get this far.
+                // The rows' exposure-adjusted values, and any usable runs
+                // too many to keep, are made again here (their warps were
+                // kept): keeping a cell row's would cost ~8 KB of RAM, and
+                // on open ground few cell rows get this far.
                 let grid = &self.layout.grid;
                 let mut runs = Runs::new();
                 let mut adjusted = [0u8; crate::grid::MAX_GRID_SIDE];
                 for row_j in cell_row * cells.px..=j {
                     let Some(seen) = self.coverage.seen(row_j) else { continue };
                     let warp = self.cell_row_warps[row_j % cells.px];
-                    self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
+                    if !self.cell_row_runs[row_j % cells.px].restore(&mut runs) {
+                        self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
+                    }
                     let row = super::exposed(keyframe.current_row(row_j), exposure, &mut adjusted);
                     for span in &spans {
                         let columns = seen.start.max(span.start)..seen.end.min(span.end);

@@ -318,6 +318,42 @@ impl<T: BendSum> Positions<T> {
 /// one, a yawed row may have several (runs are a column apart at least).
 pub(super) type Runs = heapless::Vec<(u16, u16), { MAX_GRID_SIDE / 2 + 1 }>;
 
+/// Runs kept per row for a cell row's hypotheses pass: most rows have one
+/// or two; a row with more is worked out again.
+const KEPT_RUNS: usize = 4;
+
+/// A row's usable runs, kept when few ([`KEPT_RUNS`]): a cell row's whole
+/// [`Runs`] would cost ~8 KB of RAM.
+#[derive(Clone, Copy)]
+pub(super) struct KeptRuns {
+    runs: [(u16, u16); KEPT_RUNS],
+    /// The row's runs; above [`KEPT_RUNS`]: not kept.
+    count: usize,
+}
+
+impl KeptRuns {
+    pub(super) const NONE: KeptRuns = KeptRuns { runs: [(0, 0); KEPT_RUNS], count: usize::MAX };
+
+    pub(super) fn keep(runs: &Runs) -> KeptRuns {
+        let mut kept = KeptRuns { count: runs.len(), ..KeptRuns::NONE };
+        if let Some(head) = runs.get(..KEPT_RUNS.min(runs.len())) {
+            kept.runs[..head.len()].copy_from_slice(head);
+        }
+        kept
+    }
+
+    /// Sets `runs` to the kept ones; false (`runs` untouched) if not kept.
+    pub(super) fn restore(&self, runs: &mut Runs) -> bool {
+        if self.count > KEPT_RUNS {
+            return false;
+        }
+        runs.clear();
+        // Never full: KEPT_RUNS is below the capacity.
+        let _ = runs.extend_from_slice(&self.runs[..self.count]);
+        true
+    }
+}
+
 /// The part of `run` within `lo..hi`.
 #[inline(always)]
 pub(super) fn clip(run: (u16, u16), lo: usize, hi: usize) -> Range<usize> {
