@@ -45,6 +45,14 @@ pub struct Intrinsics {
     pub cx: f64,
     pub cy: f64,
     pub distortion: Option<Distortion>,
+    /// Rolling shutter: the time the sensor takes to read its rows out, top
+    /// first, ms (rig.toml's `readout_ms`; 0, the default, is a global
+    /// shutter; negative when the rows are read bottom first). Row v is
+    /// captured `readout_ms * ((v + 0.5) / height - 0.5)` after the frame's
+    /// time, which is its middle row's. Only the host's calibration models
+    /// it: the remap and the firmware do not, and `$FLRIG` does not carry it.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub readout_ms: f64,
 }
 
 /// How the camera sits on the robot (rig.toml's `[mount]`).
@@ -287,6 +295,7 @@ impl Rig {
             camera.fy,
             camera.cx,
             camera.cy,
+            camera.readout_ms,
             mount.height_mm,
             mount.tilt_deg,
             mount.roll_deg,
@@ -663,7 +672,7 @@ pub(crate) mod tests {
 
     pub(crate) fn sample_rig() -> Rig {
         Rig::new_checked(
-            Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
+            Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None, readout_ms: 0.0 },
             Mount::level(400.0, 32.0),
             Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
         )

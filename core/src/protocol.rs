@@ -54,7 +54,7 @@ pub struct RigRecord {
 impl Default for RigRecord {
     fn default() -> RigRecord {
         RigRecord {
-            camera: Intrinsics { width: 0, height: 0, fx: 0.0, fy: 0.0, cx: 0.0, cy: 0.0, distortion: None },
+            camera: Intrinsics { width: 0, height: 0, fx: 0.0, fy: 0.0, cx: 0.0, cy: 0.0, distortion: None, readout_ms: 0.0 },
             mount: Mount { height_mm: 0.0, tilt_deg: 0.0, roll_deg: 0.0, yaw_deg: 0.0 },
             aoi: Aoi { half_width_mm: 0.0, near_mm: 0.0, far_mm: 0.0 },
         }
@@ -567,6 +567,8 @@ layout!(LinkStats: default {
 // `$FLERR`.
 layout!(Fault { code, frame });
 // `$FLRIG` and `$FLHEL` between the version and the mount's optional roll and yaw.
+// Not `camera.readout_ms`: the firmware does not model a rolling shutter
+// (only the host's calibration does), so a decoded rig has a global shutter.
 layout!(RigRecord: default {
     camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, camera.distortion,
     mount.height_mm, mount.tilt_deg, aoi.half_width_mm, aoi.near_mm, aoi.far_mm,
@@ -844,6 +846,7 @@ pub mod checks {
                 cx: 159.5,
                 cy: 119.5,
                 distortion: distortion.map(Distortion::from_coefficients),
+                readout_ms: 0.0,
             },
             mount: Mount { height_mm: 300.0, tilt_deg: 40.0, roll_deg: 0.0, yaw_deg: 0.0 },
             aoi: Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
@@ -966,6 +969,7 @@ pub mod checks {
                 cx: long,
                 cy: long,
                 distortion: Some(Distortion::from_coefficients([long; 5])),
+                readout_ms: 0.0,
             },
             mount: Mount { height_mm: long, tilt_deg: long, roll_deg: long, yaw_deg: long },
             aoi: Aoi { half_width_mm: long, near_mm: long, far_mm: long },

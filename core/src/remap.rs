@@ -790,20 +790,20 @@ mod tests {
     fn level_rigs() -> [Rig; 6] {
         let aoi = Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 };
         let mount = Mount::level(400.0, 32.0);
-        let camera = Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None };
+        let camera = Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None, readout_ms: 0.0 };
         let barrel = Distortion { k1: -0.30, k2: 0.09, p1: 0.0012, p2: -0.0008, k3: -0.01 };
         let pincushion = Distortion { k1: 0.12, k2: 0.02, p1: -0.001, p2: 0.0005, k3: 0.0 };
         [
             Rig::new_checked(camera, mount, aoi).unwrap(),
             Rig::new_checked(
-                Intrinsics { width: 320, height: 240, fx: 277.0, fy: 277.0, cx: 159.5, cy: 119.5, distortion: None },
+                Intrinsics { width: 320, height: 240, fx: 277.0, fy: 277.0, cx: 159.5, cy: 119.5, distortion: None, readout_ms: 0.0 },
                 Mount::level(300.0, 40.0),
                 Aoi { half_width_mm: 200.0, near_mm: 300.0, far_mm: 800.0 },
             )
             .unwrap(),
             Rig::new_checked(Intrinsics { fx: 215.0, fy: 200.0, cx: 140.2, cy: 110.7, ..camera }, mount, aoi).unwrap(),
             Rig::new_checked(
-                Intrinsics { width: 320, height: 240, fx: 210.0, fy: 212.0, cx: 163.0, cy: 117.0, distortion: Some(barrel) },
+                Intrinsics { width: 320, height: 240, fx: 210.0, fy: 212.0, cx: 163.0, cy: 117.0, distortion: Some(barrel), readout_ms: 0.0 },
                 Mount::level(350.0, 35.0),
                 Aoi { half_width_mm: 250.0, near_mm: 400.0, far_mm: 1200.0 },
             )
@@ -820,6 +820,7 @@ mod tests {
                     cx: 84.0,
                     cy: 57.0,
                     distortion: Some(Distortion { k1: -0.25, k2: 0.06, p1: 0.0015, p2: -0.001, k3: 0.0023 }),
+                    readout_ms: 0.0,
                 },
                 Mount::level(300.0, 35.0),
                 Aoi { half_width_mm: 150.0, near_mm: 300.0, far_mm: 900.0 },
@@ -881,6 +882,7 @@ mod tests {
                 cx: 511.5,
                 cy: 511.5,
                 distortion: Some(Distortion { k1: -0.1, k2: 0.0, p1: 0.0, p2: 0.0, k3: 0.0 }),
+                readout_ms: 0.0,
             },
             Mount::level(400.0, 10.0),
             Aoi { half_width_mm: 30.0, near_mm: 2100.0, far_mm: 2450.0 },

@@ -72,7 +72,7 @@ fn build_rig(p: &RigParams) -> Option<Rig> {
     let half_width = near_range * cx.min(f64::from(p.width) - 1.0 - cx) / fx * p.half_width_frac;
     let distortion = p.distortion.map(Distortion::from_coefficients);
     Rig::new_checked(
-        Intrinsics { width: p.width, height: p.height, fx, fy, cx, cy, distortion },
+        Intrinsics { width: p.width, height: p.height, fx, fy, cx, cy, distortion, readout_ms: 0.0 },
         Mount::level(p.height_mm, p.tilt_deg),
         Aoi { half_width_mm: half_width, near_mm: near, far_mm: far },
     )
@@ -347,7 +347,7 @@ fn rig_record() -> impl Strategy<Value = RigRecord> {
     let mount = prop_oneof![Just([0.0, 0.0]), [finite(), finite()]];
     (any::<u16>(), any::<u16>(), [finite(), finite(), finite(), finite()], proptest::option::of([finite(), finite(), finite(), finite(), finite()]), [finite(), finite(), finite(), finite(), finite()], mount)
         .prop_map(|(width, height, [fx, fy, cx, cy], distortion, [height_mm, tilt_deg, aoi_half_width_mm, aoi_near_mm, aoi_far_mm], [roll_deg, yaw_deg])| RigRecord {
-            camera: Intrinsics { width, height, fx, fy, cx, cy, distortion: distortion.map(Distortion::from_coefficients) },
+            camera: Intrinsics { width, height, fx, fy, cx, cy, distortion: distortion.map(Distortion::from_coefficients), readout_ms: 0.0 },
             mount: Mount { height_mm, tilt_deg, roll_deg, yaw_deg },
             aoi: Aoi { half_width_mm: aoi_half_width_mm, near_mm: aoi_near_mm, far_mm: aoi_far_mm },
         })

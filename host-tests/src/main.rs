@@ -727,6 +727,8 @@ fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Sou
             cx: (info.cx + 0.5) / n - 0.5,
             cy: (info.cy + 0.5) / n - 0.5,
             distortion: info.distortion,
+            // camera_info has no readout: rig.toml's stays.
+            readout_ms: recording.rig.camera().readout_ms,
         };
         recording.rig = match flatland_host::calibrate::rig_with_aoi_in_view(camera, *recording.rig.mount(), *recording.rig.aoi()) {
             Ok(rig) => rig,

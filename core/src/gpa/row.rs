@@ -242,7 +242,7 @@ pub(super) mod tests {
 
     pub(in crate::gpa) fn rig() -> Rig {
         Rig::new_checked(
-            Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None },
+            Intrinsics { width: 256, height: 256, fx: 240.0, fy: 240.0, cx: 127.5, cy: 127.5, distortion: None, readout_ms: 0.0 },
             Mount::level(400.0, 32.0),
             Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
         )

@@ -9,7 +9,7 @@ pub fn flat_marks_rig(side: u16) -> Rig {
     let f = 240.0 * f64::from(side) / 256.0;
     let c = (f64::from(side) - 1.0) / 2.0;
     Rig::new_checked(
-        Intrinsics { width: side, height: side, fx: f, fy: f, cx: c, cy: c, distortion: None },
+        Intrinsics { width: side, height: side, fx: f, fy: f, cx: c, cy: c, distortion: None, readout_ms: 0.0 },
         Mount::level(400.0, 32.0),
         Aoi { half_width_mm: 250.0, near_mm: 450.0, far_mm: 1400.0 },
     )

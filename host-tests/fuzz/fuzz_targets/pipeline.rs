@@ -97,7 +97,7 @@ fuzz_target!(|input: Input| {
         let c = |i: usize, scale: f64| f64::from(d[i]) / 32768.0 * scale;
         Distortion { k1: c(0, 0.5), k2: c(1, 0.2), p1: c(2, 0.01), p2: c(3, 0.01), k3: c(4, 0.05) }
     });
-    let camera = Intrinsics { width, height, fx: v[0], fy: v[1], cx: v[2], cy: v[3], distortion };
+    let camera = Intrinsics { width, height, fx: v[0], fy: v[1], cx: v[2], cy: v[3], distortion, readout_ms: 0.0 };
     let Ok(rig) = Rig::new_checked(
         camera,
         Mount::level(v[4], v[5]),
