@@ -558,6 +558,25 @@ impl Coverage {
             let (lo, hi) = (i64::from(lo) << FRAC, i64::from(hi) << FRAC);
             if one_row && i_range.0 >= lo && i_range.1 < hi {
                 extend_runs(runs, first, end);
+            } else if one_row && !(i_range.1 < lo || i_range.0 >= hi) && rising(warp, end) {
+                // One keyframe row and i rising with c: its usable columns
+                // are the run where lo <= i >> FRAC < hi, found by bisection.
+                let first_at_least = |limit: i64| {
+                    let (mut low, mut high) = (first, end);
+                    while low < high {
+                        let middle = (low + high) / 2;
+                        if i64::from(warp.at(middle).0 >> FRAC) << FRAC >= limit {
+                            high = middle;
+                        } else {
+                            low = middle + 1;
+                        }
+                    }
+                    low
+                };
+                let (from, to) = (first_at_least(lo), first_at_least(hi));
+                if from < to {
+                    extend_runs(runs, from, to);
+                }
             } else if !(outside_rows || one_row && (i_range.1 < lo || i_range.0 >= hi)) {
                 for c in first..end {
                     if self.usable_at(warp.at(c), grid) {
@@ -569,6 +588,14 @@ impl Coverage {
         }
         true
     }
+}
+
+/// Whether a bent row's i rises from each column to the next up to column
+/// `end`: its step outweighs the bend's change of slope there, with room
+/// for the rounding down of both parts.
+fn rising(warp: RowWarp, end: usize) -> bool {
+    let bend_slope = (i64::from(warp.i_bend).abs() * (2 * end as i64 + 1)) >> (BEND_FRAC - FRAC);
+    i64::from(warp.i_step) - bend_slope > 2
 }
 
 /// Adds the usable columns `from..to` to `runs`, joining the last run when
