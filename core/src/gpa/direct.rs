@@ -805,7 +805,9 @@ impl Direct {
         let step_mm = pyramid::scale(LEVELS - 1) as f32 * images.grid.mm_per_px as f32;
         let axis = |k: usize| {
             let (lo, hi) = (from[k].min(to[k]) - step_mm, from[k].max(to[k]) + step_mm);
-            let steps = (((hi - lo) / step_mm) as usize + 1).min(SEARCH_STEPS);
+            // Saturating: a degenerate box (infinite, from a wild prior) is
+            // as many steps as allowed, not an overflow.
+            let steps = (((hi - lo) / step_mm) as usize).saturating_add(1).min(SEARCH_STEPS);
             (lo, (hi - lo) / (steps.max(2) - 1) as f32, steps)
         };
         let (x0, dx, nx) = axis(0);
