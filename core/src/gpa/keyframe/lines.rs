@@ -44,7 +44,9 @@ impl Keyframe<'_> {
             let rows_limit = (self.height as i32 - 1) << FRAC;
             let i0 = i64::from(line.i_start >> FRAC);
             let (lo, hi) = if line.j_start >= 0 && line.j_start < rows_limit {
-                let lo = (columns.start as i64).max(-i0);
+                // A line wholly left of the grid (a wild warp) starts past
+                // the columns' end: none inside, never a reversed range.
+                let lo = (columns.start as i64).max(-i0).min(columns.end as i64);
                 let hi = (columns.end as i64).min(self.width as i64 - 1 - i0);
                 (lo, hi.max(lo))
             } else {
