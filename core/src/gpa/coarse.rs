@@ -121,8 +121,9 @@ impl Coarse {
         if !(u >= 0.0 && v >= 0.0) {
             return None;
         }
+        // Saturating: a point far off (a wild motion) is outside, not an overflow.
         let (u0, v0) = (u as usize, v as usize);
-        if u0 + 1 >= self.wide || v0 + 1 >= self.high {
+        if u0.saturating_add(1) >= self.wide || v0.saturating_add(1) >= self.high {
             return None;
         }
         let k = v0 * self.wide + u0;

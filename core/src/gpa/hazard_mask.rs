@@ -60,7 +60,8 @@ impl MovedMask<'_> {
     /// turn and error, and a hazard's blurred outline) was one.
     pub(super) fn covers(&self, i: f32, j: f32) -> bool {
         let Cells { px, wide, high } = self.mask.layout;
-        let was = libm::floorf(j) as i32 - self.shift_rows;
+        // Saturating: a step beyond any grid (a wild motion) covers nothing.
+        let was = (libm::floorf(j) as i32).saturating_sub(self.shift_rows);
         let (row, column) = (was.div_euclid(px as i32), (i as i32).div_euclid(px as i32));
         (row - 1..=row + 1).any(|r| {
             (column - 1..=column + 1).any(|c| (0..high as i32).contains(&r) && (0..wide as i32).contains(&c) && self.mask.cells.contains(r as usize * wide + c as usize))
