@@ -29,6 +29,9 @@ pub struct Profile {
     pub functions: Vec<(String, u64)>,
     /// (routine, caller) -> instructions run in the routine for that caller.
     pub routines: Vec<((String, String), u64)>,
+    /// (block address, function) -> instructions run in that block: the
+    /// hot loops, to read in the disassembly (`llvm-objdump -d`).
+    pub blocks: Vec<((u32, String), u64)>,
 }
 
 /// Whether `name` is a library routine charged to its caller.
@@ -44,6 +47,7 @@ pub fn read(record: impl BufRead) -> io::Result<Profile> {
     let mut open: Option<(u32, u64)> = None;
     let mut functions: HashMap<String, u64> = HashMap::new();
     let mut routines: HashMap<(String, String), u64> = HashMap::new();
+    let mut runs: HashMap<(u32, String), u64> = HashMap::new();
     let mut caller = String::new();
     let mut total = 0;
     for line in record.lines() {
@@ -71,13 +75,14 @@ pub fn read(record: impl BufRead) -> io::Result<Profile> {
         // Demangled once: the record has a line per block run.
         let function = demangled(name);
         *functions.entry(function.clone()).or_default() += count;
+        *runs.entry((pc, function.clone())).or_default() += count;
         if is_routine(name) {
             *routines.entry((function, caller.clone())).or_default() += count;
         } else if !name.is_empty() {
             caller = function;
         }
     }
-    Ok(Profile { total, functions: sorted(functions), routines: sorted(routines) })
+    Ok(Profile { total, functions: sorted(functions), routines: sorted(routines), blocks: sorted(runs) })
 }
 
 /// Most instructions first (ties by name, so the order is the same every run).
@@ -120,5 +125,6 @@ Trace 0: 0x7f00 [00800408/08000100/00000110/ff020200] main
         assert_eq!(profile.total, 8);
         assert_eq!(profile.functions, vec![("__aeabi_dmul".to_string(), 4), ("main".to_string(), 4)]);
         assert_eq!(profile.routines, vec![(("__aeabi_dmul".to_string(), "main".to_string()), 4)]);
+        assert_eq!(profile.blocks, vec![((0x0800_0100, "main".to_string()), 4), ((0x0800_0108, "__aeabi_dmul".to_string()), 4)]);
     }
 }

@@ -29,8 +29,8 @@ pub(super) struct Band {
     first: usize,
     /// Row, warp and columns the band was last sampled for (this frame).
     source: Option<(usize, RowWarp, Range<usize>)>,
-    /// The band rows (dg) that sampling left filled for its row: all
-    /// 2S+1 make a band the next row can roll on.
+    /// The band rows (dg) that hold samples for the last sampled row; the
+    /// next row rolls on from them if they reach down to the rows it needs.
     filled: Range<usize>,
     /// Read by current rows: the row last sampled, and each band row's line.
     current_row: Option<usize>,
@@ -64,32 +64,37 @@ impl Band {
         // On translation rows the next row's warp is usually this one moved down
         // exactly one keyframe row: then its band row dg is this row's dg + 1
         // (a sample depends only on the line and the column), so the band
-        // rolls up (the ring's first row moves on, no bytes are copied) and
-        // only the last row is sampled.
+        // rolls up (the ring's first row moves on, no bytes are copied), and
+        // only the needed rows below what the last row left are sampled.
         let window = 2 * s + 1;
-        let rolls = self.filled.len() == window
-            && matches!(&self.source, Some((previous_j, previous, sampled))
+        let reach = reach.min(s);
+        let needed = s - reach..s + reach + 1;
+        let rolls = matches!(&self.source, Some((previous_j, previous, sampled))
             if *previous_j + 1 == j
                 && previous.moved(0, 1 << FRAC) == warp
                 && sampled.start <= columns.start
                 && columns.end <= sampled.end);
-        let reach = reach.min(s);
+        // What the last row filled, one band row up.
+        let kept = self.filled.start.max(1) - 1..self.filled.end.saturating_sub(1);
+        let rolls = rolls && kept.start <= needed.start && needed.start <= kept.end;
         let to_sample = if rolls {
             self.first = (self.first + 1) % window;
-            2 * s..2 * s + 1
+            kept.end..needed.end.max(kept.end)
         } else {
-            s - reach..s + reach + 1
+            needed.clone()
         };
-        // The ring's rows in dg order: from `first` to its end, then its start.
-        let (wrapped, in_order) = self.ring[..window].split_at_mut(self.first);
-        let mut lines = heapless::Vec::<&mut [u8], MAX_WINDOW>::new();
-        for row in in_order.iter_mut().chain(wrapped.iter_mut()).skip(to_sample.start).take(to_sample.len()) {
-            let _ = lines.push(&mut row[MAX_SEARCH_RADIUS..]);
+        if !to_sample.is_empty() {
+            // The ring's rows in dg order: from `first` to its end, then its start.
+            let (wrapped, in_order) = self.ring[..window].split_at_mut(self.first);
+            let mut lines = heapless::Vec::<&mut [u8], MAX_WINDOW>::new();
+            for row in in_order.iter_mut().chain(wrapped.iter_mut()).skip(to_sample.start).take(to_sample.len()) {
+                let _ = lines.push(&mut row[MAX_SEARCH_RADIUS..]);
+            }
+            let first_line = warp.moved(0, (to_sample.start as i32 - s as i32) << FRAC);
+            keyframe.sample_lines(first_line, columns.clone(), &mut lines);
         }
         self.current_row = None;
-        let first_line = warp.moved(0, (to_sample.start as i32 - s as i32) << FRAC);
-        keyframe.sample_lines(first_line, columns.clone(), &mut lines);
-        self.filled = if rolls { 0..window } else { to_sample };
+        self.filled = if rolls { kept.start..to_sample.end } else { to_sample };
         self.source = Some((j, warp, columns));
     }
 

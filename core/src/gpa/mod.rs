@@ -208,6 +208,9 @@ pub struct Gpa<'b> {
     velocity_known: bool,
     /// This frame's motion as a warp.
     warp: Warp,
+    /// Whether this frame's shift search sums its (2S+1)^2 shifts, or only
+    /// its histogram at the prediction (see [`Self::compare_with`]).
+    search_shifts: bool,
     /// The warps of the current cell row's rows so far, by row within it:
     /// its hypotheses' pass reads them again at its last row (a tilted
     /// body's row costs a few thousand M4 instructions of `f64`).
@@ -271,6 +274,7 @@ impl<'b> Gpa<'b> {
         last_elapsed_s: None,
         velocity_known: false,
         warp: Warp::NONE,
+        search_shifts: true,
         cell_row_warps: [RowWarp::LEVEL; MAX_CELL_PX],
         cell_row_runs: [KeptRuns::NONE; MAX_CELL_PX],
         parallax: Parallax::EMPTY,
@@ -567,12 +571,17 @@ impl<'b> Gpa<'b> {
         // would differ. (Within 1 % a gain is left alone: noise.)
         let gain = estimate.map_or(1.0, |estimate| estimate.gain);
         let exposure = (libm::fabsf(gain - 1.0) > 0.01).then(|| exposure_table(gain));
-        // The rows are read from the store while the stages write their sums.
-        let mut store = core::mem::replace(&mut self.keyframe, Keyframe::EMPTY);
-        let due = self.compare_at(&store, measured, exposure.as_ref());
         // The seed's own search around the prediction: the report's shift
         // and statistics are what the seed's GPA, trusting it, would see.
         let seed_apart = measured != prior.motion;
+        // The search around the measured motion needs its shifts only to
+        // refine a motion the images did not measure, or to be the seed's
+        // search too; else its histogram (the noise) is all that is read,
+        // and the band needs only the residue's rows.
+        self.search_shifts = estimate.is_none() || !seed_apart;
+        // The rows are read from the store while the stages write their sums.
+        let mut store = core::mem::replace(&mut self.keyframe, Keyframe::EMPTY);
+        let due = self.compare_at(&store, measured, exposure.as_ref());
         if seed_apart {
             let start = self.profiler.now();
             self.search_prediction(&store, &prior.motion, exposure.as_ref());
@@ -611,7 +620,7 @@ impl<'b> Gpa<'b> {
             let row_warp = rows.band.sample_current_rows(store, j, &warp, s, |r| self.coverage.seen_within(r, grid));
             self.coverage.usable_runs(row_warp, seen, grid, &mut runs);
             let row = exposed(store.current_row(j), exposure, &mut adjusted);
-            rows.seed.add_row(row, &rows.band.rows(s), s, &runs, aoi, self.layout.in_far_half(j));
+            rows.seed.add_row(row, &rows.band.rows(s), s, &runs, aoi, self.layout.in_far_half(j), true);
         }
     }
 

@@ -27,8 +27,9 @@ impl Gpa<'_> {
         self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
         self.cell_row_runs[j % cells.px] = KeptRuns::keep(&runs);
         let in_aoi = j >= aoi.top && j < aoi.bottom;
+        let shifts = in_aoi && self.search_shifts;
         let rows = self.workspace.rows();
-        rows.band.sample(keyframe, j, warp, seen.clone(), s, if in_aoi { s } else { 1 });
+        rows.band.sample(keyframe, j, warp, seen.clone(), s, if shifts { s } else { 1 });
         let band = rows.band.rows(s);
         lap = self.profiler.charge(lap, |p| &mut p.warp);
 
@@ -41,7 +42,7 @@ impl Gpa<'_> {
         lap = self.profiler.charge(lap, |p| &mut p.residue);
 
         if in_aoi {
-            rows.search.add_row(row, &band, s, &runs, aoi, self.layout.in_far_half(j));
+            rows.search.add_row(row, &band, s, &runs, aoi, self.layout.in_far_half(j), self.search_shifts);
         }
         lap = self.profiler.charge(lap, |p| &mut p.shift_search);
         self.end_row(keyframe, j, exposure);
@@ -214,7 +215,7 @@ impl Gpa<'_> {
             if in_aoi_row && c >= aoi.left && c < aoi.right {
                 search.diff_hist.add_one(value.abs_diff(here));
                 search.compared_pixels += 1;
-                for dg in 0..=2 * s {
+                for dg in (0..=2 * s).filter(|_| self.search_shifts) {
                     for dk in 0..=2 * s {
                         let diff = u32::from(value.abs_diff(band[dg][centre + dk - s]));
                         if far_half {

@@ -58,8 +58,10 @@ impl ShiftSearch {
 
     /// Adds current row `row` against the `band` (search radius `s`) over
     /// the usable `runs` within the AOI's columns, to the far half's sums
-    /// if `far_half`.
-    pub(super) fn add_row(&mut self, row: &[u8], band: &BandRows, s: usize, runs: &[(u16, u16)], aoi: &PixelRect, far_half: bool) {
+    /// if `far_half`; the shifts' sums only if `shifts` (the histogram
+    /// reads band row S alone).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn add_row(&mut self, row: &[u8], band: &BandRows, s: usize, runs: &[(u16, u16)], aoi: &PixelRect, far_half: bool, shifts: bool) {
         let r = MAX_SEARCH_RADIUS;
         let window = 2 * s + 1;
         for &run in runs {
@@ -70,6 +72,9 @@ impl ShiftSearch {
             let current = &row[columns.clone()];
             self.diff_hist.add(current, &band[s][columns.start + r..columns.end + r]);
             self.compared_pixels += columns.len() as u32;
+            if !shifts {
+                continue;
+            }
             // Shift dk of band row dg compares current[c] with band[dg][c + dk - s].
             let reference = columns.start + r - s..columns.end + r + s;
             let sums = if far_half { &mut self.sad_far } else { &mut self.sad_near };

@@ -379,6 +379,10 @@ fn print_profile(profile: &m4_profile::Profile) {
     for ((routine, caller), count) in profile.routines.iter().take(20) {
         println!("profile: {count:>11} {:5.1} %  {routine} <- {caller}", share(*count));
     }
+    println!("profile: the hottest blocks by start address (read them with llvm-objdump -d)");
+    for ((address, function), count) in profile.blocks.iter().take(30) {
+        println!("profile: {count:>11} {:5.1} %  {address:#010x} {function}", share(*count));
+    }
 }
 
 fn main() {
