@@ -28,11 +28,6 @@ fn to_q16_f32(value: f32) -> i32 {
 /// 1/512 px).
 pub(super) const BEND_FRAC: u32 = 24;
 
-/// Bends below this in magnitude (a roll of up to ~8 degrees) keep c^2 bend
-/// within an i32 at every grid column (c <= 256): their rows step in 32
-/// bits, which on the M4 is a third of the cost of 64.
-const COMPACT_BEND: u32 = 1 << 15;
-
 /// One row's warp: keyframe position of current column 0, its per-column
 /// step, Q16.16, and its bend per column squared, Q24.
 ///
@@ -66,12 +61,6 @@ impl RowWarp {
         self.i_bend != 0 || self.j_bend != 0
     }
 
-    /// Bent little enough for [`Self::compact_positions`].
-    #[inline(always)]
-    pub(super) fn is_compact(&self) -> bool {
-        self.i_bend.unsigned_abs() < COMPACT_BEND && self.j_bend.unsigned_abs() < COMPACT_BEND
-    }
-
     /// Keyframe position (i, j) of current column `c`.
     #[inline(always)]
     pub(super) fn at(&self, c: usize) -> (i32, i32) {
@@ -83,24 +72,11 @@ impl RowWarp {
     }
 
     /// [`Self::at`] of the columns `first`, `first + 1`, ... in turn, by
-    /// exact differences: no multiply per column on the M4.
+    /// exact differences, for columns whose positions lie inside a grid
+    /// (0 <= i, j < 256 px).
     #[inline(always)]
-    pub(super) fn positions(&self, first: usize) -> Positions<i64> {
-        Positions {
-            i: Coordinate::new(self.i_start, self.i_step, self.i_bend, first),
-            j: Coordinate::new(self.j_start, self.j_step, self.j_bend, first),
-        }
-    }
-
-    /// [`Self::positions`] in 32 bits, for a row [`Self::is_compact`] and
-    /// columns within the grid.
-    #[inline(always)]
-    pub(super) fn compact_positions(&self, first: usize) -> Positions<i32> {
-        debug_assert!(self.is_compact() && first <= MAX_GRID_SIDE);
-        Positions {
-            i: Coordinate::new(self.i_start, self.i_step, self.i_bend, first),
-            j: Coordinate::new(self.j_start, self.j_step, self.j_bend, first),
-        }
+    pub(super) fn positions(&self, first: usize) -> Positions {
+        Positions { i: Coordinate::new(self.i_start, self.i_step, self.i_bend, first), j: Coordinate::new(self.j_start, self.j_step, self.j_bend, first) }
     }
 
     /// The same line moved by (`di`, `dj`), Q16.16.
@@ -230,86 +206,61 @@ impl Warp {
     }
 }
 
-/// The c^2 bend sums of a [`Coordinate`]: `i64` for any row, `i32` for a
-/// compact one (exactly the same values there).
-pub(super) trait BendSum: Copy + core::ops::Add<Output = Self> {
-    fn from_exact(value: i64) -> Self;
-    /// The sum in Q16 (its bend's fraction bits dropped, rounding down).
-    fn to_q16(self) -> i32;
+/// One coordinate of a [`RowWarp`] stepped column by column, in Q8.24
+/// modulo 2^32: `start << 8 + c step << 8 + c^2 bend` by its first and
+/// second differences, two adds a column and no multiply. Wrapped sums
+/// are exact modulo 2^32, so the top 24 bits are [`RowWarp::at`]'s Q16
+/// value modulo 2^24 (`a + floor(b / 256) = floor((256 a + b) / 256)`):
+/// the same value wherever it lies in 0..256 px, as every position of a
+/// span inside a grid does.
+#[derive(Clone, Copy)]
+pub(super) struct Coordinate {
+    sum: u32,
+    difference: u32,
+    second: u32,
 }
 
-impl BendSum for i64 {
+impl Coordinate {
     #[inline(always)]
-    fn from_exact(value: i64) -> i64 {
-        value
-    }
-    #[inline(always)]
-    fn to_q16(self) -> i32 {
-        (self >> (BEND_FRAC - FRAC)) as i32
-    }
-}
-
-impl BendSum for i32 {
-    #[inline(always)]
-    fn from_exact(value: i64) -> i32 {
-        value as i32
-    }
-    #[inline(always)]
-    fn to_q16(self) -> i32 {
-        self >> (BEND_FRAC - FRAC)
-    }
-}
-
-/// One coordinate of a [`RowWarp`] stepped column by column: the same
-/// Q16 value as [`RowWarp::at`] (a linear part that wraps as its i32
-/// sums do, and the quadratic part from the exact c^2 bend).
-struct Coordinate<T> {
-    linear: i32,
-    step: i32,
-    squared_bend: T,
-    increment: T,
-    bend_step: T,
-}
-
-impl<T: BendSum> Coordinate<T> {
-    #[inline(always)]
-    fn new(start: i32, step: i32, bend: i32, c: usize) -> Coordinate<T> {
-        let (c, bend) = (c as i64, i64::from(bend));
+    fn new(start: i32, step: i32, bend: i32, c: usize) -> Coordinate {
+        let (c, step, bend) = (c as u32, (step as u32) << (BEND_FRAC - FRAC), bend as u32);
         Coordinate {
-            linear: start.wrapping_add((c as i32).wrapping_mul(step)),
-            step,
-            squared_bend: T::from_exact(c * c * bend),
-            increment: T::from_exact((2 * c + 1) * bend),
-            bend_step: T::from_exact(2 * bend),
+            sum: ((start as u32) << (BEND_FRAC - FRAC)).wrapping_add(c.wrapping_mul(step)).wrapping_add(c.wrapping_mul(c).wrapping_mul(bend)),
+            difference: step.wrapping_add((2 * c + 1).wrapping_mul(bend)),
+            second: bend.wrapping_mul(2),
         }
     }
 
+    /// Whole pixels (the top 8 bits) and the bilinear weight (the next 8).
     #[inline(always)]
-    fn value(&self) -> i32 {
-        self.linear.wrapping_add(self.squared_bend.to_q16())
+    pub(super) fn pixel_and_weight(&self) -> (usize, i32) {
+        ((self.sum >> 24) as usize, ((self.sum >> 16) & 0xFF) as i32)
     }
 
+    /// On to the next column: a bent row's difference changes too.
     #[inline(always)]
-    fn advance(&mut self) {
-        self.linear = self.linear.wrapping_add(self.step);
-        self.squared_bend = self.squared_bend + self.increment;
-        self.increment = self.increment + self.bend_step;
+    fn advance<const BENT: bool>(&mut self) {
+        self.sum = self.sum.wrapping_add(self.difference);
+        if BENT {
+            self.difference = self.difference.wrapping_add(self.second);
+        }
     }
 }
 
 /// A row's keyframe positions, column by column ([`RowWarp::positions`]).
-pub(super) struct Positions<T> {
-    i: Coordinate<T>,
-    j: Coordinate<T>,
+pub(super) struct Positions {
+    i: Coordinate,
+    j: Coordinate,
 }
 
-impl<T: BendSum> Positions<T> {
-    /// This column's position; then on to the next column.
+impl Positions {
+    /// This column's position; then on to the next column (`BENT`: the
+    /// row is bent; a straight one skips the second differences, zero).
     #[inline(always)]
-    pub(super) fn take(&mut self) -> (i32, i32) {
-        let position = (self.i.value(), self.j.value());
-        self.i.advance();
-        self.j.advance();
+    pub(super) fn take<const BENT: bool>(&mut self) -> (Coordinate, Coordinate) {
+        let position = (self.i, self.j);
+        self.i.advance::<BENT>();
+        self.j.advance::<BENT>();
         position
     }
 }

@@ -3,7 +3,7 @@
 
 use super::Keyframe;
 use crate::gpa::kernels;
-use crate::gpa::warp::{ceil_div, straight_within, unwrapped, RowWarp, BEND_FRAC, FRAC};
+use crate::gpa::warp::{ceil_div, straight_within, unwrapped, Coordinate, RowWarp, BEND_FRAC, FRAC};
 use core::ops::Range;
 
 impl Keyframe<'_> {
@@ -195,26 +195,19 @@ impl Keyframe<'_> {
         i_least >= 0 && i_most < i64::from(self.columns_limit()) && self.rows_within(line, columns, 1)
     }
 
-    /// Calls `visit(t, position)` for the columns `span.start + t` of
-    /// `span` in turn, the positions stepped by the same sums as `line.at(c)`.
+    /// Calls `visit(t, (i, j))` for the columns `span.start + t` of `span`
+    /// in turn, their positions stepped as [`RowWarp::positions`] (every
+    /// one inside the grid: whole pixels below 256).
     #[inline(always)]
-    fn for_positions(line: RowWarp, span: Range<usize>, mut visit: impl FnMut(usize, (i32, i32))) {
-        if line.is_bent() && line.is_compact() {
-            let mut positions = line.compact_positions(span.start);
+    fn for_positions(line: RowWarp, span: Range<usize>, mut visit: impl FnMut(usize, (Coordinate, Coordinate))) {
+        let mut positions = line.positions(span.start);
+        if line.is_bent() {
             for t in 0..span.len() {
-                visit(t, positions.take());
-            }
-        } else if line.is_bent() {
-            let mut positions = line.positions(span.start);
-            for t in 0..span.len() {
-                visit(t, positions.take());
+                visit(t, positions.take::<true>());
             }
         } else {
-            let (mut i, mut j) = line.at(span.start);
             for t in 0..span.len() {
-                visit(t, (i, j));
-                i = i.wrapping_add(line.i_step);
-                j = j.wrapping_add(line.j_step);
+                visit(t, positions.take::<false>());
             }
         }
     }
@@ -226,7 +219,8 @@ impl Keyframe<'_> {
         let width = self.width;
         let out = &mut out[span.clone()];
         Self::for_positions(line, span, |t, (i, j)| {
-            let index = (j >> FRAC) as usize * width + (i >> FRAC) as usize;
+            let ((i0, wx), (j0, wy)) = (i.pixel_and_weight(), j.pixel_and_weight());
+            let index = j0 * width + i0;
             // SAFETY: every position of the span lies in 0..(width - 1) << 16
             // by 0..(height - 1) << 16 (both ends do, a linear line does not
             // wrap and a bent one does not turn outside), so the row index
@@ -241,7 +235,7 @@ impl Keyframe<'_> {
                 )
             };
             // SAFETY: `out` holds the span's columns, and t < span.len().
-            unsafe { *out.get_unchecked_mut(t) = blend(p00, p01, p10, p11, i, j) };
+            unsafe { *out.get_unchecked_mut(t) = blend(p00, p01, p10, p11, wx, wy) };
         });
     }
 
@@ -253,8 +247,8 @@ impl Keyframe<'_> {
         let width = self.width;
         let mut outs = outs.map(|out| &mut out[span.clone()]);
         Self::for_positions(line, span, #[inline(always)] |t, (i, j)| {
-            let index = (j >> FRAC) as usize * width + (i >> FRAC) as usize;
-            let (wx, wy) = ((i >> 8) & 0xFF, (j >> 8) & 0xFF);
+            let ((i0, wx), (j0, wy)) = (i.pixel_and_weight(), j.pixel_and_weight());
+            let index = j0 * width + i0;
             // SAFETY: line N - 1 at this column lies inside the grid (see
             // `sample_span`): its row index j0 + N - 1 is at most height - 2,
             // so index + N * width + 1 < image.len().
@@ -311,12 +305,10 @@ impl Keyframe<'_> {
 }
 
 /// The bilinear sample of [`Keyframe::sample`] from its four pixels at
-/// (i, j) Q16.16: the same integer, with the weights' complements folded
+/// weights `wx`, `wy` (of 256): the same integer, with the weights' complements folded
 /// (`a (256 - w) + b w = 256 a + (b - a) w` exactly), a multiply less.
 #[inline(always)]
-fn blend(p00: u8, p01: u8, p10: u8, p11: u8, i: i32, j: i32) -> u8 {
-    let wx = (i >> 8) & 0xFF;
-    let wy = (j >> 8) & 0xFF;
+fn blend(p00: u8, p01: u8, p10: u8, p11: u8, wx: i32, wy: i32) -> u8 {
     let top = (i32::from(p00) << 8) + (i32::from(p01) - i32::from(p00)) * wx;
     let bottom = (i32::from(p10) << 8) + (i32::from(p11) - i32::from(p10)) * wx;
     between(top, bottom, wy)
