@@ -68,7 +68,7 @@ impl Residue {
             cells.segments(columns, |cell_column, columns| {
                 let cell = cell_base + cell_column;
                 let n = columns.len();
-                let (hot, sum) = (byte_sum(&hot_pixels[columns.clone()]), byte_sum(&ground_residues[columns]));
+                let (hot, sum) = kernels::byte_sums(&hot_pixels[columns.clone()], &ground_residues[columns]);
                 self.cell_valid[cell] = self.cell_valid[cell].saturating_add(n.min(255) as u8);
                 self.cell_residue[cell] = self.cell_residue[cell].saturating_add(hot.min(255) as u8);
                 row_residue += hot;
@@ -88,23 +88,6 @@ impl Residue {
             return 0;
         }
         u32::from(self.cell_residue[cell]) * 100 / valid
-    }
-}
-
-/// The sum of a cell segment's bytes (at most a cell wide). On the M4
-/// `usada8` against zero adds four at once.
-#[inline(always)]
-fn byte_sum(bytes: &[u8]) -> u32 {
-    #[cfg(flatland_dsp)]
-    {
-        use super::layout::MAX_CELL_PX;
-        const ZEROS: [u8; MAX_CELL_PX] = [0; MAX_CELL_PX];
-        debug_assert!(bytes.len() <= MAX_CELL_PX, "a segment lies within one cell");
-        kernels::sad(bytes, &ZEROS[..bytes.len().min(MAX_CELL_PX)])
-    }
-    #[cfg(not(flatland_dsp))]
-    {
-        bytes.iter().map(|&b| u32::from(b)).sum()
     }
 }
 

@@ -36,6 +36,10 @@ pub fn dsp_kernels_equal_portable() -> Outcome {
                 if super::sad(x, y) != plain_sad(y) || portable::sad(x, y) != plain_sad(y) {
                     return Err("sad differs from the per-pixel loop");
                 }
+                let sum = |bytes: &[u8]| bytes.iter().map(|&p| u32::from(p)).sum::<u32>();
+                if super::byte_sums(x, y) != (sum(x), sum(y)) || portable::byte_sums(x, y) != (sum(x), sum(y)) {
+                    return Err("byte_sums differs from the per-pixel loop");
+                }
                 let mut expected = [0u32; 256];
                 for (&p, &q) in x.iter().zip(y) {
                     expected[usize::from(p.abs_diff(q))] += 1;

@@ -34,6 +34,35 @@ pub fn sad(a: &[u8], b: &[u8]) -> u32 {
     acc + portable::sad(&a[4 * words..n], &b[4 * words..n])
 }
 
+/// Both sums a word at a time by `usada8` against zero (equal lengths);
+/// the last 0-3 bytes one by one.
+#[inline]
+pub fn byte_sums(a: &[u8], b: &[u8]) -> (u32, u32) {
+    let words = a.len().min(b.len()) / 4;
+    let (mut sum_a, mut sum_b) = (0u32, 0u32);
+    if words > 0 {
+        // SAFETY: reads `words` words (unaligned ldr is fine on the M4) of
+        // `a` and `b`, which hold at least 4 * words bytes each.
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "ldr {x}, [{pa}], #4",
+                "usada8 {sa}, {x}, {zero}, {sa}",
+                "ldr {x}, [{pb}], #4",
+                "usada8 {sb}, {x}, {zero}, {sb}",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                pa = inout(reg) a.as_ptr() => _, pb = inout(reg) b.as_ptr() => _,
+                n = inout(reg) words => _, zero = in(reg) 0u32,
+                sa = inout(reg) sum_a, sb = inout(reg) sum_b, x = out(reg) _,
+                options(readonly, nostack)
+            );
+        }
+    }
+    let (tail_a, tail_b) = portable::byte_sums(&a[4 * words..], &b[4 * words..]);
+    (sum_a + tail_a, sum_b + tail_b)
+}
+
 /// Five shifts (the default ±2 window) per current word: the reference
 /// word of shift 4 is the next word's shift 0, so 1 + 4 loads feed
 /// 5 `usada8` (12 instructions per 4 pixels and 5 shifts). Other window

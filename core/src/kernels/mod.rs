@@ -48,6 +48,14 @@ pub fn sad(a: &[u8], b: &[u8]) -> u32 {
     selected::sad(a, b)
 }
 
+/// The byte sums of `a` and of `b` over their common length (a residue
+/// cell's segment: its hot pixels and its ground residues).
+#[inline]
+pub fn byte_sums(a: &[u8], b: &[u8]) -> (u32, u32) {
+    let n = a.len().min(b.len());
+    selected::byte_sums(&a[..n], &b[..n])
+}
+
 /// The shift search's kernel: `sums[k] += SAD(current, reference[k..k + n])`
 /// for every shift `k` in `0..sums.len()`, n = `current.len()`.
 /// `reference` holds at least `n + sums.len() - 1` bytes (shorter: no-op).

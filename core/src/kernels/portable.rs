@@ -3,6 +3,11 @@
 //! SIMD ones. Same functions as `sse2` and `dsp`.
 
 #[inline]
+pub fn byte_sums(a: &[u8], b: &[u8]) -> (u32, u32) {
+    let sum = |bytes: &[u8]| bytes.iter().map(|&x| u32::from(x)).sum();
+    (sum(a), sum(b))
+}
+
 pub fn sad(a: &[u8], b: &[u8]) -> u32 {
     // u16 lanes over blocks of 256 cannot overflow and vectorise well.
     let mut total = 0u32;
