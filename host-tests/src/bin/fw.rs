@@ -9,8 +9,9 @@
 //! - `--selftest`: core's checks on the target, then the panic, HardFault and watchdog
 //!   paths, which must end QEMU with a nonzero status and a message.
 //! - `--bench`: the main job under `-icount shift=0`; prints `key: value`.
-//!   With `--profile`: first the instructions per function on the first
-//!   frames, from QEMU's record of what it ran ([`m4_profile`]).
+//!   With `--profile [FIRST]`: first the instructions per function on three
+//!   frames (from FIRST, default 0; FIRST is then the keyframe), from
+//!   QEMU's record of what it ran ([`m4_profile`]).
 //!   With `--full-frame`: the worst case, a square AOI making the KG grid
 //!   256x256 without margins (`bench::FullFrame`, as `flatland bench
 //!   --full-frame`), on the `full-frame` firmware build (no GTI stage).
@@ -78,8 +79,8 @@ struct Args {
     mavlink: Option<qemu::PoseMessages>,
     /// `--capture FILE`: the firmware's raw serial output.
     capture: Option<PathBuf>,
-    /// `--profile`: instructions per function (`--bench` only).
-    profile: bool,
+    /// `--profile [FIRST]`: instructions per function on frames FIRST.. (`--bench` only).
+    profile: Option<u32>,
 }
 
 /// Frames `--profile` runs: QEMU's record grows by ~0.4 GB a frame.
@@ -105,16 +106,23 @@ fn parse_args() -> Result<Args> {
     let mut sensors = Sensors::ALL;
     let mut protocol = Protocol::Lines;
     let mut poses = None;
-    let mut profile = false;
+    let mut profile = None;
     let mut capture = None;
-    let mut args = std::env::args().skip(1);
+    let mut args = std::env::args().skip(1).peekable();
     while let Some(arg) = args.next() {
         match arg.as_str() {
             "--csv" => mode = Mode::Csv,
             "--selftest" => mode = Mode::SelfTest,
             "--bench" => mode = Mode::Bench,
             "--full-frame" => full_frame = true,
-            "--profile" => profile = true,
+            "--profile" => {
+                // An optional first frame: a run from there (its first frame the keyframe).
+                let first = args.peek().and_then(|next| next.parse::<u32>().ok());
+                if first.is_some() {
+                    args.next();
+                }
+                profile = Some(first.unwrap_or(0));
+            }
             "--protocol" => {
                 protocol = match args.next().as_deref() {
                     Some("lines") => Protocol::Lines,
@@ -141,7 +149,7 @@ fn parse_args() -> Result<Args> {
                 mm_per_px = Some(args.next().and_then(|s| s.parse().ok()).ok_or("--mm-per-px needs a number")?);
             }
             "-h" | "--help" => {
-                println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame] [--profile]");
+                println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame] [--profile [FIRST_FRAME]]");
                 println!("       --odometry none / --imu none: $FLODO leaves the wheels' pose / the IMU's attitude out");
                 println!("       --protocol lines|mavlink: the serial protocol (default lines); mavlink runs the mavlink build, poses sent as MAVLink;");
                 println!("         with --csv it prints OBSTACLE_DISTANCE as `flatland serial decode --mavlink --recording RECORDING` does");
@@ -159,7 +167,7 @@ fn parse_args() -> Result<Args> {
     if full_frame && mode != Mode::Bench {
         return Err("--full-frame is for cargo fw-bench".into());
     }
-    if profile && mode != Mode::Bench {
+    if profile.is_some() && mode != Mode::Bench {
         return Err("--profile is for cargo fw-bench".into());
     }
     // QEMU runs in the recording's directory: the ELF's path must not be relative.
@@ -219,8 +227,8 @@ fn describe(message: &Message) -> Option<String> {
 fn run_recording(args: &Args, elf: &Path, exec_log: Option<&Path>) -> Result<String> {
     let mut recording = Recording::open(&args.recording).map_err(|e| e.to_string())?;
     args.sensors.apply(&mut recording);
-    if exec_log.is_some() {
-        recording.poses.retain(|row| row.frame < PROFILE_FRAMES);
+    if let (Some(_), Some(first)) = (exec_log, args.profile) {
+        recording.poses.retain(|row| (first..first + PROFILE_FRAMES).contains(&row.frame));
     }
     let mut mm_per_px = args.mm_per_px;
     if args.full_frame {
@@ -316,7 +324,7 @@ fn run_selftest(args: &Args, elf: &Path) -> Result<()> {
 }
 
 fn run_bench(args: &Args, elf: &Path) -> Result<()> {
-    let exec_log = args.profile.then(|| std::env::temp_dir().join(format!("flatland-exec-{}.log", std::process::id())));
+    let exec_log = args.profile.is_some().then(|| std::env::temp_dir().join(format!("flatland-exec-{}.log", std::process::id())));
     let log = run_recording(args, elf, exec_log.as_deref());
     if let Some(path) = &exec_log {
         let profile = std::fs::File::open(path).map(std::io::BufReader::new).and_then(m4_profile::read);
@@ -370,7 +378,7 @@ fn run_bench(args: &Args, elf: &Path) -> Result<()> {
 /// The profile's biggest entries (`--profile`).
 fn print_profile(profile: &m4_profile::Profile) {
     let share = |count: u64| 100.0 * count as f64 / profile.total.max(1) as f64;
-    println!("profile: every instruction the M4 ran on the first {PROFILE_FRAMES} frames (set-up and serial waits included); the figures after the profile are the same run's, over those frames only");
+    println!("profile: every instruction the M4 ran on {PROFILE_FRAMES} frames (set-up and serial waits included); the figures after the profile are the same run's, over those frames only");
     println!("profile_total: {}", profile.total);
     for (name, count) in profile.functions.iter().take(40) {
         println!("profile: {count:>11} {:5.1} %  {name}", share(*count));
