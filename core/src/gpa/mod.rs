@@ -617,7 +617,9 @@ impl<'b> Gpa<'b> {
         let mut adjusted = [0u8; MAX_GRID_SIDE];
         for j in aoi.top..aoi.bottom.min(self.layout.analysis_rows) {
             let Some(seen) = self.coverage.seen(j) else { continue };
-            let row_warp = rows.band.sample_current_rows(store, j, &warp, s, |r| self.coverage.seen_within(r, grid));
+            // Only the AOI's columns are searched: the band is sampled there.
+            let searched = |r: usize| self.coverage.seen_within(r, grid).map(|seen| seen.start.max(aoi.left)..seen.end.min(aoi.right)).filter(|c| !c.is_empty());
+            let row_warp = rows.band.sample_current_rows(store, j, &warp, s, searched);
             self.coverage.usable_runs(row_warp, seen, grid, &mut runs);
             let row = exposed(store.current_row(j), exposure, &mut adjusted);
             rows.seed.add_row(row, &rows.band.rows(s), s, &runs, aoi, self.layout.in_far_half(j), true);
