@@ -504,10 +504,18 @@ impl Coverage {
             let end = (first + CHUNK).min(seen.end);
             let (i_range, j_range) = (range(warp.i_start, warp.i_step, warp.i_bend, first, end - 1), range(warp.j_start, warp.j_step, warp.j_bend, first, end - 1));
             let outside_rows = j_range.1 < 0 || j_range.0 >= rows_limit;
-            let one_row = j_range.0 >= 0 && j_range.1 < rows_limit && j_range.0 >> FRAC == j_range.1 >> FRAC;
+            let within_rows = j_range.0 >= 0 && j_range.1 < rows_limit;
+            let one_row = within_rows && j_range.0 >> FRAC == j_range.1 >> FRAC;
             let (lo, hi) = if one_row { self.reference[(j_range.0 >> FRAC) as usize] } else { (0, 0) };
             let (lo, hi) = (i64::from(lo) << FRAC, i64::from(hi) << FRAC);
-            if one_row && i_range.0 >= lo && i_range.1 < hi {
+            // A chunk across a few keyframe rows is usable whole where its
+            // columns lie in the reference columns of all of them.
+            let across_rows = || {
+                let rows = (j_range.0 >> FRAC) as usize..=(j_range.1 >> FRAC) as usize;
+                let (lo, hi) = self.reference[rows].iter().fold((0, u16::MAX), |(lo, hi), &(l, h)| (lo.max(l), hi.min(h)));
+                i_range.0 >= i64::from(lo) << FRAC && i_range.1 < i64::from(hi) << FRAC
+            };
+            if one_row && i_range.0 >= lo && i_range.1 < hi || !one_row && within_rows && (j_range.1 - j_range.0) >> FRAC < 4 && across_rows() {
                 extend_runs(runs, first, end);
             } else if one_row && !(i_range.1 < lo || i_range.0 >= hi) && rising(warp, end) {
                 // One keyframe row and i rising with c: its usable columns
