@@ -228,16 +228,28 @@ fn parallax_group(
     if side == Side::Below && (0..h * w).filter(|&cell| member(cell)).count() < LARGE_GROUP_CELLS {
         return (None, None);
     }
-    // Above: where a cell stands (mm ahead), from its height at its centre.
-    let centre_z = |cell: usize| grid.pixel_to_ground(0.0, ((cell / w) as f64 + 0.5) * cells.px as f64 - 0.5).1;
-    let footprint = |cell: usize| centre_z(cell) * (camera_height_mm - f64::from(heights.get(cell))) / camera_height_mm;
+    // Above: where a cell stands (mm ahead), from its height at its centre
+    // (each cell row's centre once: software f64 on the M4).
+    let mut row_centre_z = [0.0f64; MAX_CELLS_SIDE];
+    for (r, z) in row_centre_z.iter_mut().enumerate().take(h) {
+        *z = grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1;
+    }
+    let footprint = |cell: usize| row_centre_z[cell / w] * (camera_height_mm - f64::from(heights.get(cell))) / camera_height_mm;
     // Every cell of a vertical face points at the face's footprint, but a
     // plain face shows parallax only where it has texture (its top edge, a
     // feature or two), possibly many rows apart: above the ground, cells in
     // neighbouring columns whose footprints agree to a cell are one face.
     let cell_mm = cells.px as f64 * grid.mm_per_px;
     let measured = |cell: usize| !heights.is_weak(cell);
-    let same_face = |a: usize, b: usize| measured(a) && measured(b) && libm::fabs(footprint(a) - footprint(b)) <= cell_mm;
+    // The flood asks of one cell's neighbours in turn: its footprint is kept.
+    let last = core::cell::Cell::new((usize::MAX, 0.0));
+    let footprint_of_a = |a: usize| {
+        if last.get().0 != a {
+            last.set((a, footprint(a)));
+        }
+        last.get().1
+    };
+    let same_face = |a: usize, b: usize| measured(a) && measured(b) && libm::fabs(footprint_of_a(a) - footprint(b)) <= cell_mm;
     let linked: Option<&dyn Fn(usize, usize) -> bool> = match side {
         Side::Above => Some(&same_face),
         Side::Below => None,
@@ -268,8 +280,7 @@ fn parallax_group(
             with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
             let height = f64::from(heights.get(cell));
             // The cell's measured height belongs to its centre.
-            let centre_row = (r as f64 + 0.5) * cells.px as f64 - 0.5;
-            let (_, z_centre) = grid.pixel_to_ground(0.0, centre_row);
+            let z_centre = row_centre_z[r];
             let scale = match side {
                 Side::Above => {
                     let scale = (camera_height_mm - height) / camera_height_mm;
