@@ -81,17 +81,20 @@ impl Band {
             self.first = (self.first + 1) % window;
             kept.end..needed.end.max(kept.end)
         } else {
+            // Nothing kept: the ring starts again in dg order, so that the
+            // rows sampled lie one after another.
+            self.first = 0;
             needed.clone()
         };
-        if !to_sample.is_empty() {
-            // The ring's rows in dg order: from `first` to its end, then its start.
-            let (wrapped, in_order) = self.ring[..window].split_at_mut(self.first);
-            let mut lines = heapless::Vec::<&mut [u8], MAX_WINDOW>::new();
-            for row in in_order.iter_mut().chain(wrapped.iter_mut()).skip(to_sample.start).take(to_sample.len()) {
-                let _ = lines.push(&mut row[MAX_SEARCH_RADIUS..]);
-            }
-            let first_line = warp.moved(0, (to_sample.start as i32 - s as i32) << FRAC);
-            keyframe.sample_lines(first_line, columns.clone(), &mut lines);
+        // Band row dg is ring slot (first + dg) mod 2S+1: the rows to sample
+        // are consecutive slots, or two runs of them where the ring wraps.
+        let mut dg = to_sample.start;
+        while dg < to_sample.end {
+            let slot = (self.first + dg) % window;
+            let n = (to_sample.end - dg).min(window - slot);
+            let first_line = warp.moved(0, (dg as i32 - s as i32) << FRAC);
+            keyframe.sample_lines(first_line, columns.clone(), &mut self.ring[slot..slot + n]);
+            dg += n;
         }
         self.current_row = None;
         self.filled = if rolls { kept.start..to_sample.end } else { to_sample };

@@ -3,7 +3,12 @@
 
 use super::Keyframe;
 use crate::gpa::kernels;
+use crate::gpa::band::BAND_WIDTH;
 use crate::gpa::warp::{ceil_div, straight_within, unwrapped, Coordinate, RowWarp, BEND_FRAC, FRAC};
+use crate::limits::MAX_SEARCH_RADIUS;
+
+/// A band row's padding before column 0 (the K shifts' reach).
+const PAD: usize = MAX_SEARCH_RADIUS;
 use core::ops::Range;
 
 impl Keyframe<'_> {
@@ -77,25 +82,27 @@ impl Keyframe<'_> {
         }
     }
 
-    /// Samples the `count` lines `line`, `line` one keyframe row down, ...
-    /// into `outs[0..count]` at `columns`: each exactly as
-    /// [`Self::sample_line`]. The lines share their columns' positions and
-    /// weights, and line k's lower pixels are line k + 1's upper ones, so
-    /// where all of them lie inside the grid one position and one horizontal
-    /// blend per keyframe row serve the whole stack (a search band's rows).
-    pub(in crate::gpa) fn sample_lines(&self, line: RowWarp, columns: Range<usize>, outs: &mut [&mut [u8]]) {
+    /// Samples the lines `line`, `line` one keyframe row down, ... into
+    /// consecutive band rows `rows` (line k at `rows[k][PAD + c]` for the
+    /// `columns` c): each exactly as [`Self::sample_line`]. The lines share
+    /// their columns' positions and weights, and line k's lower pixels are
+    /// line k + 1's upper ones, so where all of them lie inside the grid
+    /// one position and one horizontal blend per keyframe row serve the
+    /// whole stack, written a band row apart from one pointer.
+    pub(in crate::gpa) fn sample_lines(&self, line: RowWarp, columns: Range<usize>, rows: &mut [[u8; BAND_WIDTH]]) {
         let one_row_down = |k: usize| line.moved(0, (k as i32) << FRAC);
+        let count = rows.len();
         let mut spans: [Range<usize>; MAX_STACK] = Default::default();
         let mut common = columns.clone();
         // The lines differ only by whole rows: where all of them stay
         // within the grid's rows at every column, only the columns limit
         // them, alike, and the first line's span is every line's.
-        let rows_inside = !columns.is_empty() && self.rows_within(line, columns.clone(), outs.len());
+        let rows_inside = !columns.is_empty() && self.rows_within(line, columns.clone(), count);
         let stackable = !line.is_translation()
             && !columns.is_empty()
-            && outs.len() <= MAX_STACK
-            && outs.iter().all(|out| out.len() >= columns.end)
-            && (0..outs.len()).all(|k| match if rows_inside && k > 0 { Span::Inside(spans[0].clone()) } else { self.inside_span(one_row_down(k), columns.clone()) } {
+            && count <= MAX_STACK
+            && PAD + columns.end <= BAND_WIDTH
+            && (0..count).all(|k| match if rows_inside && k > 0 { Span::Inside(spans[0].clone()) } else { self.inside_span(one_row_down(k), columns.clone()) } {
                 Span::Inside(span) => {
                     common = common.start.max(span.start)..common.end.min(span.end);
                     spans[k] = span;
@@ -104,25 +111,26 @@ impl Keyframe<'_> {
                 Span::Wraps => false,
             });
         if !stackable || common.is_empty() {
-            for (k, out) in outs.iter_mut().enumerate() {
-                self.sample_line(one_row_down(k), columns.clone(), out);
+            for (k, row) in rows.iter_mut().enumerate() {
+                self.sample_line(one_row_down(k), columns.clone(), &mut row[PAD..]);
             }
             return;
         }
-        for (k, out) in outs.iter_mut().enumerate() {
-            let span = &spans[k];
+        for (k, row) in rows.iter_mut().enumerate() {
+            let (span, out) = (&spans[k], &mut row[PAD..]);
             out[columns.start..span.start].fill(0);
             out[span.end..columns.end].fill(0);
             self.sample_span(one_row_down(k), span.start..common.start, out);
             self.sample_span(one_row_down(k), common.end..span.end, out);
         }
-        match outs {
-            [a, b, c] => self.sample_stack(line, common, [a, b, c]),
-            [a, b, c, d, e] => self.sample_stack(line, common, [a, b, c, d, e]),
-            [a, b, c, d, e, f, g] => self.sample_stack(line, common, [a, b, c, d, e, f, g]),
+        match count {
+            1 => self.sample_stack::<1>(line, common, rows),
+            3 => self.sample_stack::<3>(line, common, rows),
+            5 => self.sample_stack::<5>(line, common, rows),
+            7 => self.sample_stack::<7>(line, common, rows),
             _ => {
-                for (k, out) in outs.iter_mut().enumerate() {
-                    self.sample_span(one_row_down(k), common.clone(), out);
+                for (k, row) in rows.iter_mut().enumerate() {
+                    self.sample_span(one_row_down(k), common.clone(), &mut row[PAD..]);
                 }
             }
         }
@@ -240,12 +248,15 @@ impl Keyframe<'_> {
     }
 
     /// [`Self::sample_span`] of the `N` lines `line`, `line` one row down,
-    /// ... at once over `span`, where all of them lie inside the grid.
+    /// ... at once over `span`, where all of them lie inside the grid, into
+    /// the band rows `rows` (N of them, `PAD + span.end <= BAND_WIDTH`).
     #[inline(always)]
-    fn sample_stack<const N: usize>(&self, line: RowWarp, span: Range<usize>, outs: [&mut &mut [u8]; N]) {
+    fn sample_stack<const N: usize>(&self, line: RowWarp, span: Range<usize>, rows: &mut [[u8; BAND_WIDTH]]) {
+        assert!(rows.len() == N && PAD + span.end <= BAND_WIDTH);
         let image: &[u8] = &self.images[self.key_half][..self.height * self.width];
         let width = self.width;
-        let mut outs = outs.map(|out| &mut out[span.clone()]);
+        // SAFETY: within the first band row (checked above).
+        let out = unsafe { rows.as_mut_ptr().cast::<u8>().add(PAD + span.start) };
         Self::for_positions(line, span, #[inline(always)] |t, (i, j)| {
             let ((i0, wx), (j0, wy)) = (i.pixel_and_weight(), j.pixel_and_weight());
             let index = j0 * width + i0;
@@ -260,11 +271,13 @@ impl Keyframe<'_> {
             };
             let mut pixel = unsafe { image.as_ptr().add(index) };
             let mut top = across(pixel);
-            for out in outs.iter_mut() {
+            for k in 0..N {
                 pixel = unsafe { pixel.add(width) };
                 let bottom = across(pixel);
-                // SAFETY: each out holds the span's columns, and t < span.len().
-                unsafe { *out.get_unchecked_mut(t) = between(top, bottom, wy) };
+                // SAFETY: band row k's column span.start + t (t < span.len()),
+                // a fixed stride from the first: one pointer, offsets known
+                // when compiled.
+                unsafe { *out.add(k * BAND_WIDTH + t) = between(top, bottom, wy) };
                 top = bottom;
             }
         });
