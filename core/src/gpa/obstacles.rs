@@ -57,25 +57,40 @@ impl Footprint {
 /// row, column). With `linked`, a member cell further along its columns
 /// (any row, columns within `radius`) also joins when `linked(cell, it)`.
 /// The work stack is bounded: a full one truncates the growth.
+/// `linked` comes with [`member_rows`] of `member`: the rows it looks along.
 fn flood_cells(
     size: (usize, usize),
     radius: i32,
     start: usize,
     seen: &mut CellSet,
     member: impl Fn(usize) -> bool,
-    linked: Option<&dyn Fn(usize, usize) -> bool>,
+    linked: Option<(&dyn Fn(usize, usize) -> bool, &MemberRows)>,
     mut visit: impl FnMut(usize, usize, usize),
 ) {
     let (w, h) = size;
     let mut stack: heapless::Vec<u16, MAX_FLOOD_CELLS> = heapless::Vec::new();
     seen.insert(start);
     let _ = stack.push(start as u16);
+    let linked_only = linked.map(|(linked, _)| linked);
     while let Some(cell) = stack.pop() {
         let cell = usize::from(cell);
         let (r, c) = (cell / w, cell % w);
         visit(cell, r, c);
-        let rows = if linked.is_some() { -(r as i32)..=(h - 1 - r) as i32 } else { -radius..=radius };
-        for dr in rows {
+        // Linked: every row that has a member within the columns, in order
+        // (the others have none to add); else the rows within the radius.
+        let mut rows = match linked {
+            Some((_, member_rows)) => {
+                let columns = c.saturating_sub(radius as usize)..=(c + radius as usize).min(w - 1);
+                member_rows[columns].iter().fold(0u64, |rows, &column| rows | column)
+            }
+            None => {
+                let (first, last) = (r.saturating_sub(radius as usize), (r + radius as usize).min(h - 1));
+                (u64::MAX >> (63 - last)) & (u64::MAX << first)
+            }
+        };
+        while rows != 0 {
+            let dr = rows.trailing_zeros() as i32 - r as i32;
+            rows &= rows - 1;
             for dc in -radius..=radius {
                 let (nr, nc) = (r as i32 + dr, c as i32 + dc);
                 if nr < 0 || nc < 0 || nr as usize >= h || nc as usize >= w {
@@ -85,13 +100,30 @@ fn flood_cells(
                 if seen.contains(neighbour) || !member(neighbour) {
                     continue;
                 }
-                if dr.abs() <= radius || linked.is_some_and(|linked| linked(cell, neighbour)) {
+                if dr.abs() <= radius || linked_only.is_some_and(|linked| linked(cell, neighbour)) {
                     seen.insert(neighbour);
                     let _ = stack.push(neighbour as u16);
                 }
             }
         }
     }
+}
+
+/// Per cell column, the cell rows (bit r) where a predicate holds.
+type MemberRows = [u64; MAX_CELLS_SIDE];
+const _: () = assert!(MAX_CELLS_SIDE <= 64, "a cell column's rows fit a u64");
+
+/// [`MemberRows`] of `member` over a grid of `size` = (columns, rows) cells.
+fn member_rows((w, h): (usize, usize), member: impl Fn(usize) -> bool) -> MemberRows {
+    let mut rows = [0u64; MAX_CELLS_SIDE];
+    for r in 0..h {
+        for (c, column) in rows.iter_mut().enumerate().take(w) {
+            if member(r * w + c) {
+                *column |= 1 << r;
+            }
+        }
+    }
+    rows
 }
 
 /// One hazard cell's footprint: a segment at `z` ahead from `left` to
@@ -250,8 +282,9 @@ fn parallax_group(
         last.get().1
     };
     let same_face = |a: usize, b: usize| measured(a) && measured(b) && libm::fabs(footprint_of_a(a) - footprint(b)) <= cell_mm;
-    let linked: Option<&dyn Fn(usize, usize) -> bool> = match side {
-        Side::Above => Some(&same_face),
+    let reaching_rows = member_rows((w, h), reaches);
+    let linked: Option<(&dyn Fn(usize, usize) -> bool, &MemberRows)> = match side {
+        Side::Above => Some((&same_face, &reaching_rows)),
         Side::Below => None,
     };
     let aoi = layout.aoi_mm();
