@@ -64,7 +64,7 @@ fn flood_cells(
     start: usize,
     seen: &mut CellSet,
     member: impl Fn(usize) -> bool,
-    linked: Option<(&dyn Fn(usize, usize) -> bool, &MemberRows)>,
+    linked: Option<Linked>,
     mut visit: impl FnMut(usize, usize, usize),
 ) {
     let (w, h) = size;
@@ -111,6 +111,9 @@ fn flood_cells(
 
 /// Per cell column, the cell rows (bit r) where a predicate holds.
 type MemberRows = [u64; MAX_CELLS_SIDE];
+
+/// A flood's link along the columns, and the rows of its members.
+type Linked<'a> = (&'a dyn Fn(usize, usize) -> bool, &'a MemberRows);
 const _: () = assert!(MAX_CELLS_SIDE <= 64, "a cell column's rows fit a u64");
 
 /// [`MemberRows`] of `member` over a grid of `size` = (columns, rows) cells.
@@ -283,7 +286,7 @@ fn parallax_group(
     };
     let same_face = |a: usize, b: usize| measured(a) && measured(b) && libm::fabs(footprint_of_a(a) - footprint(b)) <= cell_mm;
     let reaching_rows = member_rows((w, h), reaches);
-    let linked: Option<(&dyn Fn(usize, usize) -> bool, &MemberRows)> = match side {
+    let linked: Option<Linked> = match side {
         Side::Above => Some((&same_face, &reaching_rows)),
         Side::Below => None,
     };
