@@ -69,6 +69,7 @@ impl Gpa<'_> {
                 let grid = &self.layout.grid;
                 let mut runs = Runs::new();
                 let mut adjusted = [0u8; crate::grid::MAX_GRID_SIDE];
+                let mut positions = super::keyframe::LinePositions::new();
                 for row_j in cell_row * cells.px..=j {
                     let Some(seen) = self.coverage.seen(row_j) else { continue };
                     let warp = self.cell_row_warps[row_j % cells.px];
@@ -79,7 +80,7 @@ impl Gpa<'_> {
                     for span in &spans {
                         let columns = seen.start.max(span.start)..seen.end.min(span.end);
                         if !columns.is_empty() {
-                            self.parallax.add_row(keyframe, warp, columns, &runs, row, &cells);
+                            self.parallax.add_row(keyframe, warp, columns, &runs, row, &cells, &mut positions);
                         }
                     }
                 }

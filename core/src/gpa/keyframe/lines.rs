@@ -6,6 +6,9 @@ use crate::gpa::kernels;
 use crate::gpa::warp::{ceil_div, straight_within, unwrapped, RowWarp, BEND_FRAC, FRAC};
 use core::ops::Range;
 
+mod offsets;
+pub(in crate::gpa) use offsets::LinePositions;
+
 impl Keyframe<'_> {
     /// Whether the 2x2 neighbourhood of (i, j) Q16.16 lies in the grid
     /// (the per-pixel reference's test and the wrapping lines').

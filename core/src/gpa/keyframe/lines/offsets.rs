@@ -1,0 +1,264 @@
+//! One warped line read at several constant offsets (the parallax
+//! hypotheses): its positions are stepped once, and each offset's samples
+//! are made from them and differenced with the current row as they come,
+//! never stored. Line k moved by (di, dj) has, at every column, the
+//! position of line k plus (di, dj) (the same wrapping sums), so its
+//! samples are exactly [`Keyframe::sample_line`]'s.
+
+#[cfg(not(flatland_dsp))]
+use super::blend;
+use super::{coordinate_bounds, Keyframe};
+#[cfg(not(flatland_dsp))]
+use crate::gpa::warp::FRAC;
+use crate::gpa::warp::RowWarp;
+use crate::grid::MAX_GRID_SIDE;
+use core::ops::Range;
+
+/// A line's keyframe positions (Q16.16) at some columns, each with the
+/// current row's value there (one pointer walks both).
+pub(in crate::gpa) struct LinePositions {
+    line: RowWarp,
+    columns: Range<usize>,
+    /// The offsets (di, dj), each between its two bounds, that keep the
+    /// line inside the grid at all its columns (see [`MovedLines::add`]).
+    inside_offsets: [(i32, i32); 2],
+    /// Position of column `columns.start + t` at `t`, and the value.
+    at: [Position; MAX_GRID_SIDE],
+}
+
+/// 12 bytes, the layout the M4's walk reads.
+#[derive(Clone, Copy)]
+#[repr(C)]
+struct Position {
+    i: i32,
+    j: i32,
+    value: u32,
+}
+
+impl LinePositions {
+    pub(in crate::gpa) fn new() -> LinePositions {
+        LinePositions { line: RowWarp::LEVEL, columns: 0..0, inside_offsets: [(1, 0); 2], at: [Position { i: 0, j: 0, value: 0 }; MAX_GRID_SIDE] }
+    }
+}
+
+/// The line of [`LinePositions`] moved by up to `N` offsets, each kept
+/// (with a key the caller names it by) only where it lies inside the grid
+/// at every one of the line's columns.
+pub(in crate::gpa) struct MovedLines<'a, const N: usize> {
+    keyframe: &'a Keyframe<'a>,
+    positions: &'a LinePositions,
+    offsets: heapless::Vec<(usize, (i32, i32)), N>,
+}
+
+impl Keyframe<'_> {
+    /// Steps `line` over `columns` (at most the grid's width) into
+    /// `positions`, with current row `row`'s values there.
+    pub(in crate::gpa) fn step_positions(&self, line: RowWarp, columns: Range<usize>, row: &[u8], positions: &mut LinePositions) {
+        positions.line = line;
+        positions.columns = columns.clone();
+        // By its coordinates' bounds, as `sample_line` finds first (it then
+        // samples every column): where the moved line's start does not
+        // wrap, its bounds are the line's moved, and `surely_inside` of it
+        // holds for offsets from -least to limit - 1 - most.
+        let offsets = |(start, step, bend), limit: i32| {
+            let (least, most) = coordinate_bounds(start, step, bend, columns.clone());
+            let (start, limit) = (i64::from(start), i64::from(limit));
+            let lowest = (-least).max(i64::from(i32::MIN) - start).max(i64::from(i32::MIN));
+            let highest = (limit - 1 - most).min(i64::from(i32::MAX) - start).min(i64::from(i32::MAX));
+            if lowest <= highest { (lowest as i32, highest as i32) } else { (1, 0) }
+        };
+        positions.inside_offsets = match columns.is_empty() {
+            true => [(1, 0); 2],
+            false => [offsets((line.i_start, line.i_step, line.i_bend), self.columns_limit()), offsets((line.j_start, line.j_step, line.j_bend), self.rows_limit())],
+        };
+        let at = &mut positions.at[..columns.len()];
+        let row = &row[columns.clone()];
+        Self::for_positions(line, columns, |t, (i, j)| {
+            // SAFETY: t < columns.len() = at.len() = row.len().
+            unsafe { *at.get_unchecked_mut(t) = Position { i, j, value: u32::from(*row.get_unchecked(t)) } };
+        });
+    }
+
+    /// The line of `positions`, moved by no offset yet.
+    pub(in crate::gpa) fn moved_lines<'a, const N: usize>(&'a self, positions: &'a LinePositions) -> MovedLines<'a, N> {
+        MovedLines { keyframe: self, positions, offsets: heapless::Vec::new() }
+    }
+}
+
+impl<const N: usize> MovedLines<'_, N> {
+    /// Adds the line moved by (`di`, `dj`), as `key`, if it lies inside
+    /// the grid at all its columns; returns whether it did (not when `N`
+    /// are).
+    pub(in crate::gpa) fn add(&mut self, key: usize, (di, dj): (i32, i32)) -> bool {
+        let [(i_low, i_high), (j_low, j_high)] = self.positions.inside_offsets;
+        let inside = (i_low..=i_high).contains(&di) && (j_low..=j_high).contains(&dj);
+        let (line, columns) = (self.positions.line, self.positions.columns.clone());
+        debug_assert!(!inside || self.keyframe.surely_inside(line.moved(di, dj), columns));
+        inside && self.offsets.push((key, (di, dj))).is_ok()
+    }
+
+    /// Whether no line was added.
+    pub(in crate::gpa) fn is_empty(&self) -> bool {
+        self.offsets.is_empty()
+    }
+
+    /// Calls `f(key, sum)` for each added line (in the order added), sum
+    /// being its |current value - sample| summed over `columns`, which lie
+    /// within the line's.
+    #[inline(always)]
+    pub(in crate::gpa) fn sads(&self, columns: Range<usize>, mut f: impl FnMut(usize, u32)) {
+        let (keyframe, positions) = (self.keyframe, self.positions);
+        let first = columns.start - positions.columns.start;
+        let at = &positions.at[..positions.columns.len()][first..first + columns.len()];
+        let image = &keyframe.images[keyframe.key_half][..keyframe.height * keyframe.width];
+        for &(key, offset) in &self.offsets {
+            let sum = if at.is_empty() {
+                0
+            } else {
+                // SAFETY: each added line lies inside the grid at each of its
+                // columns (`Self::add`): its row index is at most height - 2
+                // and its column at most width - 2, so every pixel read
+                // (index + width + 1 at most) is below height * width.
+                unsafe { moved_sad(image, keyframe.width, at, offset) }
+            };
+            f(key, sum);
+        }
+    }
+}
+
+/// [`MovedLines::sads`]' sum of the positions `at` (not empty), each moved by
+/// `(di, dj)` and lying inside the grid of `image` (`width` wide).
+#[cfg(not(flatland_dsp))]
+#[inline(always)]
+unsafe fn moved_sad(image: &[u8], width: usize, at: &[Position], (di, dj): (i32, i32)) -> u32 {
+    let mut sum = 0;
+    for &Position { i, j, value } in at {
+        let (i, j) = (i.wrapping_add(di), j.wrapping_add(dj));
+        let index = (j >> FRAC) as usize * width + (i >> FRAC) as usize;
+        // SAFETY: the caller's (see above).
+        let sample = unsafe {
+            let pixel = image.as_ptr().add(index);
+            blend(*pixel, *pixel.add(1), *pixel.add(width), *pixel.add(width + 1), i, j)
+        };
+        sum += u32::from(sample).abs_diff(value);
+    }
+    sum
+}
+
+/// [`blend`] on the M4 as LLVM will not schedule it: one `ldrd` walks the
+/// positions, the current value sits beside them, and `usada8` adds the
+/// |difference| (28 instructions a pixel, no spill). The blend is the
+/// same integer: `top = p00 << 8 + (p01 - p00) wx` (likewise `bottom`),
+/// `(top << 8 + (bottom - top) wy + 2^15) >> 16`, at most 255.
+#[cfg(flatland_dsp)]
+#[inline(always)]
+unsafe fn moved_sad(image: &[u8], width: usize, at: &[Position], (di, dj): (i32, i32)) -> u32 {
+    let mut sum = 0u32;
+    // SAFETY: reads the `at.len()` (> 0) positions of 12 bytes, and per
+    // position four pixels the caller vouches for.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "ldrd {i}, {j}, [{p}], #12",
+            "add {i}, {i}, {di}",
+            "add {j}, {j}, {dj}",
+            "asr {t}, {j}, #16",
+            "mla {t}, {t}, {w}, {image}",
+            "add {t}, {t}, {i}, asr #16",    // &p00
+            "ldrb {a}, [{t}]",
+            "ldrb {b}, [{t}, #1]",
+            "sub {b}, {b}, {a}",
+            "ubfx {i}, {i}, #8, #8",         // wx
+            "mul {b}, {b}, {i}",
+            "add {a}, {b}, {a}, lsl #8",     // top
+            "add {t}, {t}, {w}",
+            "ldrb {b}, [{t}]",
+            "ldrb {t}, [{t}, #1]",
+            "sub {t}, {t}, {b}",
+            "mul {t}, {t}, {i}",
+            "add {b}, {t}, {b}, lsl #8",     // bottom
+            "sub {b}, {b}, {a}",
+            "ubfx {j}, {j}, #8, #8",         // wy
+            "mul {b}, {b}, {j}",
+            "add {b}, {b}, {a}, lsl #8",
+            "add {b}, {b}, #32768",
+            "lsr {b}, {b}, #16",             // the sample
+            "ldr {a}, [{p}, #-4]",           // the current value
+            "usada8 {sum}, {b}, {a}, {sum}",
+            "cmp {p}, {end}",
+            "bne 2b",
+            p = inout(reg) at.as_ptr() => _,
+            end = in(reg) at.as_ptr_range().end,
+            image = in(reg) image.as_ptr(),
+            w = in(reg) width,
+            di = in(reg) di,
+            dj = in(reg) dj,
+            sum = inout(reg) sum,
+            i = out(reg) _, j = out(reg) _, t = out(reg) _, a = out(reg) _, b = out(reg) _,
+            options(readonly, nostack)
+        );
+    }
+    sum
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each offset's sums equal those of the line moved and sampled by
+    /// `sample_line` (which then samples every column): yawed and bent
+    /// lines, offsets of either sign, cell-like pieces of the columns.
+    #[test]
+    fn moved_sums_equal_sampled_lines() {
+        let (width, height) = (141, 255);
+        let (mut first, mut second) = (std::vec![0u8; width * height], std::vec![0u8; width * height]);
+        let mut seed = 0x0FF5_E701u32;
+        let mut next = move |n: u32| crate::selftest::xorshift32(&mut seed) % n;
+        for pixel in first.iter_mut() {
+            *pixel = next(256) as u8;
+        }
+        let grid = crate::grid::KgGrid { mm_per_px: 5.0, x_left_mm: -350.0, z_far_mm: 1600.0, width: width as u16, height: height as u16 };
+        let keyframe = Keyframe::new(&mut first, &mut second, &grid);
+        let row: std::vec::Vec<u8> = (0..width).map(|_| next(256) as u8).collect();
+        let mut positions = LinePositions::new();
+        let mut samples = [0u8; MAX_GRID_SIDE];
+        let (mut moved, mut compared) = (0, 0);
+        for round in 0..3_000 {
+            let yaw = (f64::from(next(2001)) - 1000.0) * 1e-4;
+            let (sin, cos) = libm::sincos(yaw);
+            let bent = round % 3 != 0;
+            let bend = |n: u32| if bent { n as i32 - (1 << 12) } else { 0 };
+            let line = RowWarp {
+                i_start: next(40 << 16) as i32 - (10 << 16),
+                i_step: (cos * 65536.0) as i32,
+                i_bend: bend(next(1 << 13)),
+                j_start: next(250 << 16) as i32,
+                j_step: (sin * 65536.0) as i32,
+                j_bend: bend(next(1 << 13)),
+            };
+            let start = next(40) as usize;
+            let columns = start..start + 1 + next(100) as usize;
+            keyframe.step_positions(line, columns.clone(), &row, &mut positions);
+            let mut lines = keyframe.moved_lines::<4>(&positions);
+            let mut offsets = [(0, 0); 4];
+            for (key, offset) in offsets.iter_mut().enumerate() {
+                *offset = (next(20 << 16) as i32 - (10 << 16), next(60 << 16) as i32 - (30 << 16));
+                moved += usize::from(lines.add(key, *offset));
+            }
+            let mut c = columns.start;
+            while c < columns.end {
+                let piece = c..(c + 1 + next(9) as usize).min(columns.end);
+                lines.sads(piece.clone(), |key, sum| {
+                    let offset = offsets[key];
+                    let sampled = keyframe.sample_line(line.moved(offset.0, offset.1), columns.clone(), &mut samples);
+                    assert_eq!(sampled, columns, "{line:?} {offset:?}");
+                    let want: u32 = piece.clone().map(|c| u32::from(samples[c].abs_diff(row[c]))).sum();
+                    assert_eq!(sum, want, "{line:?} {offset:?} {piece:?}");
+                    compared += piece.len();
+                });
+                c = piece.end;
+            }
+        }
+        assert!(moved > 3_000 && compared > 100_000, "too few lines inside the grid: {moved}, {compared} px");
+    }
+}
