@@ -69,6 +69,9 @@ checks! {
         hypotf_equals_libm,
         sincosf_equals_libm,
     ],
+    gpa: [
+        moved_sums_equal_sampled_lines,
+    ],
     health: [
         alarm_is_asserted_until_a_frame_is_judged_clear,
         lost_frame_asserts_until_the_next_clear_frame,

@@ -9,6 +9,8 @@ use crate::motion::Motion;
 
 mod lines;
 
+pub(super) use lines::LinePositions;
+
 pub(super) struct Keyframe<'b> {
     /// Two images, `width * height` bytes each (a target may keep them
     /// in different RAM banks).

@@ -28,6 +28,9 @@
 //! every stage borrows only what it reads and writes.
 
 mod band;
+/// gpa's checks, listed in [`crate::selftest`].
+#[cfg(any(test, feature = "selftest"))]
+pub mod checks;
 mod coarse;
 mod config;
 mod decision;

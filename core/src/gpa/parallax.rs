@@ -8,7 +8,7 @@
 
 use super::config::GpaConfig;
 use super::decision::Noise;
-use super::keyframe::Keyframe;
+use super::keyframe::{Keyframe, LinePositions};
 use super::layout::{CellSet, Cells};
 use super::warp::{clip, to_q16, RowWarp};
 use crate::grid::{KgGrid, MAX_GRID_SIDE};
@@ -309,6 +309,9 @@ impl Parallax {
     /// Sums current row `row` (warp `warp`, `seen` columns, usable `runs`)
     /// against the keyframe at every height hypothesis but the ground
     /// (columns whose sample is off the keyframe skip that hypothesis).
+    /// `positions` is scratch space for the warp's keyframe positions
+    /// (the caller's, so that a cell row's rows share one).
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn add_row(
         &mut self,
         keyframe: &Keyframe,
@@ -317,11 +320,26 @@ impl Parallax {
         runs: &[(u16, u16)],
         row: &[u8],
         cells: &Cells,
+        positions: &mut LinePositions,
     ) {
+        // A translation line reads one keyframe row pair at constant
+        // weights, a whole-line kernel; a yawed or bent line's positions
+        // are stepped once and serve every hypothesis, each moving them by
+        // its offset, its samples differenced as they are made, cell by
+        // cell for all of them at once.
+        let shared = !warp.is_translation();
+        if shared {
+            keyframe.step_positions(warp, seen.clone(), row, positions);
+        }
+        let mut moved = keyframe.moved_lines::<HYPOTHESES>(positions);
         let mut samples = [0u8; MAX_GRID_SIDE];
         for k in self.hypotheses.active() {
-            let (oi, oj) = self.hypotheses.offset[k];
-            let sampled = keyframe.sample_line(warp.moved(oi, oj), seen.clone(), &mut samples);
+            let offset = self.hypotheses.offset[k];
+            if shared && moved.add(k, offset) {
+                continue;
+            }
+            // Near the keyframe's edges: the line as sample_line finds it.
+            let sampled = keyframe.sample_line(warp.moved(offset.0, offset.1), seen.clone(), &mut samples);
             for &run in runs {
                 let columns = clip(run, sampled.start, sampled.end);
                 if columns.is_empty() {
@@ -345,6 +363,16 @@ impl Parallax {
                     self.sums.sad[k][cell_column] += sum as u16;
                 });
             }
+        }
+        let sums = &mut self.sums;
+        for &run in runs.iter().filter(|_| !moved.is_empty()) {
+            cells.segments(clip(run, seen.start, seen.end), |cell_column, columns| {
+                let pixels = columns.len() as u8;
+                moved.sads(columns, |k, sum| {
+                    sums.pixels[k][cell_column] += pixels;
+                    sums.sad[k][cell_column] += sum as u16;
+                });
+            });
         }
     }
 

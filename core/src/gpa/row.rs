@@ -80,7 +80,7 @@ impl Gpa<'_> {
                     for span in &spans {
                         let columns = seen.start.max(span.start)..seen.end.min(span.end);
                         if !columns.is_empty() {
-                            self.parallax.add_row(keyframe, warp, columns, &runs, row, &cells);
+                            self.parallax.add_row(keyframe, warp, columns, &runs, row, &cells, &mut self.workspace.rows().positions);
                         }
                     }
                 }

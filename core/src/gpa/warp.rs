@@ -234,7 +234,13 @@ impl Coordinate {
     /// Whole pixels (the top 8 bits) and the bilinear weight (the next 8).
     #[inline(always)]
     pub(super) fn pixel_and_weight(&self) -> (usize, i32) {
-        ((self.sum >> 24) as usize, ((self.sum >> 16) & 0xFF) as i32)
+        pixel_and_weight(self.sum)
+    }
+
+    /// The position, Q8.24 modulo 2^32.
+    #[inline(always)]
+    pub(super) fn q24(&self) -> u32 {
+        self.sum
     }
 
     /// On to the next column: a bent row's difference changes too.
@@ -245,6 +251,18 @@ impl Coordinate {
             self.difference = self.difference.wrapping_add(self.second);
         }
     }
+}
+
+/// Whole pixels and the bilinear weight of a Q8.24 position (within 0..256 px).
+#[inline(always)]
+pub(super) fn pixel_and_weight(q24: u32) -> (usize, i32) {
+    ((q24 >> 24) as usize, ((q24 >> 16) & 0xFF) as i32)
+}
+
+/// A Q16 offset as a Q8.24 one, to add (wrapping) to [`Coordinate::q24`].
+#[inline(always)]
+pub(super) fn offset_q24(offset: i32) -> u32 {
+    (offset as u32) << (BEND_FRAC - FRAC)
 }
 
 /// A row's keyframe positions, column by column ([`RowWarp::positions`]).

@@ -7,6 +7,7 @@
 use super::band::Band;
 use super::coarse::CoarseSearch;
 use super::estimate::Estimator;
+use super::keyframe::LinePositions;
 use super::residue::Residue;
 use super::shift_search::ShiftSearch;
 
@@ -19,10 +20,12 @@ pub(super) struct RowStages {
     /// The seed's search around the prediction, when the measured motion
     /// differs from it (the report's shift and statistics).
     pub(super) seed: ShiftSearch,
+    /// The parallax pass's keyframe positions of a row, shared by its hypotheses.
+    pub(super) positions: LinePositions,
 }
 
 impl RowStages {
-    const EMPTY: RowStages = RowStages { band: Band::EMPTY, residue: Residue::EMPTY, search: ShiftSearch::EMPTY, seed: ShiftSearch::EMPTY };
+    const EMPTY: RowStages = RowStages { band: Band::EMPTY, residue: Residue::EMPTY, search: ShiftSearch::EMPTY, seed: ShiftSearch::EMPTY, positions: LinePositions::EMPTY };
 }
 
 /// Whichever holds the memory now.

@@ -11,6 +11,9 @@ use crate::limits::MAX_SEARCH_RADIUS;
 const PAD: usize = MAX_SEARCH_RADIUS;
 use core::ops::Range;
 
+mod offsets;
+pub(in crate::gpa) use offsets::LinePositions;
+
 impl Keyframe<'_> {
     /// Whether the 2x2 neighbourhood of (i, j) Q16.16 lies in the grid
     /// (the per-pixel reference's test and the wrapping lines').
