@@ -517,10 +517,19 @@ impl Coverage {
             return false;
         }
         let rows_limit = i64::from(grid.height() as i32 - 1) << FRAC;
+        // Each chunk's chord runs from its first column to the next chunk's
+        // (its own last at the end), so each position is worked out once;
+        // the margin of a whole chunk's span bounds every chunk's.
+        let at = |c: usize| (unwrapped(warp.i_start, warp.i_step, warp.i_bend, c), unwrapped(warp.j_start, warp.j_step, warp.j_bend, c));
+        let margins = (apart(warp.i_bend, CHUNK), apart(warp.j_bend, CHUNK));
         let mut first = seen.start;
+        let mut from = at(first);
         while first < seen.end {
             let end = (first + CHUNK).min(seen.end);
-            let (i_range, j_range) = (range(warp.i_start, warp.i_step, warp.i_bend, first, end - 1), range(warp.j_start, warp.j_step, warp.j_bend, first, end - 1));
+            let to = at(if end < seen.end { end } else { end - 1 });
+            let bounds = |a: i64, b: i64, margin: i64| (a.min(b) - margin, a.max(b) + margin);
+            let (i_range, j_range) = (bounds(from.0, to.0, margins.0), bounds(from.1, to.1, margins.1));
+            from = to;
             let outside_rows = j_range.1 < 0 || j_range.0 >= rows_limit;
             let within_rows = j_range.0 >= 0 && j_range.1 < rows_limit;
             let one_row = within_rows && j_range.0 >> FRAC == j_range.1 >> FRAC;
