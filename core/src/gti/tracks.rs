@@ -172,16 +172,13 @@ impl Observations {
 
     /// Robust line fit of the observations, in mm.
     fn refit(&self) -> Option<LineFit> {
-        let mut c = [0f32; MAX_OBSERVATIONS];
-        let mut y = [0f32; MAX_OBSERVATIONS];
-        let n = self.len();
-        for (i, &[ci, yi]) in self.as_slice().iter().enumerate() {
-            if let (Some(cs), Some(ys)) = (c.get_mut(i), y.get_mut(i)) {
-                *cs = f32::from(ci) / OBS_UNITS_PER_MM;
-                *ys = f32::from(yi) / OBS_UNITS_PER_MM;
-            }
+        let mut c: Vec<f32, MAX_OBSERVATIONS> = Vec::new();
+        let mut y: Vec<f32, MAX_OBSERVATIONS> = Vec::new();
+        for &[ci, yi] in self.as_slice() {
+            let _ = c.push(f32::from(ci) / OBS_UNITS_PER_MM);
+            let _ = y.push(f32::from(yi) / OBS_UNITS_PER_MM);
         }
-        robust_line_fit(c.get(..n)?, y.get(..n)?)
+        robust_line_fit(&c, &y)
     }
 }
 
