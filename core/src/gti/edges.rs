@@ -84,29 +84,29 @@ impl LineEdges {
         // is computed, compared and its noise medians selected in integers, and
         // converted to f32 (exactly) only where a value leaves: the same
         // thresholds and edges as f32 arithmetic, for a fraction of the M4's work.
-        let mut gradient = [0i16; MAX_LINE_SAMPLES];
+        // Only magnitudes are kept (the search and the noise need no more):
+        // an edge's sign is worked out again from its samples.
+        let mut magnitudes = [0u16; MAX_LINE_SAMPLES];
         let (first, last) = (valid.start + REACH, valid.end - REACH); // gradient defined on [first, last)
-        // Row r's window is r-3..=r+3: S(r+2) - S(r-2).
         let windows = values.get(valid.clone()).unwrap_or(&[]).windows(2 * REACH + 1);
-        for (g, window) in gradient.get_mut(first..last).unwrap_or(&mut []).iter_mut().zip(windows) {
-            if let &[a, b, c, _, e, f, h] = window {
-                let sum = |x: u8, y: u8, z: u8| i16::from(x) + 2 * i16::from(y) + i16::from(z);
-                *g = sum(e, f, h) - sum(a, b, c);
-            }
+        for (m, window) in magnitudes.get_mut(first..last).unwrap_or(&mut []).iter_mut().zip(windows) {
+            *m = gradient(window).unsigned_abs();
         }
         // The line's noise (sensor noise plus floor texture) is measured locally,
         // per block of NOISE_BLOCK samples: the near floor's sharp texture must
         // not hide the soft edges of far, magnified ground.
         let floor = config.min_edge_contrast * 0.5;
         let known = self.thresholds.get(l).copied().flatten();
-        let block_threshold = known.unwrap_or_else(|| block_thresholds(&gradient, first, last, config));
+        let block_threshold = known.unwrap_or_else(|| block_thresholds(&magnitudes, first, last, config));
         if let Some(slot) = self.thresholds.get_mut(l) {
             *slot = Some(block_threshold);
         }
-        let magnitude = |r: usize| gradient.get(r).map_or(0, |g| g.unsigned_abs());
-        // Patches must lie inside the valid run.
-        for r in (first + 1).max(valid.start + PATCH_RADIUS)..(last - 1).min(valid.end - PATCH_RADIUS) {
-            let (before, here, after) = (magnitude(r - 1), magnitude(r), magnitude(r + 1));
+        // Patches must lie inside the valid run. Rows r in [start, end), each
+        // with its neighbours' gradient (a window: one bounds check a row).
+        let (start, end) = ((first + 1).max(valid.start + PATCH_RADIUS), (last - 1).min(valid.end - PATCH_RADIUS));
+        let neighbourhoods = magnitudes.get(start - 1..end + 1).unwrap_or(&[]).windows(3);
+        for (r, window) in (start..).zip(neighbourhoods) {
+            let &[before, here, after] = window else { continue };
             if !(here >= before && here > after) {
                 continue;
             }
@@ -124,7 +124,7 @@ impl LineEdges {
             let edge = Edge {
                 row: r as f32 + maximum_offset(before, here, after),
                 strength: here / weak_threshold,
-                rising: gradient.get(r).is_some_and(|g| *g > 0),
+                rising: values.get(r - REACH..=r + REACH).is_some_and(|window| gradient(window) > 0),
                 patch,
             };
             if with_weak {
@@ -139,10 +139,19 @@ impl LineEdges {
     }
 }
 
-/// A line's edge threshold per noise block from its `gradient` (defined on
-/// `first..last`): `edge_threshold_sigma` robust sigmas of the block's
-/// gradient, at least the contrast floor.
-fn block_thresholds(gradient: &[i16; MAX_LINE_SAMPLES], first: usize, last: usize, config: &GtiConfig) -> [f32; NOISE_BLOCKS] {
+/// The gradient at the middle of a window of 7 samples in sixteenths of a
+/// gray level (see [`LineEdges::find`]): S(r+2) - S(r-2) of the sums
+/// S = a + 2b + c; 0 for another length.
+fn gradient(window: &[u8]) -> i16 {
+    let &[a, b, c, _, e, f, h] = window else { return 0 };
+    let sum = |x: u8, y: u8, z: u8| i16::from(x) + 2 * i16::from(y) + i16::from(z);
+    sum(e, f, h) - sum(a, b, c)
+}
+
+/// A line's edge threshold per noise block from its gradient `magnitudes`
+/// (defined on `first..last`): `edge_threshold_sigma` robust sigmas of the
+/// block's gradient, at least the contrast floor.
+fn block_thresholds(magnitudes: &[u16; MAX_LINE_SAMPLES], first: usize, last: usize, config: &GtiConfig) -> [f32; NOISE_BLOCKS] {
     let floor = config.min_edge_contrast * 0.5;
     let mut block_threshold = [floor; NOISE_BLOCKS];
     for (b, threshold) in block_threshold.iter_mut().enumerate() {
@@ -153,12 +162,12 @@ fn block_thresholds(gradient: &[i16; MAX_LINE_SAMPLES], first: usize, last: usiz
         // A short last block borrows samples from its predecessor.
         let end = (start + NOISE_BLOCK).min(last);
         let start = end.saturating_sub(NOISE_BLOCK).max(first);
-        let mut magnitudes = [0u16; NOISE_BLOCK];
-        for (slot, g) in magnitudes.iter_mut().zip(gradient.get(start..end).unwrap_or(&[])) {
-            *slot = g.unsigned_abs();
+        let mut block = [0u16; NOISE_BLOCK];
+        for (slot, m) in block.iter_mut().zip(magnitudes.get(start..end).unwrap_or(&[])) {
+            *slot = *m;
         }
         // Median |g| of a zero-mean Gaussian is 0.6745 sigma.
-        let sigma = magnitudes.get_mut(..end - start).and_then(median_sixteenths).unwrap_or(0.0) / 0.6745;
+        let sigma = block.get_mut(..end - start).and_then(median_sixteenths).unwrap_or(0.0) / 0.6745;
         *threshold = (config.edge_threshold_sigma * sigma).max(floor);
     }
     block_threshold

@@ -68,7 +68,7 @@ use heapless::Deque;
 use libm::{atan2f, fabsf, roundf};
 use lines::Lines;
 use tracks::{MapPoint, Track, ROW_UNITS};
-use travel::Travel;
+use travel::{FloorPoints, Travel};
 
 /// Tuning; one default for every rig (nothing here is per recording).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -347,13 +347,14 @@ impl Gti {
         // again for the association): every line's at once would add ~10 KB
         // to the firmware's deepest stack.
         let mut edges = LineEdges::NONE;
-        self.advance_pose(motion, &mut edges);
+        let mut found = FloorPoints::NONE;
+        self.advance_pose(motion, &mut edges, &mut found);
         for track in self.tracks.iter_mut().flatten() {
             track.matched_row = None;
         }
         for l in 0..self.config.lines {
             edges.find(l, self.lines.samples(l), &self.config);
-            self.associate_line(l, &edges);
+            self.associate_line(l, &edges, &found);
         }
         self.end_lost_tracks();
         // Next frame's lines follow this frame's translation (the best guess

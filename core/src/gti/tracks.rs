@@ -7,7 +7,7 @@
 use super::edges::{Edge, LineEdges, PATCH};
 use super::fits::{robust_line_fit, slope_plausible, FittedHeight, LineFit};
 use super::lines::{off_line, GtLine};
-use super::travel::{along_across, Travel};
+use super::travel::{along_across, FloorPoints, Travel};
 use super::{Gti, HeightPoint};
 use crate::grid::KgGrid;
 use crate::limits::{MAX_EDGES_PER_LINE, MAX_OBSERVATIONS, MAX_TRACKS, MAX_WEAK_EDGES_PER_LINE};
@@ -271,7 +271,7 @@ impl Gti {
     // Not inlined: the frame that holds the edges must stay small, as the
     // firmware's deepest stack runs through edge finding.
     #[inline(never)]
-    pub(super) fn associate_line(&mut self, l: usize, edges: &LineEdges) {
+    pub(super) fn associate_line(&mut self, l: usize, edges: &LineEdges, found: &FloorPoints) {
         let Some(line) = self.lines.line(l).copied() else { return };
         let mut taken = [false; MAX_EDGES_PER_LINE];
         let mut weak_taken = [false; MAX_WEAK_EDGES_PER_LINE];
@@ -287,15 +287,18 @@ impl Gti {
             let Some(track) = self.tracks.get(index).and_then(|t| t.as_ref()) else { continue };
             let Some(gate) = self.gate(track, &line) else { continue };
             let (rising, patch) = (track.rising, track.patch);
-            let matched = match gate.best(&edges.strong, &taken, rising, &patch, min_correlation) {
-                Some(e) => edges.strong.get(e).copied(),
+            let (matched, point) = match gate.best(&edges.strong, &taken, rising, &patch, min_correlation) {
+                Some(e) => {
+                    let edge = edges.strong.get(e).copied();
+                    (edge, found.get(index, e).or_else(|| edge.map(|edge| self.level_point(&line, edge.row))))
+                }
                 // An established track may continue on a weaker edge that no strong edge claimed.
                 None if gate.predicted.is_some() => {
-                    gate.best(&edges.weak, &weak_taken, rising, &patch, min_correlation).and_then(|e| edges.weak.get(e)).copied()
+                    let edge = gate.best(&edges.weak, &weak_taken, rising, &patch, min_correlation).and_then(|e| edges.weak.get(e)).copied();
+                    (edge, edge.map(|edge| self.level_point(&line, edge.row)))
                 }
-                None => None,
+                None => (None, None),
             };
-            let point = matched.map(|edge| self.level_point(&line, edge.row));
             let Some(track) = self.tracks.get_mut(index).and_then(|t| t.as_mut()) else { continue };
             match matched.zip(point) {
                 Some((edge, point)) => {
@@ -349,14 +352,17 @@ impl Gti {
     /// weakest track (floor texture must not crowd out an obstacle's edges).
     fn start_tracks(&mut self, l: usize, line: &GtLine, edges: &[Edge], taken: &[bool]) {
         let share = MAX_TRACKS / self.config.lines;
+        // Counted once (a new track in a free slot adds one; a replacement none).
+        let mut on_line = self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l).count();
         for (e, edge) in edges.iter().enumerate() {
             if taken.get(e).copied().unwrap_or(true) {
                 continue;
             }
             let strength = encode_strength(edge.strength);
-            let on_line = self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l).count();
             let slot = if on_line < share {
-                self.tracks.iter().position(|t| t.is_none())
+                let free = self.tracks.iter().position(|t| t.is_none());
+                on_line += usize::from(free.is_some());
+                free
             } else {
                 let weakest = self
                     .tracks
