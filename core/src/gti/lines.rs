@@ -6,9 +6,10 @@
 use super::{GtiConfig, GtiError};
 use crate::geometry::Rig;
 use crate::grid::KgGrid;
+use crate::kernels::{floorf, roundf};
 use crate::limits::{MAX_LINES, MAX_LINE_SAMPLES};
 use core::ops::Range;
-use libm::{cosf, fabsf, floorf, roundf, sinf};
+use libm::{cosf, fabsf, sinf};
 
 /// One GT line: fixed in the robot frame for a frame, parallel to the
 /// translation. Points on it are `offset * normal + t * direction` (mm).
@@ -254,9 +255,10 @@ fn sample_across(row: &[u8], valid: &Range<usize>, centre: f32, half: f32) -> Op
         return None;
     }
     let mut sum = 0f32;
-    for k in 0..taps {
-        let (a, b) = (row.get(base + k)?, row.get(base + k + 1)?);
-        sum += f32::from(*a) * (1.0 - frac) + f32::from(*b) * frac;
+    for pair in row.get(base..=base + taps)?.windows(2) {
+        if let &[a, b] = pair {
+            sum += f32::from(a) * (1.0 - frac) + f32::from(b) * frac;
+        }
     }
     Some(roundf(sum / taps as f32).clamp(0.0, 255.0) as u8)
 }
