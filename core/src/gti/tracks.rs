@@ -9,7 +9,6 @@ use super::fits::{robust_line_fit, slope_plausible, FittedHeight, LineFit};
 use super::lines::{off_line, GtLine};
 use super::travel::{along_across, FloorPoints, Travel};
 use super::{Gti, HeightPoint};
-use crate::grid::KgGrid;
 use crate::limits::{MAX_EDGES_PER_LINE, MAX_OBSERVATIONS, MAX_TRACKS, MAX_WEAK_EDGES_PER_LINE};
 use heapless::Vec;
 use crate::kernels::sqrtf;
@@ -315,8 +314,7 @@ impl Gti {
     /// The gate of a track on its line this frame; None when its locus leaves
     /// the line (the track is then neither matched nor missed).
     fn gate(&self, track: &Track, line: &GtLine) -> Option<Gate> {
-        let grid: &KgGrid = &self.grid;
-        let mm_per_px = grid.mm_per_px as f32;
+        let mm_per_px = self.grid.mm_per_px;
         let fit = if track.observations.len() >= 2 { track.fit() } else { None };
         let widen = self.config.gate_px * (1.0 + 0.5 * f32::from(track.misses));
         match fit {
@@ -436,7 +434,7 @@ impl Gti {
             return None;
         }
         let apparent = track.predict_apparent(&self.travel, slope, Some(&fit))?;
-        let height = FittedHeight::new(&fit, slope, self.mount_height_mm, self.grid.mm_per_px as f32);
+        let height = FittedHeight::new(&fit, slope, self.mount_height_mm, self.grid.mm_per_px);
         Some(HeightPoint {
             x_mm: apparent[0] / slope,
             z_mm: apparent[1] / slope,

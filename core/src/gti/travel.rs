@@ -170,7 +170,7 @@ impl Gti {
             return None;
         }
         let d = [step[0] as f32 / length, step[1] as f32 / length];
-        let mm_per_px = self.grid.mm_per_px as f32;
+        let mm_per_px = self.grid.mm_per_px;
         let mut deltas: heapless::Vec<f32, MAX_TRACKS> = heapless::Vec::new();
         for l in 0..self.config.lines {
             let Some(line) = self.lines.line(l) else { continue };
