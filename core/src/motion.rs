@@ -71,9 +71,16 @@ impl GroundMotion {
 #[derive(Clone, Copy, Debug)]
 pub struct Tilt {
     /// The turned camera centre and the turn of a body vector (rows).
+    /// `turn[2][0]` is zero: the maps below leave its products out.
     centre: [f64; 3],
     turn: [[f64; 3]; 3],
     height_mm: f64,
+    /// The products that do not depend on the point, worked out once (the
+    /// M4's f64 is software, and GTI maps a few hundred points a frame):
+    /// `turn[r][1] * -height_mm` of [`Tilt::to_ground`]'s rays and
+    /// `turn[1][k] * -centre[1]` of [`Tilt::from_ground`]'s.
+    ray_bias: [f64; 3],
+    back_bias: [f64; 3],
 }
 
 impl Tilt {
@@ -83,16 +90,20 @@ impl Tilt {
         // Rz(roll) Rx(pitch) of a body vector (x right, y up, z forward).
         let turn = [[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [0.0, sp, cp]];
         let centre = [turn[0][1] * height_mm, turn[1][1] * height_mm, turn[2][1] * height_mm];
-        Tilt { centre, turn, height_mm }
+        let ray_bias = [turn[0][1] * -height_mm, turn[1][1] * -height_mm, turn[2][1] * -height_mm];
+        let back_bias = [turn[1][0] * -centre[1], turn[1][1] * -centre[1], turn[1][2] * -centre[1]];
+        Tilt { centre, turn, height_mm, ray_bias, back_bias }
     }
 
     /// The ground point (robot frame, level) that the remap shows at
     /// (`x_mm`, `z_mm`): the ray through it turned with the body and met
     /// with the ground. None when the turned ray misses the ground.
     pub fn to_ground(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
-        let v = [x_mm, -self.height_mm, z_mm];
-        let ray = |row: &[f64; 3]| row[0] * v[0] + row[1] * v[1] + row[2] * v[2];
-        let (rx, ry, rz) = (ray(&self.turn[0]), ray(&self.turn[1]), ray(&self.turn[2]));
+        // The ray turn . (x, -height, z), each row summed left to right.
+        let turn = &self.turn;
+        let rx = turn[0][0] * x_mm + self.ray_bias[0] + turn[0][2] * z_mm;
+        let ry = turn[1][0] * x_mm + self.ray_bias[1] + turn[1][2] * z_mm;
+        let rz = plus_zero_times(self.ray_bias[2], x_mm) + turn[2][2] * z_mm;
         if ry >= -1e-9 {
             return None;
         }
@@ -103,15 +114,33 @@ impl Tilt {
     /// The inverse of [`Tilt::to_ground`]: where the remap shows the ground
     /// point (`x_mm`, `z_mm`). None behind the turned camera's horizon.
     pub fn from_ground(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
-        // The ray from the turned centre to the point, turned back to the body.
-        let p = [x_mm - self.centre[0], -self.centre[1], z_mm - self.centre[2]];
-        let back = |k: usize| self.turn[0][k] * p[0] + self.turn[1][k] * p[1] + self.turn[2][k] * p[2];
-        let (bx, by, bz) = (back(0), back(1), back(2));
+        // The ray p = (x - cx, -cy, z - cz) from the turned centre to the
+        // point, turned back to the body: turn^T . p, each column summed
+        // left to right.
+        let (p0, p2) = (x_mm - self.centre[0], z_mm - self.centre[2]);
+        let turn = &self.turn;
+        let bx = plus_zero_times(turn[0][0] * p0 + self.back_bias[0], p2);
+        let by = turn[0][1] * p0 + self.back_bias[1] + turn[2][1] * p2;
+        let bz = turn[0][2] * p0 + self.back_bias[2] + turn[2][2] * p2;
         if by >= -1e-9 {
             return None;
         }
         let t = -self.height_mm / by;
         Some((t * bx, t * bz))
+    }
+}
+
+/// `sum + 0.0 * v` (a product with [`Tilt`]'s zero entry), bit for bit:
+/// a zero product leaves a non-zero sum as it is, so only a zero sum (its
+/// sign) or a non-finite `v` (a NaN product) needs the arithmetic.
+fn plus_zero_times(sum: f64, v: f64) -> f64 {
+    // Non-zero: a bit below the sign set (tested on the words, which the M4
+    // does in two instructions, where a float comparison is a routine).
+    let bits = sum.to_bits();
+    if v.is_finite() && ((bits >> 32) as u32) << 1 | bits as u32 != 0 {
+        sum
+    } else {
+        sum + 0.0 * v
     }
 }
 
@@ -318,6 +347,45 @@ mod tests {
             assert!(libm::hypot(xk - x, zk - z) > 10.0);
             let (xb, zb) = map.from_keyframe(xk, zk).unwrap();
             assert!(libm::hypot(xb - x, zb - z) < 1e-6, "({x}, {z}) -> ({xb}, {zb})");
+        }
+    }
+
+    #[test]
+    fn tilt_maps_match_the_plain_products_bit_for_bit() {
+        // The matrix products as written out, every term and in order.
+        fn to_ground(tilt: &Tilt, x: f64, z: f64) -> Option<(f64, f64)> {
+            let v = [x, -tilt.height_mm, z];
+            let ray = |row: &[f64; 3]| row[0] * v[0] + row[1] * v[1] + row[2] * v[2];
+            let (rx, ry, rz) = (ray(&tilt.turn[0]), ray(&tilt.turn[1]), ray(&tilt.turn[2]));
+            if ry >= -1e-9 {
+                return None;
+            }
+            let t = -tilt.centre[1] / ry;
+            Some((tilt.centre[0] + t * rx, tilt.centre[2] + t * rz))
+        }
+        fn from_ground(tilt: &Tilt, x: f64, z: f64) -> Option<(f64, f64)> {
+            let p = [x - tilt.centre[0], -tilt.centre[1], z - tilt.centre[2]];
+            let back = |k: usize| tilt.turn[0][k] * p[0] + tilt.turn[1][k] * p[1] + tilt.turn[2][k] * p[2];
+            let (bx, by, bz) = (back(0), back(1), back(2));
+            if by >= -1e-9 {
+                return None;
+            }
+            let t = -tilt.height_mm / by;
+            Some((t * bx, t * bz))
+        }
+        // Every NaN alike (which NaN an operation returns is the platform's).
+        let bit = |v: f64| if v.is_nan() { f64::NAN.to_bits() } else { v.to_bits() };
+        let bits = |p: Option<(f64, f64)>| p.map(|(x, z)| (bit(x), bit(z)));
+        let attitudes = [(0.7, -0.4), (0.0, 0.3), (-0.0, -0.2), (1.5, 0.0), (-2.0, -0.0), (0.0, 0.0)];
+        let coordinates = [0.0, -0.0, 1e-300, -250.0, 333.3, 1400.0, f64::INFINITY, f64::NEG_INFINITY, f64::NAN];
+        for (pitch_deg, roll_deg) in attitudes {
+            let tilt = Tilt::new(&Attitude { pitch_deg, roll_deg }, 300.0);
+            for x in coordinates {
+                for z in coordinates {
+                    assert_eq!(bits(tilt.to_ground(x, z)), bits(to_ground(&tilt, x, z)), "{pitch_deg} {roll_deg} {x} {z}");
+                    assert_eq!(bits(tilt.from_ground(x, z)), bits(from_ground(&tilt, x, z)), "{pitch_deg} {roll_deg} {x} {z}");
+                }
+            }
         }
     }
 

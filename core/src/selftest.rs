@@ -66,6 +66,7 @@ checks! {
         seen_difference_equals_plain,
         residues_equal_plain,
         float_kernels_equal_reference,
+        floor_round_equal_libm,
         hypotf_equals_libm,
         sincosf_equals_libm,
     ],

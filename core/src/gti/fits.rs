@@ -5,6 +5,7 @@
 
 use crate::limits::MAX_OBSERVATIONS;
 use crate::kernels::sqrtf;
+use heapless::Vec;
 use libm::{fabsf, roundf};
 
 /// Observations at which the quality stops growing with their count.
@@ -76,20 +77,17 @@ pub(super) fn robust_line_fit(x: &[f32], y: &[f32]) -> Option<LineFit> {
     if n < 2 || n != y.len() || n > MAX_OBSERVATIONS {
         return None;
     }
-    let mut slopes = [0f32; MAX_OBSERVATIONS * (MAX_OBSERVATIONS - 1) / 2];
-    let mut count = 0;
+    // A Vec, not an array: the M4 would clear all 480 bytes on every refit.
+    let mut slopes: Vec<f32, { MAX_OBSERVATIONS * (MAX_OBSERVATIONS - 1) / 2 }> = Vec::new();
     for a in 0..n {
         for b in a + 1..n {
             let dx = x[b] - x[a];
             if fabsf(dx) > 1e-6 {
-                if let Some(slot) = slopes.get_mut(count) {
-                    *slot = (y[b] - y[a]) / dx;
-                    count += 1;
-                }
+                let _ = slopes.push((y[b] - y[a]) / dx);
             }
         }
     }
-    let slope = median(slopes.get_mut(..count)?)?;
+    let slope = median(&mut slopes)?;
     let mut scratch = [0f32; MAX_OBSERVATIONS];
     for (slot, (xi, yi)) in scratch.iter_mut().zip(x.iter().zip(y)) {
         *slot = yi - slope * xi;

@@ -6,9 +6,36 @@
 use super::{GtiConfig, GtiError};
 use crate::geometry::Rig;
 use crate::grid::KgGrid;
+use crate::kernels::{floorf, roundf};
 use crate::limits::{MAX_LINES, MAX_LINE_SAMPLES};
 use core::ops::Range;
-use libm::{cosf, fabsf, floorf, roundf, sinf};
+use libm::{cosf, fabsf, sinf};
+
+/// The KG grid as the lines use it: its size, and its measures in f32 (the
+/// lines' maths is f32; each conversion from the grid's f64 is a software
+/// routine on the M4, so they are converted once).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct LineGrid {
+    pub width: usize,
+    pub height: usize,
+    pub mm_per_px: f32,
+    pub x_left_mm: f32,
+    pub z_far_mm: f32,
+}
+
+impl LineGrid {
+    pub(super) const UNCONFIGURED: LineGrid = LineGrid { width: 0, height: 0, mm_per_px: 1.0, x_left_mm: 0.0, z_far_mm: 0.0 };
+
+    pub(super) fn new(grid: &KgGrid) -> LineGrid {
+        LineGrid {
+            width: grid.width(),
+            height: grid.height(),
+            mm_per_px: grid.mm_per_px as f32,
+            x_left_mm: grid.x_left_mm as f32,
+            z_far_mm: grid.z_far_mm as f32,
+        }
+    }
+}
 
 /// One GT line: fixed in the robot frame for a frame, parallel to the
 /// translation. Points on it are `offset * normal + t * direction` (mm).
@@ -24,8 +51,8 @@ pub struct GtLine {
 
 impl GtLine {
     /// Ground point (robot frame) at KG row position `row` (fractional).
-    pub fn point_at_row(&self, grid: &KgGrid, row: f32) -> [f32; 2] {
-        let z = grid.z_far_mm as f32 - row * grid.mm_per_px as f32;
+    pub(super) fn point_at_row(&self, grid: &LineGrid, row: f32) -> [f32; 2] {
+        let z = grid.z_far_mm - row * grid.mm_per_px;
         let t = self.t_at_z(z);
         [self.offset_mm * self.normal[0] + t * self.direction[0], z]
     }
@@ -34,11 +61,11 @@ impl GtLine {
     }
     /// KG row position (fractional) where the line passes the ground point's
     /// projection onto it, and the point's distance from the line (mm).
-    pub fn row_of(&self, grid: &KgGrid, point: [f32; 2]) -> (f32, f32) {
+    pub(super) fn row_of(&self, grid: &LineGrid, point: [f32; 2]) -> (f32, f32) {
         let t = point[0] * self.direction[0] + point[1] * self.direction[1];
         let lateral = point[0] * self.normal[0] + point[1] * self.normal[1] - self.offset_mm;
         let z = self.offset_mm * self.normal[1] + t * self.direction[1];
-        ((grid.z_far_mm as f32 - z) / grid.mm_per_px as f32, lateral)
+        ((grid.z_far_mm - z) / grid.mm_per_px, lateral)
     }
 }
 
@@ -171,19 +198,19 @@ impl Lines {
     pub(super) fn on_kg_row(
         &mut self,
         config: &GtiConfig,
-        grid: &KgGrid,
+        grid: &LineGrid,
         row: usize,
         kg_row: &[u8],
         valid_columns: Range<usize>,
     ) -> Result<(), GtiError> {
-        if kg_row.len() != grid.width() {
+        if kg_row.len() != grid.width {
             return Err(GtiError::RowLength);
         }
         if !self.frame_started {
             self.start_frame(config.lines);
             self.frame_started = true;
         }
-        if row >= grid.height() || row < usize::from(self.next_row) {
+        if row >= grid.height || row < usize::from(self.next_row) {
             return Err(GtiError::RowIndex);
         }
         self.next_row = row as u16 + 1;
@@ -194,7 +221,7 @@ impl Lines {
                 continue;
             }
             let [x, _] = line.point_at_row(grid, row as f32);
-            let centre = (x - grid.x_left_mm as f32) / grid.mm_per_px as f32;
+            let centre = (x - grid.x_left_mm) / grid.mm_per_px;
             samples.take(row, sample_across(kg_row, &valid, centre, half));
         }
         Ok(())
@@ -254,9 +281,10 @@ fn sample_across(row: &[u8], valid: &Range<usize>, centre: f32, half: f32) -> Op
         return None;
     }
     let mut sum = 0f32;
-    for k in 0..taps {
-        let (a, b) = (row.get(base + k)?, row.get(base + k + 1)?);
-        sum += f32::from(*a) * (1.0 - frac) + f32::from(*b) * frac;
+    for pair in row.get(base..=base + taps)?.windows(2) {
+        if let &[a, b] = pair {
+            sum += f32::from(a) * (1.0 - frac) + f32::from(b) * frac;
+        }
     }
     Some(roundf(sum / taps as f32).clamp(0.0, 255.0) as u8)
 }

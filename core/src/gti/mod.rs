@@ -66,9 +66,9 @@ use edges::LineEdges;
 use fits::{support_tolerance, top_supported_height, MIN_SUPPORT};
 use heapless::Deque;
 use libm::{atan2f, fabsf, roundf};
-use lines::Lines;
+use lines::{LineGrid, Lines};
 use tracks::{MapPoint, Track, ROW_UNITS};
-use travel::Travel;
+use travel::{FloorPoints, Travel};
 
 /// Tuning; one default for every rig (nothing here is per recording).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -226,7 +226,7 @@ impl RegionMm {
 /// with n observations and sigma_h the height's standard error from the fit.
 pub struct Gti {
     config: GtiConfig,
-    grid: KgGrid,
+    grid: LineGrid,
     mount_height_mm: f32,
     lines: Lines,
     tracks: [Option<Track>; MAX_TRACKS],
@@ -267,7 +267,7 @@ impl Gti {
                 odometry_sigma: 1.0,
                 max_line_angle_deg: 0.0,
             },
-            grid: KgGrid { mm_per_px: 1.0, x_left_mm: 0.0, z_far_mm: 0.0, width: 0, height: 0 },
+            grid: LineGrid::UNCONFIGURED,
             mount_height_mm: 1.0,
             lines: Lines::UNCONFIGURED,
             tracks: [NO_TRACK; MAX_TRACKS],
@@ -289,7 +289,7 @@ impl Gti {
             return Err(GtiError::GridTooLarge);
         }
         self.config = config;
-        self.grid = *grid;
+        self.grid = LineGrid::new(grid);
         self.mount_height_mm = rig.height_mm() as f32;
         self.lines.configure(rig, &config);
         self.restart();
@@ -318,7 +318,7 @@ impl Gti {
     /// valid rows; kept until the next frame's first row.
     pub fn line_samples(&self, l: usize) -> Option<(&[u8], Range<usize>)> {
         let samples = (l < self.config.lines).then(|| self.lines.samples(l))?;
-        Some((&samples.values[..self.grid.height().min(MAX_LINE_SAMPLES)], samples.valid()))
+        Some((&samples.values[..self.grid.height.min(MAX_LINE_SAMPLES)], samples.valid()))
     }
 
     /// Drops the current frame's rows (a frame abandoned mid-way): the next
@@ -347,13 +347,14 @@ impl Gti {
         // again for the association): every line's at once would add ~10 KB
         // to the firmware's deepest stack.
         let mut edges = LineEdges::NONE;
-        self.advance_pose(motion, &mut edges);
+        let mut found = FloorPoints::NONE;
+        self.advance_pose(motion, &mut edges, &mut found);
         for track in self.tracks.iter_mut().flatten() {
             track.matched_row = None;
         }
         for l in 0..self.config.lines {
             edges.find(l, self.lines.samples(l), &self.config);
-            self.associate_line(l, &edges);
+            self.associate_line(l, &edges, &found);
         }
         self.end_lost_tracks();
         // Next frame's lines follow this frame's translation (the best guess

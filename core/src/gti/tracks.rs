@@ -7,9 +7,8 @@
 use super::edges::{Edge, LineEdges, PATCH};
 use super::fits::{robust_line_fit, slope_plausible, FittedHeight, LineFit};
 use super::lines::{off_line, GtLine};
-use super::travel::{along_across, Travel};
+use super::travel::{along_across, FloorPoints, Travel};
 use super::{Gti, HeightPoint};
-use crate::grid::KgGrid;
 use crate::limits::{MAX_EDGES_PER_LINE, MAX_OBSERVATIONS, MAX_TRACKS, MAX_WEAK_EDGES_PER_LINE};
 use heapless::Vec;
 use crate::kernels::sqrtf;
@@ -172,16 +171,13 @@ impl Observations {
 
     /// Robust line fit of the observations, in mm.
     fn refit(&self) -> Option<LineFit> {
-        let mut c = [0f32; MAX_OBSERVATIONS];
-        let mut y = [0f32; MAX_OBSERVATIONS];
-        let n = self.len();
-        for (i, &[ci, yi]) in self.as_slice().iter().enumerate() {
-            if let (Some(cs), Some(ys)) = (c.get_mut(i), y.get_mut(i)) {
-                *cs = f32::from(ci) / OBS_UNITS_PER_MM;
-                *ys = f32::from(yi) / OBS_UNITS_PER_MM;
-            }
+        let mut c: Vec<f32, MAX_OBSERVATIONS> = Vec::new();
+        let mut y: Vec<f32, MAX_OBSERVATIONS> = Vec::new();
+        for &[ci, yi] in self.as_slice() {
+            let _ = c.push(f32::from(ci) / OBS_UNITS_PER_MM);
+            let _ = y.push(f32::from(yi) / OBS_UNITS_PER_MM);
         }
-        robust_line_fit(c.get(..n)?, y.get(..n)?)
+        robust_line_fit(&c, &y)
     }
 }
 
@@ -274,7 +270,7 @@ impl Gti {
     // Not inlined: the frame that holds the edges must stay small, as the
     // firmware's deepest stack runs through edge finding.
     #[inline(never)]
-    pub(super) fn associate_line(&mut self, l: usize, edges: &LineEdges) {
+    pub(super) fn associate_line(&mut self, l: usize, edges: &LineEdges, found: &FloorPoints) {
         let Some(line) = self.lines.line(l).copied() else { return };
         let mut taken = [false; MAX_EDGES_PER_LINE];
         let mut weak_taken = [false; MAX_WEAK_EDGES_PER_LINE];
@@ -290,15 +286,18 @@ impl Gti {
             let Some(track) = self.tracks.get(index).and_then(|t| t.as_ref()) else { continue };
             let Some(gate) = self.gate(track, &line) else { continue };
             let (rising, patch) = (track.rising, track.patch);
-            let matched = match gate.best(&edges.strong, &taken, rising, &patch, min_correlation) {
-                Some(e) => edges.strong.get(e).copied(),
+            let (matched, point) = match gate.best(&edges.strong, &taken, rising, &patch, min_correlation) {
+                Some(e) => {
+                    let edge = edges.strong.get(e).copied();
+                    (edge, found.get(index, e).or_else(|| edge.map(|edge| self.level_point(&line, edge.row))))
+                }
                 // An established track may continue on a weaker edge that no strong edge claimed.
                 None if gate.predicted.is_some() => {
-                    gate.best(&edges.weak, &weak_taken, rising, &patch, min_correlation).and_then(|e| edges.weak.get(e)).copied()
+                    let edge = gate.best(&edges.weak, &weak_taken, rising, &patch, min_correlation).and_then(|e| edges.weak.get(e)).copied();
+                    (edge, edge.map(|edge| self.level_point(&line, edge.row)))
                 }
-                None => None,
+                None => (None, None),
             };
-            let point = matched.map(|edge| self.level_point(&line, edge.row));
             let Some(track) = self.tracks.get_mut(index).and_then(|t| t.as_mut()) else { continue };
             match matched.zip(point) {
                 Some((edge, point)) => {
@@ -315,8 +314,7 @@ impl Gti {
     /// The gate of a track on its line this frame; None when its locus leaves
     /// the line (the track is then neither matched nor missed).
     fn gate(&self, track: &Track, line: &GtLine) -> Option<Gate> {
-        let grid: &KgGrid = &self.grid;
-        let mm_per_px = grid.mm_per_px as f32;
+        let mm_per_px = self.grid.mm_per_px;
         let fit = if track.observations.len() >= 2 { track.fit() } else { None };
         let widen = self.config.gate_px * (1.0 + 0.5 * f32::from(track.misses));
         match fit {
@@ -352,14 +350,17 @@ impl Gti {
     /// weakest track (floor texture must not crowd out an obstacle's edges).
     fn start_tracks(&mut self, l: usize, line: &GtLine, edges: &[Edge], taken: &[bool]) {
         let share = MAX_TRACKS / self.config.lines;
+        // Counted once (a new track in a free slot adds one; a replacement none).
+        let mut on_line = self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l).count();
         for (e, edge) in edges.iter().enumerate() {
             if taken.get(e).copied().unwrap_or(true) {
                 continue;
             }
             let strength = encode_strength(edge.strength);
-            let on_line = self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l).count();
             let slot = if on_line < share {
-                self.tracks.iter().position(|t| t.is_none())
+                let free = self.tracks.iter().position(|t| t.is_none());
+                on_line += usize::from(free.is_some());
+                free
             } else {
                 let weakest = self
                     .tracks
@@ -433,7 +434,7 @@ impl Gti {
             return None;
         }
         let apparent = track.predict_apparent(&self.travel, slope, Some(&fit))?;
-        let height = FittedHeight::new(&fit, slope, self.mount_height_mm, self.grid.mm_per_px as f32);
+        let height = FittedHeight::new(&fit, slope, self.mount_height_mm, self.grid.mm_per_px);
         Some(HeightPoint {
             x_mm: apparent[0] / slope,
             z_mm: apparent[1] / slope,

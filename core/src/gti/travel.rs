@@ -29,6 +29,34 @@ const MIN_FLOOR_TRACKS: usize = 6;
 /// (wide enough for a few % of odometry scale error before correction).
 const FLOOR_SLOPE_BAND: f32 = 0.08;
 
+/// The level points of the strong edges floor tracks found in the travel
+/// correction, by track slot: the association searches the same strong
+/// edges (in the same order) and mostly matches a floor track to the same
+/// edge, whose point then needs no second tilt (software f64 on the M4).
+/// Valid for one frame: a frame starts from [`FloorPoints::NONE`].
+pub(super) struct FloorPoints {
+    /// The strong edge's index plus one (0: none).
+    edge: [u8; MAX_TRACKS],
+    point: [[f32; 2]; MAX_TRACKS],
+}
+
+impl FloorPoints {
+    pub(super) const NONE: FloorPoints = FloorPoints { edge: [0; MAX_TRACKS], point: [[0.0; 2]; MAX_TRACKS] };
+
+    /// The level point of strong edge `e` if track slot `index` found it.
+    pub(super) fn get(&self, index: usize, e: usize) -> Option<[f32; 2]> {
+        let found = self.edge.get(index).is_some_and(|&k| usize::from(k) == e + 1);
+        found.then(|| self.point.get(index).copied()).flatten()
+    }
+
+    fn set(&mut self, index: usize, e: usize, point: [f32; 2]) {
+        if let (Some(k), Some(p), Ok(e)) = (self.edge.get_mut(index), self.point.get_mut(index), u8::try_from(e + 1)) {
+            *k = e;
+            *p = point;
+        }
+    }
+}
+
 /// The odometry world pose of the current frame and the steps measured.
 pub(super) struct Travel {
     position: [f64; 2],
@@ -100,12 +128,13 @@ fn floor_track_along(track: &Track, d: [f32; 2]) -> Option<f32> {
 impl Gti {
     /// Moves the pose by the odometry since the previous frame (`motion`),
     /// scaled by odometry's learned scale, and corrects the step with the
-    /// floor (`edges`: room for one line's edges).
-    pub(super) fn advance_pose(&mut self, motion: &Motion, edges: &mut LineEdges) {
+    /// floor (`edges`: room for one line's edges; `found`: the floor tracks'
+    /// edges' points).
+    pub(super) fn advance_pose(&mut self, motion: &Motion, edges: &mut LineEdges, found: &mut FloorPoints) {
         let scale = f64::from(self.odometry_scale());
         let scaled = Motion { tx_mm: motion.tx_mm * scale, tz_mm: motion.tz_mm * scale, dyaw_deg: motion.dyaw_deg };
         let step = self.travel.advance(&scaled);
-        if let Some(measured) = self.correct_travel(step, edges) {
+        if let Some(measured) = self.correct_travel(step, edges, found) {
             self.travel.step_sums[0] += f64::from(measured);
             self.travel.step_sums[1] += motion.distance_mm();
         }
@@ -135,13 +164,13 @@ impl Gti {
     // Not inlined: the frame that holds the edges must stay small, as the
     // firmware's deepest stack runs through edge finding.
     #[inline(never)]
-    fn correct_travel(&mut self, step: [f64; 2], edges: &mut LineEdges) -> Option<f32> {
+    fn correct_travel(&mut self, step: [f64; 2], edges: &mut LineEdges, found: &mut FloorPoints) -> Option<f32> {
         let length = libm::hypot(step[0], step[1]) as f32;
         if !(length > 1.0) {
             return None;
         }
         let d = [step[0] as f32 / length, step[1] as f32 / length];
-        let mm_per_px = self.grid.mm_per_px as f32;
+        let mm_per_px = self.grid.mm_per_px;
         let mut deltas: heapless::Vec<f32, MAX_TRACKS> = heapless::Vec::new();
         for l in 0..self.config.lines {
             let Some(line) = self.lines.line(l) else { continue };
@@ -151,9 +180,11 @@ impl Gti {
                 continue;
             }
             edges.find_strong(l, self.lines.samples(l), &self.config);
-            for track in self.tracks.iter().flatten().filter(|t| usize::from(t.line) == l) {
-                if let Some(delta) = self.floor_displacement(track, line, &edges.strong, d, length, mm_per_px) {
+            for (index, track) in self.tracks.iter().enumerate() {
+                let Some(track) = track.as_ref().filter(|t| usize::from(t.line) == l) else { continue };
+                if let Some((delta, e, point)) = self.floor_displacement(track, line, &edges.strong, d, length, mm_per_px) {
                     let _ = deltas.push(delta);
+                    found.set(index, e, point);
                 }
             }
         }
@@ -183,7 +214,7 @@ impl Gti {
 
     /// For a floor track (matched last frame, slope near 1): the
     /// travel (mm, along `d`) beyond the odometry step that its edge in this
-    /// frame implies, if it finds one.
+    /// frame implies, if it finds one; and that edge's index and level point.
     fn floor_displacement(
         &self,
         track: &Track,
@@ -192,7 +223,7 @@ impl Gti {
         d: [f32; 2],
         length: f32,
         mm_per_px: f32,
-    ) -> Option<f32> {
+    ) -> Option<(f32, usize, [f32; 2])> {
         let along = floor_track_along(track, d)?;
         // Where it is with slope 1 and the odometry step.
         let predicted = track.predict_apparent(&self.travel, 1.0, None)?;
@@ -201,21 +232,21 @@ impl Gti {
             return None;
         }
         let window = self.config.gate_px + 3.0 * self.config.odometry_sigma * length / mm_per_px;
-        let mut best: Option<(f32, f32)> = None;
-        for edge in edges.iter().filter(|e| e.rising == track.rising && fabsf(e.row - row) <= window) {
+        let mut best: Option<(usize, f32, f32)> = None;
+        for (e, edge) in edges.iter().enumerate().filter(|(_, e)| e.rising == track.rising && fabsf(e.row - row) <= window) {
             if zncc(&track.patch, &edge.patch) < self.config.min_patch_correlation {
                 continue;
             }
             let distance = fabsf(edge.row - row);
-            if best.is_none_or(|(_, b)| distance < b) {
-                best = Some((edge.row, distance));
+            if best.is_none_or(|(_, _, b)| distance < b) {
+                best = Some((e, edge.row, distance));
             }
         }
-        let (observed_row, _) = best?;
+        let (e, observed_row, _) = best?;
         let rotation = self.travel.rotation_f32();
         let y_of = |p: [f32; 2]| along_across(rotation.to_world(p), track.axis).0;
         let y_predicted = y_of(self.level_point(line, row));
-        let y_observed = y_of(self.level_point(line, observed_row));
-        Some((y_predicted - y_observed) / along)
+        let observed = self.level_point(line, observed_row);
+        Some(((y_predicted - y_of(observed)) / along, e, observed))
     }
 }

@@ -545,6 +545,39 @@ pub fn float_kernels_equal_reference() -> Outcome {
     Ok(())
 }
 
+/// `floorf` and `roundf` give libm's results bit for bit: zeros of both
+/// signs, the ends of their own range, infinities and NaN; every float
+/// within 8 ulps of each integer and half below 1,024 (GTI's samples), and
+/// random floats of every magnitude, both signs.
+pub fn floor_round_equal_libm() -> Outcome {
+    let mut state = 0x466C_6F72u32;
+    let same = |x: f32| {
+        let pairs = [(super::floorf(x), libm::floorf(x)), (super::roundf(x), libm::roundf(x))];
+        pairs.iter().all(|(fast, reference)| fast.to_bits() == reference.to_bits() || (fast.is_nan() && reference.is_nan()))
+    };
+    let edges = [0.0, -0.0, 0.5, 8_388_607.5, 8_388_608.0, 8_388_609.0, f32::MIN_POSITIVE, f32::INFINITY, f32::NEG_INFINITY, f32::NAN];
+    for x in edges {
+        if !same(x) || !same(-x) {
+            return Err("floorf or roundf differs from libm at an edge value");
+        }
+    }
+    for halves in 1..2048u32 {
+        let bits = (halves as f32 * 0.5).to_bits();
+        for x in (bits - 8..=bits + 8).map(f32::from_bits) {
+            if !same(x) || !same(-x) {
+                return Err("floorf or roundf differs from libm near an integer or a half");
+            }
+        }
+    }
+    for _ in 0..30_000 {
+        let x = f32::from_bits(xorshift32(&mut state));
+        if !same(x) {
+            return Err("floorf or roundf differs from libm");
+        }
+    }
+    Ok(())
+}
+
 /// `hypotf` gives libm's result bit for bit: random operands of every
 /// magnitude and sign (both scaled paths too), operands 0 to 30 binades
 /// apart, equal ones, zeros, infinities, NaN, and sums that fall close to

@@ -265,6 +265,35 @@ pub fn sqrtf(x: f32) -> f32 {
     libm::sqrtf(x)
 }
 
+/// Bit patterns of the `f32`s in [+0, 2^23): there truncation is the
+/// FPU's one conversion, and a remainder below one is exact.
+const SMALL_POSITIVE_END: u32 = 0x4B00_0000;
+
+/// `libm::floorf`, bit for bit: below 2^23 (GTI's sample positions) the
+/// FPU's conversions (libm works the bits in software, ~24 M4
+/// instructions); elsewhere libm itself.
+#[inline]
+pub fn floorf(x: f32) -> f32 {
+    if x.to_bits() < SMALL_POSITIVE_END {
+        x as u32 as f32
+    } else {
+        libm::floorf(x)
+    }
+}
+
+/// `libm::roundf` (halves away from zero), bit for bit: below 2^23 the
+/// truncation, one more if the remainder is a half or more (libm: ~43 M4
+/// instructions); elsewhere libm itself.
+#[inline]
+pub fn roundf(x: f32) -> f32 {
+    if x.to_bits() < SMALL_POSITIVE_END {
+        let whole = x as u32;
+        (whole + u32::from(x - whole as f32 >= 0.5)) as f32
+    } else {
+        libm::roundf(x)
+    }
+}
+
 /// `value as f32` (round to nearest, ties to even), for |value| < 2^62:
 /// the M4 has no 64-bit conversion, and the library's takes ~25
 /// instructions; here the value is cut to 31 bits with the bits cut off
@@ -545,6 +574,15 @@ pub fn copy_row(dst: &mut [u8], src: &[u8]) {
 
 #[cfg(test)]
 mod tests {
+    /// Every 61st `f32` of the range `floorf` and `roundf` compute themselves.
+    #[test]
+    fn floor_round_equal_libm_across_their_range() {
+        for x in (0..super::SMALL_POSITIVE_END).step_by(61).map(f32::from_bits) {
+            assert_eq!(super::floorf(x).to_bits(), libm::floorf(x).to_bits(), "floorf {x:e}");
+            assert_eq!(super::roundf(x).to_bits(), libm::roundf(x).to_bits(), "roundf {x:e}");
+        }
+    }
+
     /// Every 61st `f32` of the range `sincosf` computes itself, both signs.
     #[test]
     fn sincosf_equals_libm_across_its_range() {
