@@ -75,7 +75,7 @@ impl<'b> Keyframe<'b> {
     /// Stores row `j` of the current frame.
     pub(super) fn write_row(&mut self, j: usize, row: &[u8]) {
         let width = self.width;
-        self.images[1 - self.key_half][j * width..][..width].copy_from_slice(row);
+        crate::kernels::copy_row(&mut self.images[1 - self.key_half][j * width..][..width], row);
     }
 
     /// Pixels a row (the grid's width).

@@ -384,7 +384,7 @@ pub fn dot_shifts_equal_plain() -> Outcome {
     Ok(())
 }
 
-/// The ring's row copy (`ldm`/`stm` on the M4 when word aligned) equals
+/// The row copy (`ldm`/`stm` on the M4 when word aligned, unaligned words else) equals
 /// `copy_from_slice` for every length 0..=70 and alignment.
 pub fn copy_row_copies() -> Outcome {
     #[repr(align(4))]

@@ -566,7 +566,8 @@ pub(crate) fn bilinear(upper: &[u8], lower: &[u8], u: i32, v: i32) -> u8 {
     ((top * (256 - wy) + bottom * wy + (1 << (2 * WEIGHT_BITS - 1))) >> (2 * WEIGHT_BITS)) as u8
 }
 
-/// `dst.copy_from_slice(src)` (same length): a camera row into the remap's ring.
+/// `dst.copy_from_slice(src)` (same length): a camera row into the remap's
+/// ring, a KG row into its image.
 #[inline]
 pub fn copy_row(dst: &mut [u8], src: &[u8]) {
     selected::copy_row(dst, src)
