@@ -50,12 +50,13 @@ impl Level<'_> {
         if !(u >= 0.0 && v >= 0.0) {
             return None;
         }
+        // A far-off position saturates the cast: every test below refuses it.
         let (i, j) = (u as usize, v as usize);
-        if j + 1 >= self.height {
+        if j.saturating_add(1) >= self.height {
             return None;
         }
         let &[upper, lower] = self.seen.get(j..j + 2)? else { return None };
-        if i < usize::from(upper.0.max(lower.0)) || i + 1 >= usize::from(upper.1.min(lower.1)) {
+        if i < usize::from(upper.0.max(lower.0)) || i.saturating_add(1) >= usize::from(upper.1.min(lower.1)) {
             return None;
         }
         let (fu, fv) = (u - i as f32, v - j as f32);
