@@ -47,16 +47,17 @@ impl Level<'_> {
     #[inline(always)]
     #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(u >= 0)` also refuses NaN
     pub(super) fn sample(&self, u: f32, v: f32) -> Option<f32> {
-        if !(u >= 0.0 && v >= 0.0) {
+        // Beyond 65536 px (a wild hypothesis) is past any grid: refused
+        // here, so the whole-pixel sums below cannot overflow.
+        if !(u >= 0.0 && v >= 0.0 && u < 65536.0 && v < 65536.0) {
             return None;
         }
-        // A far-off position saturates the cast: every test below refuses it.
         let (i, j) = (u as usize, v as usize);
-        if j.saturating_add(1) >= self.height {
+        if j + 1 >= self.height {
             return None;
         }
         let &[upper, lower] = self.seen.get(j..j + 2)? else { return None };
-        if i < usize::from(upper.0.max(lower.0)) || i.saturating_add(1) >= usize::from(upper.1.min(lower.1)) {
+        if i < usize::from(upper.0.max(lower.0)) || i + 1 >= usize::from(upper.1.min(lower.1)) {
             return None;
         }
         let (fu, fv) = (u - i as f32, v - j as f32);
