@@ -196,7 +196,15 @@ fn header(recording: &Recording, rig: &Rig, detector: &Detector, search: usize, 
     out
 }
 
-pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, full_frame: bool) -> Result<String, String> {
+/// What [`run_bench`] measured: its `key: value` text, and the two cycles
+/// the OpenCV anchor is set beside (medians, us).
+pub struct BenchRun {
+    pub text: String,
+    pub seed_cycle_us: f64,
+    pub cycle_us: f64,
+}
+
+pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, full_frame: bool) -> Result<BenchRun, String> {
     let (rig, grid_config) = if full_frame {
         let full = FullFrame::for_rig(&recording.rig, mm_per_px)?;
         (full.rig, full.grid_config())
@@ -248,10 +256,13 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
 
     // The OpenCV anchor's cycle (remap, |diff| over the (2S+1)^2 shifts,
     // histogram) within the GPA: the remap, the keyframe warped by the
-    // measured motion (the anchor shifts by whole pixels instead), the
-    // shift search with the histogram, and the decision's own part. All of
-    // GPA runs inside `decision` (at the frame's end, once the motion is
-    // measured), so its own part is what the GPA stages leave of it.
+    // motion (the anchor shifts by whole pixels instead), the shift
+    // searches with their histograms (the (2S+1)^2 shifts run in the
+    // seed's search when there is a motion estimate, else in the one
+    // around the measured motion), and the decision's own part. The warp
+    // is the residue's band too: a little more than the anchor's work.
+    // All of GPA runs inside `decision` (at the frame's end, once the
+    // motion is measured), so its own part is what the GPA stages leave of it.
     let shifts = 2 * search + 1;
     let (remap_us, decision_us) = (stage(|t| t.remap), stage(|t| t.decision));
     let (warp_us, shift_search_us) = (gpa_stage(|p| p.warp), gpa_stage(|p| p.shift_search));
@@ -262,10 +273,11 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
             .map(|(t, p)| {
                 let stages = [p.warp, p.residue, p.parallax, p.shift_search, p.estimate, p.seed_search];
                 let decision_own = stages.iter().fold(t.decision, |left, &stage| left.saturating_sub(stage));
-                us(t.remap) + us(p.warp) + us(p.shift_search) + us(decision_own)
+                us(t.remap) + us(p.warp) + us(p.shift_search) + us(p.seed_search) + us(decision_own)
             })
             .collect(),
     );
+    let cycle_us = stage(|t| t.cycle);
 
     let _ = writeln!(out, "remap_us_median: {remap_us:.1}");
     let _ = writeln!(out, "gpa_rows_us_median: {:.1}", stage(|t| t.detector_rows));
@@ -284,16 +296,69 @@ pub fn run_bench(recording: &Recording, mm_per_px: Option<f64>, search: usize, f
     let _ = writeln!(out, "decision_us_median: {decision_us:.1}");
     let _ = writeln!(
         out,
-        "seed_cycle_us_median: {seed_us:.1} (remap + warp + {}-shift search with histogram + the decision's own part, the OpenCV anchor's work)",
+        "seed_cycle_us_median: {seed_us:.1} (remap + warp + the shift searches, {} shifts, with their histograms + the decision's own part: the OpenCV anchor's work)",
         shifts * shifts
     );
-    let _ = writeln!(out, "cycle_us_median: {:.1}", stage(|t| t.cycle));
+    let _ = writeln!(out, "cycle_us_median: {cycle_us:.1}");
+    Ok(BenchRun { text: out, seed_cycle_us: seed_us, cycle_us })
+}
+
+/// Runs the OpenCV reference cycle (`opencv_cycle REC [--mm-per-px X]
+/// --search S`, ../shared/reference) on the same recording, right after
+/// [`run_bench`] in the same sitting, and sets it beside: `key: value`
+/// lines with its median and both ratios (its cycle over ours: above 1,
+/// ours is faster).
+pub fn against_opencv(opencv_cycle: &std::path::Path, recording: &std::path::Path, mm_per_px: Option<f64>, search: usize, ours: &BenchRun) -> Result<String, String> {
+    let mut command = std::process::Command::new(opencv_cycle);
+    command.arg(recording).args(["--search", &search.to_string()]);
+    if let Some(mm) = mm_per_px {
+        command.args(["--mm-per-px", &mm.to_string()]);
+    }
+    let output = command.output().map_err(|e| format!("{}: {e}", opencv_cycle.display()))?;
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let median = stdout
+        .lines()
+        .find_map(|line| line.strip_prefix("cycle_us_median:"))
+        .and_then(|value| value.trim().parse::<f64>().ok())
+        .filter(|&us| output.status.success() && us > 0.0)
+        .ok_or_else(|| format!("{}: no cycle_us_median (exit {}): {}", opencv_cycle.display(), output.status, String::from_utf8_lossy(&output.stderr).trim()))?;
+    let mut out = String::new();
+    let _ = writeln!(out, "opencv_cycle_us_median: {median:.1}");
+    let _ = writeln!(out, "seed_cycle_speedup_over_opencv: {:.2} (goal: at least 5)", median / ours.seed_cycle_us);
+    let _ = writeln!(out, "cycle_speedup_over_opencv: {:.2} (goal: at least 1, the whole cycle as fast as the anchor's seed cycle)", median / ours.cycle_us);
     Ok(out)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The reference's median becomes both speedups; a run that prints no
+    /// median (or fails) is an error, not a ratio. A two-line script
+    /// stands in for the reference, which lives outside the repository.
+    #[test]
+    fn opencv_medians_become_speedups() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("flatland-opencv-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let script = |name: &str, body: &str| {
+            let path = dir.join(name);
+            std::fs::write(&path, format!("#!/bin/sh\n{body}\n")).unwrap();
+            std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o755)).unwrap();
+            path
+        };
+        let ours = BenchRun { text: String::new(), seed_cycle_us: 40.0, cycle_us: 400.0 };
+        let answers = script("answers", "echo \"remap_us_median: 9.0\"; echo \"cycle_us_median: 200.0\"");
+        let out = against_opencv(&answers, std::path::Path::new("REC"), Some(5.0), 2, &ours).unwrap();
+        assert!(out.contains("opencv_cycle_us_median: 200.0\n"), "{out}");
+        assert!(out.contains("seed_cycle_speedup_over_opencv: 5.00 "), "{out}");
+        assert!(out.contains("cycle_speedup_over_opencv: 0.50 "), "{out}");
+        let fails = script("fails", "echo \"cycle_us_median: 200.0\"; exit 3");
+        assert!(against_opencv(&fails, std::path::Path::new("REC"), None, 2, &ours).is_err());
+        let silent = script("silent", "true");
+        assert!(against_opencv(&silent, std::path::Path::new("REC"), None, 2, &ours).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
     use crate::qemu::workspace_root;
     use flatland_core::remap::RemapTable;
 

@@ -134,6 +134,11 @@ enum Command {
         /// else the rig's, made finer if the square would leave the view).
         #[arg(long)]
         full_frame: bool,
+        /// The OpenCV reference cycle to set beside, run right after on
+        /// the same recording (`../shared/reference/opencv_cycle`): prints
+        /// its median and both speedups.
+        #[arg(long, value_name = "OPENCV_CYCLE")]
+        opencv: Option<PathBuf>,
     },
     /// Estimate the mount (tilt, height, roll, yaw) from a drive over flat
     /// ground: `key: value` lines on stdout.
@@ -658,12 +663,21 @@ fn main() -> ExitCode {
             let pictures = Pictures { dir: png.as_deref(), gif: gif.as_deref(), summary: summary.as_deref(), attitude: !png_level };
             run_detect(&recording, format, pictures, truth, perturb, verbose, &sensors)
         }
-        Command::Bench { recording, mm_per_px, search, full_frame } => {
-            let recording = match Recording::open(&recording) {
+        Command::Bench { recording: path, mm_per_px, search, full_frame, opencv } => {
+            let recording = match Recording::open(&path) {
                 Ok(r) => r,
                 Err(e) => return fatal(e),
             };
-            match flatland_host::bench::run_bench(&recording, mm_per_px, search, full_frame) {
+            let ours = match flatland_host::bench::run_bench(&recording, mm_per_px, search, full_frame) {
+                Ok(run) => run,
+                Err(e) => return fatal(e),
+            };
+            print!("{}", ours.text);
+            let Some(opencv) = opencv else { return ExitCode::SUCCESS };
+            if full_frame {
+                return fatal("--opencv sets the recording's own cycle beside OpenCV's, not --full-frame's");
+            }
+            match flatland_host::bench::against_opencv(&opencv, &path, mm_per_px, search, &ours) {
                 Ok(text) => {
                     print!("{text}");
                     ExitCode::SUCCESS
