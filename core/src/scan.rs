@@ -269,7 +269,7 @@ impl Scan {
 
     /// Number of sectors.
     pub fn len(&self) -> usize {
-        usize::from(self.layout.sectors)
+        self.layout.len()
     }
 
     pub fn is_empty(&self) -> bool {

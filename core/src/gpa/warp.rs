@@ -506,11 +506,11 @@ impl Coverage {
         // The quadratic part leaves its chord by at most |bend| (n / 2)^2 over n
         // columns (in bend units), and the rounding down by under 1 more.
         let apart = |bend: i32, n: usize| ((i64::from(bend).abs() * (n * n) as i64) >> (BEND_FRAC - FRAC + 2)) + 2;
+        // The range of a coordinate between two positions on its chord.
+        let bounds = |a: i64, b: i64, margin: i64| (a.min(b) - margin, a.max(b) + margin);
         // The range of a coordinate over the columns first..=last.
         let range = |start: i32, step: i32, bend: i32, first: usize, last: usize| {
-            let (a, b) = (unwrapped(start, step, bend, first), unwrapped(start, step, bend, last));
-            let margin = apart(bend, last - first);
-            (a.min(b) - margin, a.max(b) + margin)
+            bounds(unwrapped(start, step, bend, first), unwrapped(start, step, bend, last), apart(bend, last - first))
         };
         let whole = (range(warp.i_start, warp.i_step, warp.i_bend, seen.start, seen.end - 1), range(warp.j_start, warp.j_step, warp.j_bend, seen.start, seen.end - 1));
         if [whole.0 .0, whole.0 .1, whole.1 .0, whole.1 .1].iter().any(|v| v.abs() >= SANE) {
@@ -527,7 +527,6 @@ impl Coverage {
         while first < seen.end {
             let end = (first + CHUNK).min(seen.end);
             let to = at(if end < seen.end { end } else { end - 1 });
-            let bounds = |a: i64, b: i64, margin: i64| (a.min(b) - margin, a.max(b) + margin);
             let (i_range, j_range) = (bounds(from.0, to.0, margins.0), bounds(from.1, to.1, margins.1));
             from = to;
             let outside_rows = j_range.1 < 0 || j_range.0 >= rows_limit;
@@ -536,13 +535,14 @@ impl Coverage {
             let (lo, hi) = if one_row { self.reference[(j_range.0 >> FRAC) as usize] } else { (0, 0) };
             let (lo, hi) = (i64::from(lo) << FRAC, i64::from(hi) << FRAC);
             // A chunk across a few keyframe rows is usable whole where its
-            // columns lie in the reference columns of all of them.
-            let across_rows = || {
+            // columns lie in the reference columns of all of them (one row:
+            // its own, tested first, the common case).
+            let in_all_rows = || {
                 let rows = (j_range.0 >> FRAC) as usize..=(j_range.1 >> FRAC) as usize;
                 let (lo, hi) = self.reference[rows].iter().fold((0, u16::MAX), |(lo, hi), &(l, h)| (lo.max(l), hi.min(h)));
                 i_range.0 >= i64::from(lo) << FRAC && i_range.1 < i64::from(hi) << FRAC
             };
-            if one_row && i_range.0 >= lo && i_range.1 < hi || !one_row && within_rows && (j_range.1 - j_range.0) >> FRAC < 4 && across_rows() {
+            if one_row && i_range.0 >= lo && i_range.1 < hi || !one_row && within_rows && (j_range.1 - j_range.0) >> FRAC < 4 && in_all_rows() {
                 extend_runs(runs, first, end);
             } else if one_row && !(i_range.1 < lo || i_range.0 >= hi) && rising(warp, end) {
                 // One keyframe row and i rising with c: its usable columns

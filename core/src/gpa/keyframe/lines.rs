@@ -6,10 +6,11 @@ use crate::gpa::kernels;
 use crate::gpa::band::BAND_WIDTH;
 use crate::gpa::warp::{ceil_div, straight_within, unwrapped, Coordinate, RowWarp, BEND_FRAC, FRAC};
 use crate::limits::MAX_SEARCH_RADIUS;
-
-/// A band row's padding before column 0 (the K shifts' reach).
-const PAD: usize = MAX_SEARCH_RADIUS;
 use core::ops::Range;
+
+/// A band row's padding before column 0 (the K shifts' reach, as
+/// [`crate::gpa::band`] pads it).
+const PAD: usize = MAX_SEARCH_RADIUS;
 
 mod offsets;
 pub(in crate::gpa) use offsets::LinePositions;
