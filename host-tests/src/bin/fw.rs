@@ -12,6 +12,8 @@
 //!   With `--profile [FIRST]`: first the instructions per function on three
 //!   frames (from FIRST, default 0; FIRST is then the keyframe), from
 //!   QEMU's record of what it ran ([`m4_profile`]).
+//!   With `--frames`: also each frame's figures, a line per frame (where
+//!   the worst frames come from).
 //!   With `--full-frame`: the worst case, a square AOI making the KG grid
 //!   256x256 without margins (`bench::FullFrame`, as `flatland bench
 //!   --full-frame`), on the `full-frame` firmware build (no GTI stage).
@@ -81,6 +83,8 @@ struct Args {
     capture: Option<PathBuf>,
     /// `--profile [FIRST]`: instructions per function on frames FIRST.. (`--bench` only).
     profile: Option<u32>,
+    /// `--frames`: each frame's figures too (`--bench` only).
+    frames: bool,
 }
 
 /// Frames `--profile` runs: QEMU's record grows by ~0.4 GB a frame.
@@ -108,6 +112,7 @@ fn parse_args() -> Result<Args> {
     let mut poses = None;
     let mut profile = None;
     let mut capture = None;
+    let mut frames = false;
     let mut args = std::env::args().skip(1).peekable();
     while let Some(arg) = args.next() {
         match arg.as_str() {
@@ -115,6 +120,7 @@ fn parse_args() -> Result<Args> {
             "--selftest" => mode = Mode::SelfTest,
             "--bench" => mode = Mode::Bench,
             "--full-frame" => full_frame = true,
+            "--frames" => frames = true,
             "--profile" => {
                 // An optional first frame: a run from there (its first frame the keyframe).
                 let first = args.peek().and_then(|next| next.parse::<u32>().ok());
@@ -149,7 +155,8 @@ fn parse_args() -> Result<Args> {
                 mm_per_px = Some(args.next().and_then(|s| s.parse().ok()).ok_or("--mm-per-px needs a number")?);
             }
             "-h" | "--help" => {
-                println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame] [--profile [FIRST_FRAME]]");
+                println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame] [--profile [FIRST]] [--frames]");
+                println!("       --profile [FIRST]: instructions per function on {PROFILE_FRAMES} frames from FIRST (default 0); --frames: each frame's figures too");
                 println!("       --odometry none / --imu none: $FLODO leaves the wheels' pose / the IMU's attitude out");
                 println!("       --protocol lines|mavlink: the serial protocol (default lines); mavlink runs the mavlink build, poses sent as MAVLink;");
                 println!("         with --csv it prints OBSTACLE_DISTANCE as `flatland serial decode --mavlink --recording RECORDING` does");
@@ -167,8 +174,8 @@ fn parse_args() -> Result<Args> {
     if full_frame && mode != Mode::Bench {
         return Err("--full-frame is for cargo fw-bench".into());
     }
-    if profile.is_some() && mode != Mode::Bench {
-        return Err("--profile is for cargo fw-bench".into());
+    if (profile.is_some() || frames) && mode != Mode::Bench {
+        return Err("--profile and --frames are for cargo fw-bench".into());
     }
     // QEMU runs in the recording's directory: the ELF's path must not be relative.
     let elf = elf.map(|elf: PathBuf| elf.canonicalize().map_err(|e| format!("firmware {}: {e}", elf.display()))).transpose()?;
@@ -183,7 +190,7 @@ fn parse_args() -> Result<Args> {
     if mavlink.is_some() && !matches!(mode, Mode::Run | Mode::Csv) {
         return Err("--protocol mavlink runs the main job (no --bench or --selftest)".into());
     }
-    Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame, sensors, mavlink, capture, profile })
+    Ok(Args { mode, elf, recording, timeout, mm_per_px, full_frame, sensors, mavlink, capture, profile, frames })
 }
 
 fn describe(message: &Message) -> Option<String> {
@@ -330,7 +337,7 @@ fn run_bench(args: &Args, elf: &Path) -> Result<()> {
         let profile = std::fs::File::open(path).map(std::io::BufReader::new).and_then(m4_profile::read);
         let _ = std::fs::remove_file(path);
         let profile = profile.map_err(|e| format!("QEMU's record {}: {e}", path.display()))?;
-        print_profile(&profile);
+        print_profile(&profile, args.profile.unwrap_or(0));
     }
     let log = log?;
     let mut per_frame: BTreeMap<String, Vec<u64>> = BTreeMap::new();
@@ -366,6 +373,9 @@ fn run_bench(args: &Args, elf: &Path) -> Result<()> {
         println!("{key}_max: {max}");
     }
     println!("frames: {}", per_frame.values().next().map_or(0, Vec::len));
+    if args.frames {
+        print_frames(&per_frame);
+    }
     // The |diff| histogram is accumulated inside the shift search and its
     // median taken in the decision; it has no instructions of its own.
     println!("histogram: in_shift_search_and_decision");
@@ -375,10 +385,22 @@ fn run_bench(args: &Args, elf: &Path) -> Result<()> {
     Ok(())
 }
 
+/// `--frames`: a line per frame compared, its cycle and the largest stages.
+fn print_frames(per_frame: &BTreeMap<String, Vec<u64>>) {
+    const STAGES: [&str; 9] =
+        ["instructions_per_cycle", "remap", "gpa_estimate", "gpa_warp", "gpa_residue", "gpa_parallax", "gpa_seed_search", "gti", "decision"];
+    println!("per_frame: n {}", STAGES.join(" "));
+    let frames = per_frame.get(STAGES[0]).map_or(0, Vec::len);
+    for n in 0..frames {
+        let figures: Vec<String> = STAGES.iter().map(|key| per_frame.get(*key).and_then(|values| values.get(n)).map_or("-".to_string(), u64::to_string)).collect();
+        println!("per_frame: {n} {}", figures.join(" "));
+    }
+}
+
 /// The profile's biggest entries (`--profile`).
-fn print_profile(profile: &m4_profile::Profile) {
+fn print_profile(profile: &m4_profile::Profile, first: u32) {
     let share = |count: u64| 100.0 * count as f64 / profile.total.max(1) as f64;
-    println!("profile: every instruction the M4 ran on {PROFILE_FRAMES} frames (set-up and serial waits included); the figures after the profile are the same run's, over those frames only");
+    println!("profile: every instruction the M4 ran on {PROFILE_FRAMES} frames from frame {first} (set-up and serial waits included); the figures after the profile are the same run's, over those frames only");
     println!("profile_total: {}", profile.total);
     for (name, count) in profile.functions.iter().take(40) {
         println!("profile: {count:>11} {:5.1} %  {name}", share(*count));
