@@ -9,6 +9,14 @@
 /// line are sized by it ([`crate::geometry::Rig::new_checked`] refuses more).
 pub const MAX_IMAGE_SIDE: u16 = 1024;
 
+/// Camera rows the streaming remap may keep in a pipeline
+/// ([`crate::remap::RemapTable::ring_bytes`]): 32 KB, the memory of GPA's
+/// compare, idle while the rows stream, lends them ([`crate::gpa::Gpa::lend_ring`]).
+/// A level QVGA mount needs 2 rows; a steep tilt or a strong lens (a
+/// Duckiebot's: 41 rows of 640 px) more. A rig needing more is refused
+/// (`RemapError::RingTooSmall`) on the host and on the target alike.
+pub const MAX_RING_BYTES: usize = 32 * 1024;
+
 // --------------------------------------------------------------- KG grid
 
 /// Largest KG grid side, in pixels: the remap table's rows and every

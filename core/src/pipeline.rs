@@ -25,6 +25,7 @@
 
 use crate::fusion::GtiStage;
 use crate::gpa::Gpa;
+use crate::limits::MAX_RING_BYTES;
 use crate::motion::{Attitude, Motion, Pose};
 use crate::remap::{Line, RemapError, RemapTable, StreamingRemap};
 use crate::report::{FrameReport, NotJudged};
@@ -136,9 +137,9 @@ struct Current {
 }
 
 /// The stages of one rig and the frame bookkeeping between them.
-pub struct Pipeline<'s, 'k, 't, 'r> {
+pub struct Pipeline<'s, 'k, 't> {
     table: &'t RemapTable,
-    remap: StreamingRemap<'t, 'r>,
+    remap: StreamingRemap<'t>,
     gpa: &'s mut Gpa<'k>,
     gti: Option<&'s mut GtiStage>,
     previous: Option<Previous>,
@@ -150,17 +151,17 @@ pub struct Pipeline<'s, 'k, 't, 'r> {
     timing: FrameTiming,
 }
 
-impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
-    /// The stages, set up for the rig `table` was built for; `ring` holds
-    /// the remap's camera rows ([`RemapTable::ring_bytes`]). Without `gti`,
-    /// reports carry GPA's decision alone.
-    pub fn new(
-        table: &'t RemapTable,
-        ring: &'r mut [u8],
-        gpa: &'s mut Gpa<'k>,
-        gti: Option<&'s mut GtiStage>,
-    ) -> Result<Self, RemapError> {
-        let remap = StreamingRemap::new(table, ring)?;
+impl<'s, 'k, 't> Pipeline<'s, 'k, 't> {
+    /// The stages, set up for the rig `table` was built for. The remap's
+    /// camera rows ([`RemapTable::ring_bytes`]) live in memory GPA lends
+    /// while rows stream ([`Gpa::lend_ring`]): a rig needing more than
+    /// [`MAX_RING_BYTES`] is refused. Without `gti`, reports carry GPA's
+    /// decision alone.
+    pub fn new(table: &'t RemapTable, gpa: &'s mut Gpa<'k>, gti: Option<&'s mut GtiStage>) -> Result<Self, RemapError> {
+        if table.ring_bytes() > MAX_RING_BYTES {
+            return Err(RemapError::RingTooSmall { needed: table.ring_bytes() });
+        }
+        let remap = StreamingRemap::new(table);
         Ok(Pipeline { table, remap, gpa, gti, previous: None, current: None, started: false, clock: None, timing: FrameTiming::default() })
     }
 
@@ -243,7 +244,17 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
         let (table, clock) = (*table, *clock);
         let now = || clock.map_or(0, |clock| clock());
         let (mut detector_rows, mut gti_rows) = (0u32, 0u32);
-        let pushed = remap.push_row(camera_row, line, |j, kg_row| {
+        // The ring is GPA's to lend between its calls (`Gpa::lend_ring`).
+        let mut pushed = remap.store_row(gpa.lend_ring(), camera_row);
+        while pushed.is_ok() {
+            let (j, kg_row) = match remap.next_kg_row(gpa.lend_ring(), line) {
+                Ok(Some(row)) => row,
+                Ok(None) => break,
+                Err(error) => {
+                    pushed = Err(error);
+                    break;
+                }
+            };
             let start = now();
             current.kg_rows += 1;
             gpa.on_kg_row(j, kg_row);
@@ -255,7 +266,7 @@ impl<'s, 'k, 't, 'r> Pipeline<'s, 'k, 't, 'r> {
             detector_rows = detector_rows.wrapping_add(gti_start.wrapping_sub(start));
             gti_rows = gti_rows.wrapping_add(end.wrapping_sub(gti_start));
             tap(j, kg_row);
-        });
+        }
         let stages = detector_rows.wrapping_add(gti_rows);
         timing.remap = timing.remap.wrapping_add(now().wrapping_sub(entered_at).wrapping_sub(stages));
         timing.detector_rows = timing.detector_rows.wrapping_add(detector_rows);
@@ -361,11 +372,10 @@ mod tests {
         let rig = sample_rig();
         let grid = KgGrid::for_rig(&rig, &GridConfig::default()).unwrap();
         let table = Box::new(RemapTable::new(&rig, &grid).unwrap());
-        let mut ring = vec![0u8; table.ring_bytes()];
         let mut keyframe = vec![0u8; Gpa::keyframe_bytes(&grid)];
         let mut gpa = Box::new(Gpa::new(&rig, &grid, &table, GpaConfig::default(), &mut keyframe).unwrap());
         let mut gti = with_gti.then(|| Box::new(GtiStage::new(&rig, &grid).unwrap()));
-        let mut pipeline = Pipeline::new(&table, &mut ring, &mut gpa, gti.as_deref_mut()).unwrap();
+        let mut pipeline = Pipeline::new(&table, &mut gpa, gti.as_deref_mut()).unwrap();
         test(&mut pipeline, &table);
     }
 

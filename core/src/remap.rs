@@ -38,8 +38,9 @@
 //! # Streaming
 //! [`StreamingRemap::push_row`] takes camera rows in order and emits each KG
 //! row as soon as the last camera row it samples has arrived. Camera rows are
-//! kept in a caller-provided ring of [`RemapTable::ring_rows`] rows; no whole
-//! frame is ever held.
+//! kept in a ring of [`RemapTable::ring_rows`] rows that the caller lends
+//! each call (the pipeline lends memory that is idle while rows stream); no
+//! whole frame is ever held.
 
 use crate::geometry::{Distortion, Rig};
 use crate::grid::KgGrid;
@@ -624,22 +625,25 @@ impl RemapTable {
 /// frame's end, its deepest stack).
 pub use crate::kernels::pinhole::Line;
 
-/// Row-by-row remap of one frame at a time; see the module docs.
-pub struct StreamingRemap<'t, 'r> {
+/// Row-by-row remap of one frame at a time; see the module docs. The ring
+/// of camera rows is lent to each call, the same memory throughout a frame
+/// (at least [`RemapTable::ring_bytes`] bytes; a smaller one is refused).
+pub struct StreamingRemap<'t> {
     table: &'t RemapTable,
-    ring: &'r mut [u8],
     rows_received: u16,
     next_kg_row: u16,
     kg_row: [u8; MAX_GRID_SIDE],
 }
 
-impl<'t, 'r> StreamingRemap<'t, 'r> {
-    /// `ring` must hold at least [`RemapTable::ring_bytes`] bytes.
-    pub fn new(table: &'t RemapTable, ring: &'r mut [u8]) -> Result<Self, RemapError> {
-        if ring.len() < table.ring_bytes() {
-            return Err(RemapError::RingTooSmall { needed: table.ring_bytes() });
-        }
-        Ok(StreamingRemap { table, ring, rows_received: 0, next_kg_row: 0, kg_row: [0; MAX_GRID_SIDE] })
+impl<'t> StreamingRemap<'t> {
+    pub fn new(table: &'t RemapTable) -> Self {
+        StreamingRemap { table, rows_received: 0, next_kg_row: 0, kg_row: [0; MAX_GRID_SIDE] }
+    }
+
+    /// The ring's first [`RemapTable::ring_bytes`] bytes, or the error.
+    fn checked<'a>(&self, ring: &'a [u8]) -> Result<&'a [u8], RemapError> {
+        let needed = self.table.ring_bytes();
+        ring.get(..needed).ok_or(RemapError::RingTooSmall { needed })
     }
 
     /// Forgets the current frame (after a dropped or broken frame).
@@ -653,11 +657,22 @@ impl<'t, 'r> StreamingRemap<'t, 'r> {
         usize::from(self.rows_received)
     }
 
-    /// Pushes the next camera row; calls `emit(kg_row_index, kg_row)` for every
-    /// KG row that became ready, sampled through `line` (any contents). After
-    /// the last camera row the frame is complete and the next push starts a
-    /// new frame.
-    pub fn push_row(&mut self, camera_row: &[u8], line: &mut Line, mut emit: impl FnMut(usize, &[u8])) -> Result<(), RemapError> {
+    /// Pushes the next camera row into `ring`; calls `emit(kg_row_index,
+    /// kg_row)` for every KG row that became ready, sampled through `line`
+    /// (any contents). After the last camera row the frame is complete and
+    /// the next push starts a new frame.
+    pub fn push_row(&mut self, ring: &mut [u8], camera_row: &[u8], line: &mut Line, mut emit: impl FnMut(usize, &[u8])) -> Result<(), RemapError> {
+        self.store_row(ring, camera_row)?;
+        while let Some((j, kg_row)) = self.next_kg_row(ring, line)? {
+            emit(j, kg_row);
+        }
+        Ok(())
+    }
+
+    /// [`Self::push_row`]'s first half: keeps the next camera row in
+    /// `ring`. Then [`Self::next_kg_row`] until None gives the KG rows it
+    /// completed; between the calls the ring's memory is the caller's.
+    pub fn store_row(&mut self, ring: &mut [u8], camera_row: &[u8]) -> Result<(), RemapError> {
         let table = self.table;
         if camera_row.len() != table.camera_width() {
             return Err(RemapError::RowLength { expected: table.camera_width, got: camera_row.len() });
@@ -665,31 +680,39 @@ impl<'t, 'r> StreamingRemap<'t, 'r> {
         if usize::from(self.rows_received) >= table.camera_height() {
             return Err(RemapError::TooManyRows);
         }
+        let needed = table.ring_bytes();
+        let ring = ring.get_mut(..needed).ok_or(RemapError::RingTooSmall { needed })?;
         let width = table.camera_width();
         let slot = usize::from(self.rows_received) % table.ring_rows();
-        copy_row(&mut self.ring[slot * width..][..width], camera_row);
+        copy_row(&mut ring[slot * width..][..width], camera_row);
         self.rows_received += 1;
-
-        while usize::from(self.next_kg_row) < table.grid_height() {
-            let j = usize::from(self.next_kg_row);
-            let map = &table.rows[j];
-            let empty = map.valid_end == map.valid_start;
-            if !empty && map.last_source_row >= self.rows_received {
-                break;
-            }
-            self.render_row(j, line);
-            emit(j, &self.kg_row[..table.grid_width()]);
-            self.next_kg_row += 1;
-        }
-        if usize::from(self.rows_received) == table.camera_height() {
-            // Every KG row needs only rows that exist, so all were emitted.
-            self.reset();
-        }
         Ok(())
     }
 
-    /// Samples KG row `j` from the ring into `self.kg_row`.
-    fn render_row(&mut self, j: usize, line: &mut Line) {
+    /// The next KG row the camera rows stored so far complete, sampled from
+    /// `ring` through `line` (any contents), with its index; None when the
+    /// next one needs rows still to come. After the frame's last KG row the
+    /// next camera row starts a new frame.
+    pub fn next_kg_row(&mut self, ring: &[u8], line: &mut Line) -> Result<Option<(usize, &[u8])>, RemapError> {
+        let table = self.table;
+        let j = usize::from(self.next_kg_row);
+        let ready = j < table.grid_height()
+            && table.rows.get(j).is_some_and(|map| map.valid_end == map.valid_start || map.last_source_row < self.rows_received);
+        if !ready {
+            if usize::from(self.rows_received) == table.camera_height() {
+                // Every KG row needs only rows that exist, so all were emitted.
+                self.reset();
+            }
+            return Ok(None);
+        }
+        let ring = self.checked(ring)?;
+        self.render_row(ring, j, line);
+        self.next_kg_row += 1;
+        Ok(Some((j, &self.kg_row[..table.grid_width()])))
+    }
+
+    /// Samples KG row `j` from `ring` into `self.kg_row`.
+    fn render_row(&mut self, ring: &[u8], j: usize, line: &mut Line) {
         let table = self.table;
         let map = &table.rows[j];
         let out = &mut self.kg_row[..table.grid_width()];
@@ -703,7 +726,6 @@ impl<'t, 'r> StreamingRemap<'t, 'r> {
         out[valid.end..].fill(0);
         let width = table.camera_width();
         let ring_rows = table.ring_rows();
-        let ring = &*self.ring;
         let row_at = |camera_row: usize| &ring[(camera_row % ring_rows) * width..][..width];
         let last_row = table.camera_height() - 1;
         if table.crooked {
@@ -759,10 +781,10 @@ pub fn remap_frame(table: &RemapTable, frame: &[u8], ring: &mut [u8], out: &mut 
     if out.len() < grid_width * table.grid_height() {
         return Err(RemapError::OutputTooSmall);
     }
-    let mut stream = StreamingRemap::new(table, ring)?;
+    let mut stream = StreamingRemap::new(table);
     let mut line = Line::ZERO;
     for camera_row in frame.chunks_exact(width) {
-        stream.push_row(camera_row, &mut line, |j, kg_row| out[j * grid_width..][..grid_width].copy_from_slice(kg_row))?;
+        stream.push_row(ring, camera_row, &mut line, |j, kg_row| out[j * grid_width..][..grid_width].copy_from_slice(kg_row))?;
     }
     Ok(())
 }
@@ -930,13 +952,13 @@ mod tests {
             remap_frame(&table, &frame, &mut ring, &mut whole).unwrap();
 
             let mut ring = std::vec![0u8; table.ring_bytes()];
-            let mut stream = StreamingRemap::new(&table, &mut ring).unwrap();
+            let mut stream = StreamingRemap::new(&table);
             let mut emitted_after = std::vec![usize::MAX; grid.height()];
             let mut streamed = std::vec![0u8; grid.len()];
             let mut line = Line::ZERO;
             for (n, row) in frame.chunks_exact(cw).enumerate() {
                 stream
-                    .push_row(row, &mut line, |j, kg| {
+                    .push_row(&mut ring, row, &mut line, |j, kg| {
                         emitted_after[j] = n + 1;
                         streamed[j * grid.width()..][..grid.width()].copy_from_slice(kg);
                     })
@@ -996,8 +1018,9 @@ mod tests {
         std::println!("ring rows: level {}, rolled 1.5 deg {}", level_table.ring_rows(), rolled_table.ring_rows());
         assert!(rolled_table.ring_rows() > level_table.ring_rows() + 2);
         let mut ring = std::vec![0u8; level_table.ring_bytes()];
+        let (row, mut line) = (std::vec![0u8; rolled_table.camera_width()], Line::ZERO);
         assert_eq!(
-            StreamingRemap::new(&rolled_table, &mut ring).err(),
+            StreamingRemap::new(&rolled_table).push_row(&mut ring, &row, &mut line, |_, _| {}).err(),
             Some(RemapError::RingTooSmall { needed: rolled_table.ring_bytes() })
         );
     }
@@ -1007,12 +1030,15 @@ mod tests {
         let rig = &test_rigs()[0];
         let grid = KgGrid::for_rig(rig, &GridConfig::default()).unwrap();
         let table = RemapTable::new(rig, &grid).unwrap();
-        let mut small = [0u8; 4];
-        assert!(matches!(StreamingRemap::new(&table, &mut small), Err(RemapError::RingTooSmall { .. })));
-        let mut ring = std::vec![0u8; table.ring_bytes()];
-        let mut stream = StreamingRemap::new(&table, &mut ring).unwrap();
+        let mut stream = StreamingRemap::new(&table);
         let mut line = Line::ZERO;
-        let err = stream.push_row(&[0u8; 3], &mut line, |_, _| {}).unwrap_err();
+        let mut small = [0u8; 4];
+        let row = std::vec![0u8; table.camera_width()];
+        let err = stream.push_row(&mut small, &row, &mut line, |_, _| {}).unwrap_err();
+        assert!(matches!(err, RemapError::RingTooSmall { .. }));
+        assert_eq!(stream.rows_received(), 0);
+        let mut ring = std::vec![0u8; table.ring_bytes()];
+        let err = stream.push_row(&mut ring, &[0u8; 3], &mut line, |_, _| {}).unwrap_err();
         assert_eq!(err, RemapError::RowLength { expected: 256, got: 3 });
         assert_eq!(stream.rows_received(), 0);
     }

@@ -59,7 +59,7 @@ fn run(frames: &[(u8, Option<Motion>)]) -> Vec<Option<FrameReport>> {
     let mut keyframe = vec![0u8; Gpa::keyframe_bytes(&grid)];
     let mut gpa = Gpa::new(&rig, &grid, &table, config, &mut keyframe).expect("gpa");
     let mut ring = vec![0u8; table.ring_bytes()];
-    let mut stream = StreamingRemap::new(&table, &mut ring).expect("ring");
+    let mut stream = StreamingRemap::new(&table);
     let mut line = Line::ZERO;
     let (cw, ch) = (table.camera_width(), table.camera_height());
     let mut reports = Vec::new();
@@ -68,7 +68,7 @@ fn run(frames: &[(u8, Option<Motion>)]) -> Vec<Option<FrameReport>> {
         gpa.begin_frame(n as u32, odometry, None);
         for _ in 0..ch {
             stream
-                .push_row(&row, &mut line, |j, kg| {
+                .push_row(&mut ring, &row, &mut line, |j, kg| {
                     for i in table.valid_columns(j) {
                         assert_eq!(kg[i], value, "KG pixel ({i}, {j}) of a flat {value} frame");
                     }

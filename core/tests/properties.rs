@@ -136,17 +136,17 @@ proptest! {
         let mut state = seed | 1; // xorshift32's state must not be 0
         let frame: Vec<u8> = (0..cw * ch).map(|_| xorshift32(&mut state) as u8).collect();
         let mut ring = vec![0u8; table.ring_bytes()];
-        let mut stream = StreamingRemap::new(&table, &mut ring).expect("ring");
+        let mut stream = StreamingRemap::new(&table);
         let stop = ((ch as f64) * abandon_at) as usize;
         let mut line = Line::ZERO;
         for row in frame.chunks_exact(cw).take(stop).rev() {
             // A frame of other content, abandoned part way (rows in reverse order).
-            stream.push_row(row, &mut line, |_, _| {}).expect("row");
+            stream.push_row(&mut ring, row, &mut line, |_, _| {}).expect("row");
         }
         stream.reset();
         let mut streamed = vec![0u8; grid.len()];
         for row in frame.chunks_exact(cw) {
-            stream.push_row(row, &mut line, |j, kg| streamed[j * grid.width()..][..grid.width()].copy_from_slice(kg)).expect("row");
+            stream.push_row(&mut ring, row, &mut line, |j, kg| streamed[j * grid.width()..][..grid.width()].copy_from_slice(kg)).expect("row");
         }
         for j in 0..grid.height() {
             let valid = table.valid_columns(j);

@@ -35,6 +35,7 @@ use flatland_core::grid::{GridConfig, KgGrid};
 use flatland_core::health::{FailSafe, SensorFault, CAMERA_TIMEOUT_US};
 #[cfg(feature = "full-frame")]
 use flatland_core::limits::MAX_GRID_SIDE;
+use flatland_core::limits::MAX_RING_BYTES;
 use flatland_core::pipeline::{FrameError, FrameTiming, Outcome, Pipeline, PoseSample};
 use flatland_core::protocol::{FaultCode, LinkStats, LoopStats, RigRecord};
 use flatland_core::remap::{Line, RemapError, RemapTable};
@@ -45,10 +46,6 @@ use crate::protocol::{Input, Protocol};
 
 /// Widest camera row supported (VGA); wider rigs are refused at start-up.
 pub const MAX_CAMERA_WIDTH: usize = 640;
-/// Camera rows the streaming remap may keep: 4 rows of the widest camera
-/// (8 of a QVGA one). The bundled rigs need 2; steep tilts and strong
-/// distortion need more, and are refused at start-up if they need too many.
-pub const RING_CAPACITY: usize = 4 * MAX_CAMERA_WIDTH;
 /// Memory of each of GPA's two KG images (`Gpa::image_bytes`: one grid).
 /// 40,000 B holds a grid at the default 40,000 px cap: every bundled rig's
 /// default grid (256x256 camera: 141x255, 35,955 B; QVGA: 179x220, 39,380 B).
@@ -62,7 +59,6 @@ pub const IMAGE_CAPACITY: usize = 40_000;
 pub const IMAGE_CAPACITY: usize = MAX_GRID_SIDE * MAX_GRID_SIDE;
 
 static TABLE: ConstStaticCell<RemapTable> = ConstStaticCell::new(RemapTable::EMPTY);
-static RING: ConstStaticCell<[u8; RING_CAPACITY]> = ConstStaticCell::new([0; RING_CAPACITY]);
 static DETECTOR: ConstStaticCell<Gpa<'static>> = ConstStaticCell::new(Gpa::EMPTY);
 /// The GTI stage (`size_of::<GtiStage>()`, 20.6 KB), configured in place,
 /// in the CCM beside the second image (the CPU alone reads it; RAM holds
@@ -120,7 +116,6 @@ fn ccm_gti() -> Option<Option<&'static mut GtiStage>> {
 /// The stages' memory, all statics, handed out once.
 struct Memory {
     table: &'static mut RemapTable,
-    ring: &'static mut [u8; RING_CAPACITY],
     image: &'static mut [u8; IMAGE_CAPACITY],
     ccm_image: &'static mut [u8; IMAGE_CAPACITY],
     gpa: &'static mut Gpa<'static>,
@@ -133,7 +128,6 @@ impl Memory {
     fn take() -> Option<Memory> {
         Some(Memory {
             table: TABLE.try_take()?,
-            ring: RING.try_take()?,
             image: IMAGE.try_take()?,
             ccm_image: ccm_image()?,
             gpa: DETECTOR.try_take()?,
@@ -145,8 +139,8 @@ impl Memory {
     /// keeps stack temporaries of it, and it is kilobytes), GTI (20.6 KB,
     /// configured in place too) and the pipeline over them, for the rig the
     /// table was built for.
-    fn into_pipeline(self, rig: &Rig, grid: &KgGrid) -> Result<Pipeline<'static, 'static, 'static, 'static>, SetupError> {
-        let Memory { table, ring, image, ccm_image, gpa, gti } = self;
+    fn into_pipeline(self, rig: &Rig, grid: &KgGrid) -> Result<Pipeline<'static, 'static, 'static>, SetupError> {
+        let Memory { table, image, ccm_image, gpa, gti } = self;
         gpa.init_split(rig, grid, table, GpaConfig::default(), &mut image[..], &mut ccm_image[..]).map_err(SetupError::Detector)?;
         let gti = match gti {
             Some(gti) => {
@@ -157,7 +151,7 @@ impl Memory {
         };
         // `set_up` checked the ring size, so this only fails on a core
         // change; still a typed error, not a panic.
-        Pipeline::new(table, &mut ring[..], gpa, gti).map_err(SetupError::Pipeline)
+        Pipeline::new(table, gpa, gti).map_err(SetupError::Pipeline)
     }
 }
 
@@ -170,7 +164,7 @@ pub enum SetupError {
     Table(flatland_core::remap::TableError),
     /// Camera rows wider than [`MAX_CAMERA_WIDTH`].
     CameraTooWide { width: usize },
-    /// The remap needs more than [`RING_CAPACITY`] bytes of camera rows.
+    /// The remap needs more than [`MAX_RING_BYTES`] of camera rows.
     RingTooSmall { needed: usize },
     /// A KG image of the grid needs more than [`IMAGE_CAPACITY`] bytes.
     KeyframeTooLarge { needed: usize },
@@ -203,7 +197,7 @@ impl core::fmt::Display for SetupError {
             SetupError::Grid(error) => write!(f, "KG grid refused: {error}"),
             SetupError::Table(error) => write!(f, "remap table refused: {error}"),
             SetupError::CameraTooWide { width } => write!(f, "camera {width} px wide, at most {MAX_CAMERA_WIDTH}"),
-            SetupError::RingTooSmall { needed } => write!(f, "camera rows need {needed} B, at most {RING_CAPACITY}"),
+            SetupError::RingTooSmall { needed } => write!(f, "camera rows need {needed} B, at most {MAX_RING_BYTES}"),
             SetupError::KeyframeTooLarge { needed } => write!(f, "KG image needs {needed} B, at most {IMAGE_CAPACITY}"),
             SetupError::Detector(error) => write!(f, "detector refused: {error}"),
             SetupError::Gti(error) => write!(f, "GTI refused: {error}"),
@@ -259,7 +253,7 @@ fn set_up(record: &RigRecord, table: &mut RemapTable, options: &Options) -> Resu
         return Err(SetupError::KeyframeTooLarge { needed });
     }
     table.build(&rig, &grid).map_err(SetupError::Table)?;
-    if table.ring_bytes() > RING_CAPACITY {
+    if table.ring_bytes() > MAX_RING_BYTES {
         return Err(SetupError::RingTooSmall { needed: table.ring_bytes() });
     }
     Ok((rig, grid))
@@ -316,7 +310,7 @@ pub struct FrameLoop<'o, P, A, C, R, K, W> {
 
 /// What the loop keeps from frame to frame once the stages are built.
 struct Session {
-    pipeline: Pipeline<'static, 'static, 'static, 'static>,
+    pipeline: Pipeline<'static, 'static, 'static>,
     /// The rig's camera, (width, height).
     camera: (usize, usize),
     /// A frame was begun: a later one that does not follow it is a gap.
@@ -463,7 +457,7 @@ where
                 grid.height(),
                 RemapTable::size_bytes(),
                 table.ring_bytes(),
-                RING_CAPACITY,
+                MAX_RING_BYTES,
                 Gpa::keyframe_bytes(&grid),
                 2 * IMAGE_CAPACITY
             );

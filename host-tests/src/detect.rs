@@ -65,14 +65,14 @@ impl Detector {
 
     /// Runs `drive` on a fresh pipeline over these buffers.
     pub fn with_pipeline<T>(&mut self, heights: Heights, drive: impl FnOnce(&mut Pipeline) -> Result<T, String>) -> Result<T, String> {
-        let KgFrontEnd { grid, table, ring } = &mut self.front_end;
+        let KgFrontEnd { grid, table, .. } = &mut self.front_end;
         let table: &RemapTable = table;
         let mut gpa = Gpa::new(&self.rig, grid, table, self.config.gpa, &mut self.keyframe).map_err(|e| format!("detector: {e}"))?;
         let mut gti = match heights {
             Heights::WithGti => Some(Box::new(GtiStage::new(&self.rig, grid).map_err(|e| format!("GTI: {e}"))?)),
             Heights::GpaOnly => None,
         };
-        let mut pipeline = Pipeline::new(table, ring, &mut gpa, gti.as_deref_mut()).map_err(|e| e.to_string())?;
+        let mut pipeline = Pipeline::new(table, &mut gpa, gti.as_deref_mut()).map_err(|e| e.to_string())?;
         drive(&mut pipeline)
     }
 

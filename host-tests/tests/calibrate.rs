@@ -9,6 +9,7 @@ use flatland_core::motion::Attitude;
 use flatland_host::calibrate::{
     calibrate, calibrated_rig_toml, parse_camera_info, rig_with_aoi_in_view, Body, CalibrationConfig, CalibrationError, MountEstimate,
 };
+use flatland_host::detect::{DetectConfig, Detector};
 use flatland_host::recording::{parse_poses, parse_rig, Recording};
 use std::path::Path;
 use std::process::Command;
@@ -432,27 +433,36 @@ fn camera_info_is_written_into_the_calibrated_rig() {
 
 /// The crooked mount end to end: the rig message carries roll and yaw, the
 /// firmware in QEMU builds the crooked table and gives exactly the host's
-/// csv, and the warped flat floor raises no alarm. A larger roll slants the
-/// KG rows across more camera rows than the firmware's ring holds: refused
-/// at start-up with `camera_too_large`, cleanly.
+/// csv, and the warped flat floor raises no alarm. A roll that slants the
+/// KG rows across more camera rows than the ring holds (`MAX_RING_BYTES`)
+/// is refused with the same typed error on both: at start-up with
+/// `camera_too_large` on the firmware, cleanly.
 #[test]
 #[cfg_attr(not(feature = "qemu-tests"), ignore = "QEMU tier: cargo test -p flatland-host --features qemu-tests")]
 fn a_crooked_recording_detects_alike_on_host_and_firmware() {
-    let (copy, _) = crooked_copy("flat_marks", 0.5, -1.0);
-    let expected = common::detect_csv(&copy.dir);
-    assert!(expected.lines().count() > 1, "no rows");
-    for row in expected.lines().skip(1) {
-        assert_eq!(row.split(',').nth(2), Some("0"), "alarm on the flat floor: {row}");
+    for (roll, yaw) in [(0.5, -1.0), (1.5, -2.0)] {
+        let (copy, _) = crooked_copy("flat_marks", roll, yaw);
+        let expected = common::detect_csv(&copy.dir);
+        assert!(expected.lines().count() > 1, "no rows");
+        for row in expected.lines().skip(1) {
+            assert_eq!(row.split(',').nth(2), Some("0"), "alarm on the flat floor rolled {roll}: {row}");
+        }
+        let outcome = common::run(&copy.dir, common::script(&copy.dir));
+        let (csv, summary) = common::decoded(&outcome);
+        assert!(summary.frame_faults.is_empty(), "{:?}", summary.frame_faults);
+        assert_eq!(csv, expected, "rolled {roll}, yawed {yaw}");
     }
-    let outcome = common::run(&copy.dir, common::script(&copy.dir));
-    let (csv, summary) = common::decoded(&outcome);
-    assert!(summary.frame_faults.is_empty(), "{:?}", summary.frame_faults);
-    assert_eq!(csv, expected);
 
-    let (copy, _) = crooked_copy("flat_marks", 1.5, -2.0);
-    for row in common::detect_csv(&copy.dir).lines().skip(1) {
-        assert_eq!(row.split(',').nth(2), Some("0"), "alarm on the flat floor: {row}");
-    }
+    // Rolled 30 degrees (the rig alone: nothing is detected).
+    let copy = TempRecording::copy_of("flat_marks", "rolled");
+    let recording = Recording::open(&copy.dir).unwrap();
+    let rolled = Mount { roll_deg: 30.0, ..*recording.rig.mount() };
+    let rig_path = copy.dir.join("rig.toml");
+    let text = std::fs::read_to_string(&rig_path).unwrap();
+    std::fs::write(&rig_path, calibrated_rig_toml(&text, &rolled)).unwrap();
+    let recording = Recording::open(&copy.dir).unwrap();
+    let refused = Detector::new(&recording.rig, &DetectConfig::default()).and_then(|mut detector| detector.run(&recording, |_, _| {})).unwrap_err();
+    assert!(refused.contains("row ring needs"), "{refused}");
     let outcome = common::run(&copy.dir, common::script(&copy.dir));
     assert!(outcome.log.contains("RingTooSmall"), "{}", outcome.log);
     let faults = common::faults(&outcome);

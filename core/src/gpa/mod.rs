@@ -423,6 +423,14 @@ impl<'b> Gpa<'b> {
         self.prediction.start_keyframe();
     }
 
+    /// Lends the remap the memory the frame's end compares in, idle while
+    /// the rows stream in: its ring of camera rows
+    /// ([`crate::remap::StreamingRemap::store_row`]). The compare takes it
+    /// back at the frame's end, so it holds no rows across frames.
+    pub fn lend_ring(&mut self) -> &mut [u8] {
+        self.workspace.ring()
+    }
+
     /// Feeds KG row `j` of the current frame (rows arrive in order 0..height):
     /// it is stored; the comparison runs at the frame's end, once the
     /// motion has been measured on the whole image.

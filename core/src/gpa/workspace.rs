@@ -1,8 +1,9 @@
 //! One compare's scratch memory, in turns: the coarse search's images in
 //! step 1 of the motion estimate, the alignment's pyramids in step 2, the
 //! row stages' sums (band, residue, both shift searches) from the
-//! comparison of the rows until the frame is decided. None of them is
-//! live while another is, so they share one place in the board's RAM.
+//! comparison of the rows until the frame is decided; and while the next
+//! frame's rows stream in, the remap's ring of camera rows. None of them
+//! is live while another is, so they share one place in the board's RAM.
 
 use super::band::Band;
 use super::coarse::CoarseSearch;
@@ -10,6 +11,7 @@ use super::estimate::Estimator;
 use super::keyframe::LinePositions;
 use super::residue::Residue;
 use super::shift_search::ShiftSearch;
+use crate::limits::MAX_RING_BYTES;
 
 /// The row stages' per-frame sums, cleared by each compare before use.
 pub(super) struct RowStages {
@@ -36,7 +38,15 @@ pub(super) enum Workspace {
     Coarse(CoarseSearch),
     Estimate(Estimator),
     Rows(RowStages),
+    /// The remap's camera rows while a frame streams in.
+    Ring([u8; MAX_RING_BYTES]),
 }
+
+// The ring takes no memory of its own: it fits in the largest of the others.
+const _: () = {
+    let others = [size_of::<CoarseSearch>(), size_of::<Estimator>(), size_of::<RowStages>()];
+    assert!(MAX_RING_BYTES <= others[0] || MAX_RING_BYTES <= others[1] || MAX_RING_BYTES <= others[2]);
+};
 
 impl Workspace {
     pub(super) const EMPTY: Workspace = Workspace::Rows(RowStages::EMPTY);
@@ -72,6 +82,19 @@ impl Workspace {
         }
         match self {
             Workspace::Rows(rows) => rows,
+            // Just made.
+            _ => unreachable!(),
+        }
+    }
+
+    /// The remap's ring; whatever held the memory before is gone (a new
+    /// ring is zeroed, one in use is kept as it is).
+    pub(super) fn ring(&mut self) -> &mut [u8; MAX_RING_BYTES] {
+        if !matches!(self, Workspace::Ring(_)) {
+            *self = Workspace::Ring([0; MAX_RING_BYTES]);
+        }
+        match self {
+            Workspace::Ring(ring) => ring,
             // Just made.
             _ => unreachable!(),
         }

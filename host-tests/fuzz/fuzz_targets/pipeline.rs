@@ -131,7 +131,7 @@ fuzz_target!(|input: Input| {
     let (cw, ch) = (usize::from(width), usize::from(height));
     let mut ring = vec![0u8; table.ring_bytes()];
     let mut whole_ring = vec![0u8; table.ring_bytes()];
-    let mut stream = StreamingRemap::new(&table, &mut ring).expect("ring sized by the table");
+    let mut stream = StreamingRemap::new(&table);
     let mut line = Line::ZERO;
     let mut frame_number = 0u32;
     for (n, f) in input.frames.iter().take(5).enumerate() {
@@ -157,7 +157,7 @@ fuzz_target!(|input: Input| {
         let gw = grid.width();
         for camera_row in image.chunks_exact(cw).take(rows) {
             stream
-                .push_row(camera_row, &mut line, |j, kg_row| {
+                .push_row(&mut ring, camera_row, &mut line, |j, kg_row| {
                     if let Some(gpa) = gpa.as_mut() {
                         gpa.on_kg_row(j, kg_row);
                     }
