@@ -300,6 +300,15 @@ impl Scan {
         if !(z_mm > 0.0 && x_left_mm <= x_right_mm) {
             return;
         }
+        // Every point of the segment is at least z_mm away, so a sector
+        // whose recorded range is within that keeps it (the common case in
+        // a group of cells: most lie behind its nearest), and a segment
+        // beyond the scan's reach records nothing. `record` rounds alike.
+        let least = libm::round(z_mm);
+        if least > f64::from(self.layout.range_max_mm) {
+            return;
+        }
+        let least = least.max(f64::from(self.layout.range_min_mm)) as u16;
         let first = self.layout.sector_of_point(x_left_mm, z_mm).unwrap_or(0);
         let last = match self.layout.sector_of_point(x_right_mm, z_mm) {
             Some(k) => k,
@@ -307,6 +316,9 @@ impl Scan {
             None => return,
         };
         for k in first..=last {
+            if self.range[k] <= least {
+                continue;
+            }
             let lo = x_left_mm.max(z_mm * self.layout.edge_tan(k));
             let hi = x_right_mm.min(z_mm * self.layout.edge_tan(k + 1));
             // The sector's part of the segment (a point where it only
