@@ -105,17 +105,33 @@ pub fn sad_shifts(current: &[u8], reference: &[u8], sums: &mut [u32]) {
             options(readonly, nostack)
         );
     }
-    // At most 3 pixels left: a plain loop (the portable `sad`'s block
-    // set-up would cost more than the pixels).
-    let done = 4 * words;
-    for (n, &value) in current[done..].iter().enumerate() {
+    // At most 3 pixels left: the row's last word, whose leading bytes the
+    // loop counted, shifted out of the current and the reference words
+    // alike (zeros add nothing), one `usada8` a shift (a byte loop costs
+    // ~5 instructions a pixel and shift).
+    let left = n - 4 * words;
+    if left > 0 {
+        let shift = 8 * (4 - left) as u32;
+        // SAFETY: n >= 4 here, and the last word of shift k ends at
+        // n + k <= n + 4 <= reference.len() (see above).
+        let word = |bytes: &[u8], end: usize| unsafe { bytes.as_ptr().add(end - 4).cast::<u32>().read_unaligned() } >> shift;
+        let last = word(current, n);
         for (k, acc) in acc.iter_mut().enumerate() {
-            *acc += u32::from(value.abs_diff(reference[done + n + k]));
+            *acc = usada8(last, word(reference, n + k), *acc);
         }
     }
     for (sum, acc) in sums.iter_mut().zip(acc) {
         *sum += acc;
     }
+}
+
+/// `acc` plus the |differences| of the four bytes of `a` and `b`.
+#[inline(always)]
+fn usada8(a: u32, b: u32, acc: u32) -> u32 {
+    let sum;
+    // SAFETY: register arithmetic only.
+    unsafe { core::arch::asm!("usada8 {s}, {a}, {b}, {acc}", s = lateout(reg) sum, a = in(reg) a, b = in(reg) b, acc = in(reg) acc, options(pure, nomem, nostack)) };
+    sum
 }
 
 /// One lane: the M4 has no store-to-load stall to hide (1 KB).
