@@ -251,6 +251,56 @@ pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8
     portable::bilinear_line(&upper[done..], &lower[done..], wx, wy, &mut out[done..n]);
 }
 
+/// A sample a step, 22 instructions (the compiled per-pixel loop with
+/// its row index took ~27): each row's pair of pixels is one (unaligned)
+/// halfword load; packed as `u0 u1 l0 l1` and spread by `uxtb16` into
+/// the lanes `(u0, l0)` and `(u1, l1)`, `smuad` with the weights
+/// `[256 - wy | wy]` blends each column down (`wy << 16` is the row
+/// position masked, less itself shifted down, plus 256: `256 - wy >= 1`
+/// never borrows); then across, `((V0 << 8) + (V1 - V0) wx + 2^15) >> 16`,
+/// the portable sum in the other order (exact integers, the same value).
+#[inline]
+pub fn bilinear_stretch(upper: &[u8], lower: &[u8], (i, i_step): (u32, u32), (j, j_step): (u32, u32), out: &mut [u8]) {
+    if out.is_empty() {
+        return;
+    }
+    // SAFETY: every step's x + 1 indexes `upper` and `lower` (checked by
+    // `super::bilinear_stretch`), so the halfwords at x lie inside them;
+    // `out.len()` bytes are written; unaligned ldrh is fine on the M4.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "lsr {t}, {i}, #24",
+            "ldrh {a}, [{pu}, {t}]",           // u0 u1
+            "ldrh {b}, [{pl}, {t}]",           // l0 l1
+            "pkhbt {a}, {a}, {b}, lsl #16",    // u0 u1 l0 l1
+            "uxtb16 {b}, {a}, ror #8",         // (u1, l1)
+            "uxtb16 {a}, {a}",                 // (u0, l0)
+            "and {w}, {j}, #0xFF0000",         // wy << 16
+            "sub {w}, {w}, {w}, lsr #16",
+            "add {w}, {w}, #256",              // [256 - wy | wy]
+            "smuad {a}, {a}, {w}",             // V0
+            "smuad {b}, {b}, {w}",             // V1
+            "ubfx {w}, {i}, #16, #8",          // wx
+            "sub {b}, {b}, {a}",
+            "mul {b}, {b}, {w}",
+            "add {a}, {b}, {a}, lsl #8",
+            "add {a}, {a}, #32768",
+            "lsr {a}, {a}, #16",
+            "strb {a}, [{po}], #1",
+            "add {i}, {i}, {di}",
+            "add {j}, {j}, {dj}",
+            "subs {n}, {n}, #1",
+            "bne 2b",
+            pu = in(reg) upper.as_ptr(), pl = in(reg) lower.as_ptr(),
+            po = inout(reg) out.as_mut_ptr() => _, n = inout(reg) out.len() => _,
+            i = inout(reg) i => _, j = inout(reg) j => _, di = in(reg) i_step, dj = in(reg) j_step,
+            t = out(reg) _, a = out(reg) _, b = out(reg) _, w = out(reg) _,
+            options(nostack)
+        );
+    }
+}
+
 // ------------------------------------------------------------ pinhole rows
 // The line holds `V ^ FLIP`: V <= 65,280, so as i16 that is exactly
 // `V - 2^15` (`smlad` multiplies signed halves).
