@@ -56,6 +56,7 @@ checks! {
     kernels: [
         dsp_kernels_equal_portable,
         bilinear_line_equals_plain,
+        bilinear_stretch_equals_plain,
         seed_statistics_equal_plain,
         pinhole_rows_equal_bilinear,
         copy_row_copies,

@@ -128,7 +128,7 @@ impl Band {
             // Row j + dg - S may lie beyond the grid's edges: the warp
             // extends there, and its samples off the keyframe are 0.
             let r = j as isize + dg as isize - s as isize;
-            let line = warp.row_at(r as f64);
+            let line = warp.row_at(r);
             let (mut lo, mut hi) = (usize::MAX, 0);
             for reader in (r - s as isize).max(0)..=r + s as isize {
                 if let Some(columns) = columns_of(reader as usize) {
@@ -205,7 +205,7 @@ mod tests {
                 let columns = seen(j).unwrap();
                 let wide = columns.start.saturating_sub(s)..(columns.end + s).min(grid.width());
                 for (dg, band_row) in band.rows(s).iter().take(2 * s + 1).enumerate() {
-                    let line = warp.row_at(j as f64 + dg as f64 - s as f64);
+                    let line = warp.row_at(j as isize + dg as isize - s as isize);
                     for c in wide.clone() {
                         let (i, jr) = line.at(c);
                         let want = if keyframe.inside(i, jr) { keyframe.sample(i, jr) } else { 0 };

@@ -127,6 +127,30 @@ pub(super) struct Warp {
     /// The step along a row in Q16 (the same on every row).
     column_q16: (i32, i32),
     row: (f64, f64),
+    /// `origin` and `row` in fixed point, [`FINE_BITS`] below Q16, per
+    /// coordinate; None beyond the range where they settle a row's start
+    /// (see [`Warp::affine_start`]).
+    fine: Option<[(i64, i64); 2]>,
+}
+
+/// Bits below Q16 of [`Warp`]'s fixed-point origin and row step.
+const FINE_BITS: u32 = 32;
+/// The fixed-point rows' range: origin (px), row step (px) and row index
+/// (|row| < 2^10) within which the f64 sum and its fixed-point value lie
+/// within 2^10 units of each other (see [`Warp::affine_start`]).
+const FINE_ORIGIN_PX: f64 = 2048.0;
+const FINE_ROW_STEP_PX: f64 = 4.0;
+const FINE_ROWS: usize = 1 << 10;
+/// Fixed-point sums this close to a half Q16 unit may round either way:
+/// the f64 is worked out.
+const FINE_MARGIN: u32 = 1 << 12;
+
+/// [`Warp`]'s fixed-point `origin` and `row` step, or None beyond their range.
+fn fine_rows(origin: (f64, f64), row: (f64, f64)) -> Option<[(i64, i64); 2]> {
+    // Scaled by a power of two (exact) and rounded: within half a unit.
+    let fine = |value: f64, bound: f64| (libm::fabs(value) < bound).then(|| libm::round(value * (1u64 << (FRAC + FINE_BITS)) as f64) as i64);
+    let coordinate = |origin: f64, row: f64| Some((fine(origin, FINE_ORIGIN_PX)?, fine(row, FINE_ROW_STEP_PX)?));
+    Some([coordinate(origin.0, row.0)?, coordinate(origin.1, row.1)?])
 }
 
 /// One pixel per column squared in [`RowWarp`]'s bend units.
@@ -143,6 +167,7 @@ impl Warp {
         origin: (0.0, 0.0),
         column_q16: (0, 0),
         row: (0.0, 0.0),
+        fine: None,
     };
 
     /// The warp of `motion` from a keyframe whose body stood at `keyframe`.
@@ -156,6 +181,7 @@ impl Warp {
         let along = warp(1.0, 0.0);
         let down = warp(0.0, 1.0);
         let level = [motion.attitude, *keyframe].iter().all(|a| libm::fabs(a.pitch_deg) < LEVEL_DEG && libm::fabs(a.roll_deg) < LEVEL_DEG);
+        let row = (down.0 - origin.0, down.1 - origin.1);
         Warp {
             bent: (!level).then(|| {
                 let (planar, attitude) = (&motion.planar, &motion.attitude);
@@ -165,19 +191,20 @@ impl Warp {
             grid: *grid,
             origin,
             column_q16: (to_q16(along.0 - origin.0), to_q16(along.1 - origin.1)),
-            row: (down.0 - origin.0, down.1 - origin.1),
+            row,
+            fine: fine_rows(origin, row),
         }
     }
 
     /// The warp of current row `j`.
     pub(super) fn row(&self, j: usize) -> RowWarp {
-        self.row_at(j as f64)
+        self.row_at(j as isize)
     }
 
-    /// The warp of current row `jf`, which may lie beyond the grid's rows.
-    pub(super) fn row_at(&self, jf: f64) -> RowWarp {
+    /// The warp of current row `r`, which may lie beyond the grid's rows.
+    pub(super) fn row_at(&self, r: isize) -> RowWarp {
         if let Some(bent) = &self.bent {
-            let jf = jf as f32;
+            let jf = r as f32;
             let last = (self.grid.width().max(2) - 1) as f32;
             let at = |i: f32| bent.at(i, jf);
             let middle = libm::roundf(0.5 * last);
@@ -197,12 +224,32 @@ impl Warp {
             }
         }
         RowWarp {
-            i_start: to_q16(self.origin.0 + self.row.0 * jf),
+            i_start: self.affine_start(0, r),
             i_step: self.column_q16.0,
-            j_start: to_q16(self.origin.1 + self.row.1 * jf),
+            j_start: self.affine_start(1, r),
             j_step: self.column_q16.1,
             ..RowWarp::default()
         }
+    }
+
+    /// Row `r`'s start along `coordinate` (0: i, 1: j) under the affine
+    /// map: `to_q16(origin + row * r)` as f64 rounds it, worked out in
+    /// fixed point (software f64 costs ~450 instructions a coordinate on
+    /// the M4). The two sums differ by under 2^10 units: the fixed-point
+    /// values by half a unit per term (2^9 over the rows), the f64 sum's
+    /// two roundings by 2^-53 of at most 2^13 px each (2^9). Unless the
+    /// fixed-point sum lies within [`FINE_MARGIN`] of a half Q16 unit,
+    /// both round to the same Q16 value, and no clamp is reached.
+    fn affine_start(&self, coordinate: usize, r: isize) -> i32 {
+        let (origin, row) = [(self.origin.0, self.row.0), (self.origin.1, self.row.1)][coordinate];
+        if let Some(fine) = self.fine.filter(|_| r.unsigned_abs() < FINE_ROWS) {
+            let (origin, row) = fine[coordinate];
+            let sum = origin + row * r as i64;
+            if (sum as u32).abs_diff(1 << (FINE_BITS - 1)) > FINE_MARGIN {
+                return ((sum + (1 << (FINE_BITS - 1))) >> FINE_BITS) as i32;
+            }
+        }
+        to_q16(origin + row * r as f64)
     }
 }
 
@@ -658,6 +705,36 @@ mod tests {
             }
         }
         assert!(checked > 5_000, "too few rows had usable columns: {checked}");
+    }
+
+    /// The level rows' starts worked out in fixed point are the f64 sums'
+    /// rounding: random motions, rows beyond the grid's edges, and sums
+    /// made to fall on a half Q16 unit and either side of it.
+    #[test]
+    fn fixed_point_rows_equal_the_f64_sums() {
+        let grid = KgGrid { mm_per_px: 2.5, x_left_mm: -200.0, z_far_mm: 1000.0, width: 159, height: 247 };
+        let mut seed = 0x0F1E_2D3Cu32;
+        let mut next = move |n: u32| crate::selftest::xorshift32(&mut seed) % n;
+        let by_f64 = |warp: &Warp, r: isize| (to_q16(warp.origin.0 + warp.row.0 * r as f64), to_q16(warp.origin.1 + warp.row.1 * r as f64));
+        let mut near_half = 0;
+        for round in 0..2_000 {
+            let planar = Motion { tx_mm: f64::from(next(2001)) * 0.1 - 100.0, tz_mm: f64::from(next(4001)) * 0.1 - 100.0, dyaw_deg: f64::from(next(2001)) * 0.005 - 5.0 };
+            let mut warp = Warp::new(&grid, &GroundMotion { planar, attitude: Attitude::default() }, &Attitude::default(), 300.0);
+            if round % 4 == 0 {
+                // Row 3's i start on a half Q16 unit, or a hair either side.
+                let half = (f64::from(next(100_000)) + 0.5) / 65536.0;
+                warp.origin.0 = half - warp.row.0 * 3.0 + f64::from(next(3) as i32 - 1) * 1e-13;
+                warp.fine = fine_rows(warp.origin, warp.row);
+                let [(origin, row), _] = warp.fine.unwrap();
+                near_half += usize::from(((origin + 3 * row) as u32).abs_diff(1 << (FINE_BITS - 1)) <= FINE_MARGIN);
+            }
+            assert!(warp.fine.is_some());
+            for r in -10..grid.height() as isize + 10 {
+                let row = warp.row_at(r);
+                assert_eq!((row.i_start, row.j_start), by_f64(&warp, r), "{planar:?} row {r}");
+            }
+        }
+        assert!(near_half > 300, "too few sums near a half unit: {near_half}");
     }
 
     /// Every column of every row lands where the exact map puts it: a roll

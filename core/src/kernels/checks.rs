@@ -165,6 +165,81 @@ pub fn bilinear_line_equals_plain() -> Outcome {
 }
 
 
+
+/// `bilinear_stretch` (the selected backend's and the portable one)
+/// equals the per-pixel formula at every step: lengths 0..=200, column
+/// steps from under to over a pixel both ways and none, row steps either
+/// way (the row weight crossing 0 and 255), rows of random, extreme and
+/// alternating pixels, unaligned starts; nothing written outside `out`.
+pub fn bilinear_stretch_equals_plain() -> Outcome {
+    let mut upper = [0u8; 260];
+    let mut lower = [0u8; 260];
+    let mut out = [0u8; 210];
+    let mut state = 0x5EED_0A11u32;
+    let mut random = move || xorshift32(&mut state);
+    for round in 0..4u32 {
+        match round {
+            0 => {
+                fill(&mut upper, 0x2545_F491, 256);
+                fill(&mut lower, 0x6C07_8965, 256);
+            }
+            1 => {
+                upper.fill(255);
+                lower.fill(255);
+            }
+            _ => {
+                for (n, (u, l)) in upper.iter_mut().zip(lower.iter_mut()).enumerate() {
+                    *u = if (n + round as usize).is_multiple_of(2) { 255 } else { 0 };
+                    *l = if n % 3 == 0 { 0 } else { 255 };
+                }
+            }
+        }
+        for case in 0..400usize {
+            let length = case % 201;
+            let i_step = match case % 5 {
+                0 => 1 << 24,
+                1 => 0,
+                2 => (random() % (3 << 23)) + (1 << 22),
+                3 => ((random() % (1 << 24)) as i32).wrapping_neg() as u32,
+                _ => (random() % (1 << 25)) as i32 as u32,
+            };
+            let j_step = (random() % (1 << 22)) as i32 - (1 << 21);
+            let span = i64::from(i_step as i32) * length.saturating_sub(1) as i64;
+            // A first position that keeps every x + 1 within the rows.
+            let room = ((255i64 << 24) - span.abs()).max(0);
+            let start = (random() as i64 % (room + 1)) + (-span).max(0);
+            if length > 0 && !(0..255i64 << 24).contains(&(start + span)) {
+                continue;
+            }
+            let (i, j) = (start as u32, random());
+            let (su, sl, so) = (case % 4, (case / 4) % 4, (case / 16) % 4);
+            let (u, l) = (&upper[su..su + 256], &lower[sl..sl + 256]);
+            for kernel in 0..2 {
+                out.fill(0xA5);
+                let target = &mut out[so..so + length];
+                if kernel == 0 {
+                    super::bilinear_stretch(u, l, (i, i_step), (j, j_step as u32), target);
+                } else {
+                    portable::bilinear_stretch(u, l, (i, i_step), (j, j_step as u32), target);
+                }
+                for (n, &got) in target.iter().enumerate() {
+                    let (ip, jp) = (i.wrapping_add(i_step.wrapping_mul(n as u32)), j.wrapping_add((j_step as u32).wrapping_mul(n as u32)));
+                    let (x, wx, wy) = ((ip >> 24) as usize, (ip >> 16) & 0xFF, (jp >> 16) & 0xFF);
+                    let top = u32::from(u[x]) * (256 - wx) + u32::from(u[x + 1]) * wx;
+                    let bottom = u32::from(l[x]) * (256 - wx) + u32::from(l[x + 1]) * wx;
+                    if u32::from(got) != (top * (256 - wy) + bottom * wy + (1 << 15)) >> 16 {
+                        return Err("bilinear_stretch differs from the per-pixel formula");
+                    }
+                }
+                if out[..so].iter().chain(&out[so + length..]).any(|&b| b != 0xA5) {
+                    return Err("bilinear_stretch wrote outside its output");
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Random rows (and a 0/255 pattern at the start), widths 1..=70 at
 /// unaligned starts, wy and wx of 0, 1, 128, 255 and random, steps from
 /// 0 to over 2 px both ways, runs that start at column 0 and runs that

@@ -105,17 +105,33 @@ pub fn sad_shifts(current: &[u8], reference: &[u8], sums: &mut [u32]) {
             options(readonly, nostack)
         );
     }
-    // At most 3 pixels left: a plain loop (the portable `sad`'s block
-    // set-up would cost more than the pixels).
-    let done = 4 * words;
-    for (n, &value) in current[done..].iter().enumerate() {
+    // At most 3 pixels left: the row's last word, whose leading bytes the
+    // loop counted, shifted out of the current and the reference words
+    // alike (zeros add nothing), one `usada8` a shift (a byte loop costs
+    // ~5 instructions a pixel and shift).
+    let left = n - 4 * words;
+    if left > 0 {
+        let shift = 8 * (4 - left) as u32;
+        // SAFETY: n >= 4 here, and the last word of shift k ends at
+        // n + k <= n + 4 <= reference.len() (see above).
+        let word = |bytes: &[u8], end: usize| unsafe { bytes.as_ptr().add(end - 4).cast::<u32>().read_unaligned() } >> shift;
+        let last = word(current, n);
         for (k, acc) in acc.iter_mut().enumerate() {
-            *acc += u32::from(value.abs_diff(reference[done + n + k]));
+            *acc = usada8(last, word(reference, n + k), *acc);
         }
     }
     for (sum, acc) in sums.iter_mut().zip(acc) {
         *sum += acc;
     }
+}
+
+/// `acc` plus the |differences| of the four bytes of `a` and `b`.
+#[inline(always)]
+fn usada8(a: u32, b: u32, acc: u32) -> u32 {
+    let sum;
+    // SAFETY: register arithmetic only.
+    unsafe { core::arch::asm!("usada8 {s}, {a}, {b}, {acc}", s = lateout(reg) sum, a = in(reg) a, b = in(reg) b, acc = in(reg) acc, options(pure, nomem, nostack)) };
+    sum
 }
 
 /// One lane: the M4 has no store-to-load stall to hide (1 KB).
@@ -233,6 +249,56 @@ pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8
     }
     let done = 4 * words;
     portable::bilinear_line(&upper[done..], &lower[done..], wx, wy, &mut out[done..n]);
+}
+
+/// A sample a step, 22 instructions (the compiled per-pixel loop with
+/// its row index took ~27): each row's pair of pixels is one (unaligned)
+/// halfword load; packed as `u0 u1 l0 l1` and spread by `uxtb16` into
+/// the lanes `(u0, l0)` and `(u1, l1)`, `smuad` with the weights
+/// `[256 - wy | wy]` blends each column down (`wy << 16` is the row
+/// position masked, less itself shifted down, plus 256: `256 - wy >= 1`
+/// never borrows); then across, `((V0 << 8) + (V1 - V0) wx + 2^15) >> 16`,
+/// the portable sum in the other order (exact integers, the same value).
+#[inline]
+pub fn bilinear_stretch(upper: &[u8], lower: &[u8], (i, i_step): (u32, u32), (j, j_step): (u32, u32), out: &mut [u8]) {
+    if out.is_empty() {
+        return;
+    }
+    // SAFETY: every step's x + 1 indexes `upper` and `lower` (checked by
+    // `super::bilinear_stretch`), so the halfwords at x lie inside them;
+    // `out.len()` bytes are written; unaligned ldrh is fine on the M4.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "lsr {t}, {i}, #24",
+            "ldrh {a}, [{pu}, {t}]",           // u0 u1
+            "ldrh {b}, [{pl}, {t}]",           // l0 l1
+            "pkhbt {a}, {a}, {b}, lsl #16",    // u0 u1 l0 l1
+            "uxtb16 {b}, {a}, ror #8",         // (u1, l1)
+            "uxtb16 {a}, {a}",                 // (u0, l0)
+            "and {w}, {j}, #0xFF0000",         // wy << 16
+            "sub {w}, {w}, {w}, lsr #16",
+            "add {w}, {w}, #256",              // [256 - wy | wy]
+            "smuad {a}, {a}, {w}",             // V0
+            "smuad {b}, {b}, {w}",             // V1
+            "ubfx {w}, {i}, #16, #8",          // wx
+            "sub {b}, {b}, {a}",
+            "mul {b}, {b}, {w}",
+            "add {a}, {b}, {a}, lsl #8",
+            "add {a}, {a}, #32768",
+            "lsr {a}, {a}, #16",
+            "strb {a}, [{po}], #1",
+            "add {i}, {i}, {di}",
+            "add {j}, {j}, {dj}",
+            "subs {n}, {n}, #1",
+            "bne 2b",
+            pu = in(reg) upper.as_ptr(), pl = in(reg) lower.as_ptr(),
+            po = inout(reg) out.as_mut_ptr() => _, n = inout(reg) out.len() => _,
+            i = inout(reg) i => _, j = inout(reg) j => _, di = in(reg) i_step, dj = in(reg) j_step,
+            t = out(reg) _, a = out(reg) _, b = out(reg) _, w = out(reg) _,
+            options(nostack)
+        );
+    }
 }
 
 // ------------------------------------------------------------ pinhole rows

@@ -132,6 +132,23 @@ pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8
     selected::bilinear_line(upper, lower, wx, wy, out)
 }
 
+/// Bilinear samples along a straight line between one pair of rows (a
+/// stretch of a yawed line): `out[n]` blends `upper[x..=x + 1]` and
+/// `lower[x..=x + 1]` as [`bilinear_line`] does, at `x` the whole pixels
+/// (top 8 bits) and `wx` the next 8 bits of the Q8.24 column position
+/// `i + n i_step`, and `wy` bits 16..24 of the row position `j + n j_step`
+/// (wrapping sums, steps two's complement). Every `x + 1` must index
+/// `upper` and `lower`: checked at both ends, the last one exactly (in
+/// i64, so none between wraps), and the positions are linear.
+#[inline]
+pub fn bilinear_stretch(upper: &[u8], lower: &[u8], (i, i_step): (u32, u32), (j, j_step): (u32, u32), out: &mut [u8]) {
+    let Some(last) = out.len().checked_sub(1) else { return };
+    let last_position = i64::from(i) + last as i64 * i64::from(i_step as i32);
+    let inside = |position: i64| (0..1 << 32).contains(&position) && ((position >> 24) as usize) + 1 < upper.len().min(lower.len());
+    assert!(inside(i64::from(i)) && inside(last_position), "bilinear_stretch beyond its rows");
+    selected::bilinear_stretch(upper, lower, (i, i_step), (j, j_step), out)
+}
+
 // ------------------------------------------------------ tolerant residue
 
 /// A current row and, aligned by column, the warped keyframe around it:

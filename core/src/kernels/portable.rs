@@ -45,6 +45,18 @@ pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8
     }
 }
 
+#[inline]
+pub fn bilinear_stretch(upper: &[u8], lower: &[u8], (mut i, i_step): (u32, u32), (mut j, j_step): (u32, u32), out: &mut [u8]) {
+    for pixel in out {
+        let (x, wx, wy) = ((i >> 24) as usize, (i >> 16) & 0xFF, (j >> 16) & 0xFF);
+        let top = u32::from(upper[x]) * (256 - wx) + u32::from(upper[x + 1]) * wx;
+        let bottom = u32::from(lower[x]) * (256 - wx) + u32::from(lower[x + 1]) * wx;
+        *pixel = ((top * (256 - wy) + bottom * wy + (1 << 15)) >> 16) as u8;
+        i = i.wrapping_add(i_step);
+        j = j.wrapping_add(j_step);
+    }
+}
+
 // ------------------------------------------------------------ pinhole rows
 
 #[inline]

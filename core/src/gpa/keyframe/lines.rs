@@ -4,7 +4,7 @@
 use super::Keyframe;
 use crate::gpa::kernels;
 use crate::gpa::band::BAND_WIDTH;
-use crate::gpa::warp::{ceil_div, straight_within, unwrapped, Coordinate, RowWarp, BEND_FRAC, FRAC};
+use crate::gpa::warp::{ceil_div, offset_q24, straight_within, unwrapped, Coordinate, RowWarp, BEND_FRAC, FRAC};
 use crate::limits::MAX_SEARCH_RADIUS;
 use core::ops::Range;
 
@@ -227,6 +227,10 @@ impl Keyframe<'_> {
     /// Samples `line` at the columns of `span`, which [`Self::inside_span`]
     /// found inside the grid, into `out[c]`.
     fn sample_span(&self, line: RowWarp, span: Range<usize>, out: &mut [u8]) {
+        if !line.is_bent() {
+            self.sample_straight_span(line, span, out);
+            return;
+        }
         let image: &[u8] = &self.images[self.key_half][..self.height * self.width];
         let width = self.width;
         let out = &mut out[span.clone()];
@@ -249,6 +253,35 @@ impl Keyframe<'_> {
             // SAFETY: `out` holds the span's columns, and t < span.len().
             unsafe { *out.get_unchecked_mut(t) = blend(p00, p01, p10, p11, wx, wy) };
         });
+    }
+
+    /// [`Self::sample_span`] of a straight line: a stretch of columns at a
+    /// time over which it stays between the same two keyframe rows, by the
+    /// kernel (positions stepped as [`RowWarp::positions`]).
+    fn sample_straight_span(&self, line: RowWarp, span: Range<usize>, out: &mut [u8]) {
+        if span.is_empty() {
+            return;
+        }
+        let (i_step, j_step) = (offset_q24(line.i_step), offset_q24(line.j_step));
+        let (i, j) = line.positions(span.start).take::<false>();
+        let (mut i, mut j) = (i.q24(), j.q24());
+        let step = i64::from(line.j_step) << (BEND_FRAC - FRAC);
+        let mut c = span.start;
+        while c < span.end {
+            // Inside the grid the row is at most height - 2 (j < 255 px):
+            // the next row's start fits the Q8.24 position.
+            let row = j >> 24;
+            let stays = match step.signum() {
+                1 => (i64::from((row + 1) << 24) - i64::from(j) + step - 1) / step,
+                -1 => (i64::from(j) - i64::from(row << 24)) / -step + 1,
+                _ => i64::MAX,
+            };
+            let n = (span.end - c).min(stays as usize);
+            let row = row as usize;
+            kernels::bilinear_stretch(self.row(row), self.row(row + 1), (i, i_step), (j, j_step), &mut out[c..c + n]);
+            (i, j) = (i.wrapping_add(i_step.wrapping_mul(n as u32)), j.wrapping_add(j_step.wrapping_mul(n as u32)));
+            c += n;
+        }
     }
 
     /// [`Self::sample_span`] of the `N` lines `line`, `line` one row down,
