@@ -104,7 +104,7 @@ impl Tilt {
         let rx = turn[0][0] * x_mm + self.ray_bias[0] + turn[0][2] * z_mm;
         let ry = turn[1][0] * x_mm + self.ray_bias[1] + turn[1][2] * z_mm;
         let rz = plus_zero_times(self.ray_bias[2], x_mm) + turn[2][2] * z_mm;
-        if ry >= -1e-9 {
+        if not_below_horizon(ry) {
             return None;
         }
         let t = -self.centre[1] / ry;
@@ -122,12 +122,21 @@ impl Tilt {
         let bx = plus_zero_times(turn[0][0] * p0 + self.back_bias[0], p2);
         let by = turn[0][1] * p0 + self.back_bias[1] + turn[2][1] * p2;
         let bz = turn[0][2] * p0 + self.back_bias[2] + turn[2][2] * p2;
-        if by >= -1e-9 {
+        if not_below_horizon(by) {
             return None;
         }
         let t = -self.height_mm / by;
         Some((t * bx, t * bz))
     }
+}
+
+/// `y >= -1e-9`, the test of a ray's height, on the f64's words (a float
+/// comparison is a software routine on the M4): a positive sign passes up
+/// to infinity, a negative one up to a magnitude of 1e-9; NaN fails either.
+fn not_below_horizon(y: f64) -> bool {
+    let bits = y.to_bits();
+    let magnitude = bits & !(1 << 63);
+    magnitude <= if bits >> 63 == 0 { f64::INFINITY.to_bits() } else { 1e-9f64.to_bits() }
 }
 
 /// `sum + 0.0 * v` (a product with [`Tilt`]'s zero entry), bit for bit:
@@ -386,6 +395,15 @@ mod tests {
                     assert_eq!(bits(tilt.from_ground(x, z)), bits(from_ground(&tilt, x, z)), "{pitch_deg} {roll_deg} {x} {z}");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn horizon_test_on_the_words_is_the_comparison() {
+        let tiny = 1e-9f64;
+        let values = [0.0, -0.0, tiny, -tiny, -tiny.next_down(), -tiny.next_up(), -1.0, 5.0, f64::INFINITY, f64::NEG_INFINITY, f64::NAN, -f64::NAN, -1e-300];
+        for y in values {
+            assert_eq!(not_below_horizon(y), y >= -1e-9, "{y}");
         }
     }
 

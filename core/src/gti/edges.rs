@@ -271,7 +271,7 @@ mod tests {
             // Every range of magnitudes, ties included, up to the largest (1020).
             let spread = [4, 40, 300, 1021][next() as usize % 4];
             let magnitudes: Vec<u16, NOISE_BLOCK> = (0..n).map(|_| (next() % spread) as u16).collect();
-            let mut values: Vec<f32, NOISE_BLOCK> = magnitudes.iter().map(|&m| sixteenths(m)).collect();
+            let mut values: Vec<i32, NOISE_BLOCK> = magnitudes.iter().map(|&m| crate::gti::fits::order_key(sixteenths(m))).collect();
             let reference = crate::gti::fits::median(&mut values);
             assert_eq!(median_sixteenths(&magnitudes).map(f32::to_bits), reference.map(f32::to_bits), "{magnitudes:?}");
         }

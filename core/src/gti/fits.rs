@@ -50,21 +50,39 @@ pub(super) struct LineFit {
     pub sxx: f32,
 }
 
-/// Median of a slice, reordering it; None when empty. Selected, not
-/// sorted (the same value; sorting the lines' noise blocks was ~0.4 M
-/// M4 instructions a frame).
-pub(super) fn median(values: &mut [f32]) -> Option<f32> {
-    let n = values.len();
+/// An f32 as an i32 that orders as [`f32::total_cmp`] orders the f32s (its
+/// transform of the bits, which is its own inverse): [`median`] selects on
+/// these, one integer comparison each on the M4 where `total_cmp` would
+/// transform both sides of every comparison again.
+pub(super) fn order_key(value: f32) -> i32 {
+    flip_magnitude(value.to_bits() as i32)
+}
+
+/// The f32 of an [`order_key`].
+pub(super) fn key_value(key: i32) -> f32 {
+    f32::from_bits(flip_magnitude(key) as u32)
+}
+
+/// Negative values' magnitude bits inverted (the sign bit kept).
+fn flip_magnitude(bits: i32) -> i32 {
+    bits ^ (((bits >> 31) as u32) >> 1) as i32
+}
+
+/// Median of values given as [`order_key`]s, reordering them; None when
+/// empty. Selected, not sorted (the same value; sorting the lines' noise
+/// blocks was ~0.4 M M4 instructions a frame).
+pub(super) fn median(keys: &mut [i32]) -> Option<f32> {
+    let n = keys.len();
     if n == 0 {
         return None;
     }
-    let (below, &mut upper, _) = values.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b));
+    let (below, &mut upper, _) = keys.select_nth_unstable(n / 2);
     if n % 2 == 1 {
-        Some(upper)
+        Some(key_value(upper))
     } else {
         // The largest of the lower half: the element a sort puts just before.
-        let lower = below.iter().copied().max_by(|a, b| a.total_cmp(b))?;
-        Some(0.5 * (lower + upper))
+        let lower = below.iter().copied().max()?;
+        Some(0.5 * (key_value(lower) + key_value(upper)))
     }
 }
 
@@ -78,23 +96,23 @@ pub(super) fn robust_line_fit(x: &[f32], y: &[f32]) -> Option<LineFit> {
         return None;
     }
     // A Vec, not an array: the M4 would clear all 480 bytes on every refit.
-    let mut slopes: Vec<f32, { MAX_OBSERVATIONS * (MAX_OBSERVATIONS - 1) / 2 }> = Vec::new();
+    let mut slopes: Vec<i32, { MAX_OBSERVATIONS * (MAX_OBSERVATIONS - 1) / 2 }> = Vec::new();
     for a in 0..n {
         for b in a + 1..n {
             let dx = x[b] - x[a];
             if fabsf(dx) > 1e-6 {
-                let _ = slopes.push((y[b] - y[a]) / dx);
+                let _ = slopes.push(order_key((y[b] - y[a]) / dx));
             }
         }
     }
     let slope = median(&mut slopes)?;
-    let mut scratch = [0f32; MAX_OBSERVATIONS];
+    let mut scratch = [0i32; MAX_OBSERVATIONS];
     for (slot, (xi, yi)) in scratch.iter_mut().zip(x.iter().zip(y)) {
-        *slot = yi - slope * xi;
+        *slot = order_key(yi - slope * xi);
     }
     let intercept = median(scratch.get_mut(..n)?)?;
     for (slot, (xi, yi)) in scratch.iter_mut().zip(x.iter().zip(y)) {
-        *slot = fabsf(yi - intercept - slope * xi);
+        *slot = order_key(fabsf(yi - intercept - slope * xi));
     }
     let mad = median(scratch.get_mut(..n)?)?;
     // Floor on the gate: exact data has MAD 0 and every point is an inlier.
@@ -189,6 +207,17 @@ mod tests {
         let s = slope_from_height(400.0, 120.0);
         assert!((s - 400.0 / 280.0).abs() < 1e-6);
         assert!((height_from_slope(400.0, s) - 120.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn order_keys_order_as_total_cmp() {
+        let values = [f32::NEG_INFINITY, -3.5, -1e-40, -0.0, 0.0, 1e-40, 0.25, 7.0, f32::MAX, f32::INFINITY, f32::NAN, -f32::NAN];
+        for a in values {
+            assert_eq!(key_value(order_key(a)).to_bits(), a.to_bits());
+            for b in values {
+                assert_eq!(order_key(a).cmp(&order_key(b)), a.total_cmp(&b), "{a} {b}");
+            }
+        }
     }
 
     #[test]

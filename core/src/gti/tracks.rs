@@ -376,7 +376,9 @@ impl Gti {
                     _ => None,
                 }
             };
-            let Some(slot) = slot else { continue };
+            // The edges come strongest first and a slot is never freed here
+            // but to be refilled: an edge that finds none leaves none for the rest.
+            let Some(slot) = slot else { break };
             let point = self.level_point(line, edge.row);
             let track = Track::start(self.next_id, l, line, point, edge, &self.travel);
             self.next_id = self.next_id.wrapping_add(1);

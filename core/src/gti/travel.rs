@@ -3,7 +3,7 @@
 //! floor measured it so far. Tracks measure their travel from this pose.
 
 use super::edges::{Edge, LineEdges};
-use super::fits::median;
+use super::fits::{key_value, median, order_key};
 use super::lines::{off_line, GtLine};
 use super::tracks::{zncc, Track};
 use super::Gti;
@@ -171,7 +171,8 @@ impl Gti {
         }
         let d = [step[0] as f32 / length, step[1] as f32 / length];
         let mm_per_px = self.grid.mm_per_px;
-        let mut deltas: heapless::Vec<f32, MAX_TRACKS> = heapless::Vec::new();
+        // The floor tracks' displacements, as order keys for their medians.
+        let mut deltas: heapless::Vec<i32, MAX_TRACKS> = heapless::Vec::new();
         for l in 0..self.config.lines {
             let Some(line) = self.lines.line(l) else { continue };
             // A line without a floor track needs no edges (finding them is
@@ -183,7 +184,7 @@ impl Gti {
             for (index, track) in self.tracks.iter().enumerate() {
                 let Some(track) = track.as_ref().filter(|t| usize::from(t.line) == l) else { continue };
                 if let Some((delta, e, point)) = self.floor_displacement(track, line, &edges.strong, d, length, mm_per_px) {
-                    let _ = deltas.push(delta);
+                    let _ = deltas.push(order_key(delta));
                     found.set(index, e, point);
                 }
             }
@@ -194,7 +195,7 @@ impl Gti {
         let visual = median(&mut deltas)?;
         // The deviations from the median replace the deltas.
         for delta in deltas.iter_mut() {
-            *delta = fabsf(*delta - visual);
+            *delta = order_key(fabsf(key_value(*delta) - visual));
         }
         let per_track = (1.4826 * median(&mut deltas).unwrap_or(0.0)).max(0.1 * mm_per_px);
         // Median of n: ~1.25 sigma / sqrt(n).
