@@ -5,7 +5,7 @@
 //! (counter-clockwise seen from above), 0 = world +z. The robot's forward
 //! axis in world (x, z) is (-sin yaw, cos yaw) and its right axis (cos yaw, sin yaw).
 
-use core::ops::{Add, Mul, Neg, Sub};
+use core::ops::{Add, Div, Mul, Neg, Sub};
 use libm::{cos, sin};
 
 /// Where the robot was when a frame was captured (world frame, mm, degrees).
@@ -67,28 +67,82 @@ impl GroundMotion {
 
 /// How a body at one attitude sees the ground through the fixed remap
 /// (which assumes the nominal attitude): the body turned about the robot
-/// origin on the ground, attitude = Rz(roll) Rx(pitch).
+/// origin on the ground, attitude = Rz(roll) Rx(pitch). `f64` for GPA's
+/// maps, `f32` for GTI's points ([`Tilt::to_f32`]; a software f64 on the
+/// M4 costs ~0.5 M instructions a frame there, and f32 is good to a
+/// micrometre where GTI keeps quarter millimetres).
 #[derive(Clone, Copy, Debug)]
-pub struct Tilt {
+pub struct Tilt<T> {
     /// The turned camera centre and the turn of a body vector (rows).
     /// `turn[2][0]` is zero: the maps below leave its products out.
-    centre: [f64; 3],
-    turn: [[f64; 3]; 3],
-    height_mm: f64,
-    /// The products that do not depend on the point, worked out once (the
-    /// M4's f64 is software, and GTI maps a few hundred points a frame):
+    centre: [T; 3],
+    turn: [[T; 3]; 3],
+    height_mm: T,
+    /// The products that do not depend on the point, worked out once:
     /// `turn[r][1] * -height_mm` of [`Tilt::to_ground`]'s rays and
     /// `turn[1][k] * -centre[1]` of [`Tilt::from_ground`]'s.
-    ray_bias: [f64; 3],
-    back_bias: [f64; 3],
+    ray_bias: [T; 3],
+    back_bias: [T; 3],
 }
 
-impl Tilt {
-    pub fn new(attitude: &Attitude, height_mm: f64) -> Tilt {
+/// What [`Tilt`]'s maps need of a float besides arithmetic; f64's are
+/// done on its words, where a software routine would be called on the M4.
+pub trait TiltFloat: Copy + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> + Div<Output = Self> + Neg<Output = Self> {
+    /// `self >= -1e-9`, the test of a ray's height (NaN fails).
+    fn not_below_horizon(self) -> bool;
+    /// `self + 0.0 * v` (a product with [`Tilt`]'s zero entry), bit for bit.
+    fn plus_zero_times(self, v: Self) -> Self;
+}
+
+impl TiltFloat for f64 {
+    /// A positive sign passes up to infinity, a negative one up to a
+    /// magnitude of 1e-9; NaN fails either.
+    fn not_below_horizon(self) -> bool {
+        let bits = self.to_bits();
+        let magnitude = bits & !(1 << 63);
+        magnitude <= if bits >> 63 == 0 { f64::INFINITY.to_bits() } else { 1e-9f64.to_bits() }
+    }
+
+    /// A zero product leaves a non-zero sum as it is, so only a zero sum
+    /// (its sign) or a non-finite `v` (a NaN product) needs the arithmetic.
+    fn plus_zero_times(self, v: f64) -> f64 {
+        // Non-zero: a bit below the sign set (two instructions on the words).
+        let bits = self.to_bits();
+        if v.is_finite() && ((bits >> 32) as u32) << 1 | bits as u32 != 0 {
+            self
+        } else {
+            self + 0.0 * v
+        }
+    }
+}
+
+impl TiltFloat for f32 {
+    fn not_below_horizon(self) -> bool {
+        self >= -1e-9
+    }
+
+    fn plus_zero_times(self, v: f32) -> f32 {
+        self + 0.0 * v
+    }
+}
+
+impl Tilt<f64> {
+    pub fn new(attitude: &Attitude, height_mm: f64) -> Tilt<f64> {
         let (sp, cp) = (sin(attitude.pitch_deg.to_radians()), cos(attitude.pitch_deg.to_radians()));
         let (sr, cr) = (sin(attitude.roll_deg.to_radians()), cos(attitude.roll_deg.to_radians()));
         // Rz(roll) Rx(pitch) of a body vector (x right, y up, z forward).
-        let turn = [[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [0.0, sp, cp]];
+        Tilt::turned([[cr, sr * cp, -sr * sp], [-sr, cr * cp, -cr * sp], [0.0, sp, cp]], height_mm)
+    }
+
+    /// The same tilt in single precision: its turn rounded, the rest worked out in f32.
+    pub fn to_f32(&self) -> Tilt<f32> {
+        Tilt::turned(self.turn.map(|row| row.map(|v| v as f32)), self.height_mm as f32)
+    }
+}
+
+impl<T: TiltFloat> Tilt<T> {
+    /// The tilt of a body vector's `turn`, for a camera `height_mm` up.
+    fn turned(turn: [[T; 3]; 3], height_mm: T) -> Tilt<T> {
         let centre = [turn[0][1] * height_mm, turn[1][1] * height_mm, turn[2][1] * height_mm];
         let ray_bias = [turn[0][1] * -height_mm, turn[1][1] * -height_mm, turn[2][1] * -height_mm];
         let back_bias = [turn[1][0] * -centre[1], turn[1][1] * -centre[1], turn[1][2] * -centre[1]];
@@ -98,13 +152,13 @@ impl Tilt {
     /// The ground point (robot frame, level) that the remap shows at
     /// (`x_mm`, `z_mm`): the ray through it turned with the body and met
     /// with the ground. None when the turned ray misses the ground.
-    pub fn to_ground(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+    pub fn to_ground(&self, x_mm: T, z_mm: T) -> Option<(T, T)> {
         // The ray turn . (x, -height, z), each row summed left to right.
         let turn = &self.turn;
         let rx = turn[0][0] * x_mm + self.ray_bias[0] + turn[0][2] * z_mm;
         let ry = turn[1][0] * x_mm + self.ray_bias[1] + turn[1][2] * z_mm;
-        let rz = plus_zero_times(self.ray_bias[2], x_mm) + turn[2][2] * z_mm;
-        if not_below_horizon(ry) {
+        let rz = self.ray_bias[2].plus_zero_times(x_mm) + turn[2][2] * z_mm;
+        if ry.not_below_horizon() {
             return None;
         }
         let t = -self.centre[1] / ry;
@@ -113,43 +167,20 @@ impl Tilt {
 
     /// The inverse of [`Tilt::to_ground`]: where the remap shows the ground
     /// point (`x_mm`, `z_mm`). None behind the turned camera's horizon.
-    pub fn from_ground(&self, x_mm: f64, z_mm: f64) -> Option<(f64, f64)> {
+    pub fn from_ground(&self, x_mm: T, z_mm: T) -> Option<(T, T)> {
         // The ray p = (x - cx, -cy, z - cz) from the turned centre to the
         // point, turned back to the body: turn^T . p, each column summed
         // left to right.
         let (p0, p2) = (x_mm - self.centre[0], z_mm - self.centre[2]);
         let turn = &self.turn;
-        let bx = plus_zero_times(turn[0][0] * p0 + self.back_bias[0], p2);
+        let bx = (turn[0][0] * p0 + self.back_bias[0]).plus_zero_times(p2);
         let by = turn[0][1] * p0 + self.back_bias[1] + turn[2][1] * p2;
         let bz = turn[0][2] * p0 + self.back_bias[2] + turn[2][2] * p2;
-        if not_below_horizon(by) {
+        if by.not_below_horizon() {
             return None;
         }
         let t = -self.height_mm / by;
         Some((t * bx, t * bz))
-    }
-}
-
-/// `y >= -1e-9`, the test of a ray's height, on the f64's words (a float
-/// comparison is a software routine on the M4): a positive sign passes up
-/// to infinity, a negative one up to a magnitude of 1e-9; NaN fails either.
-fn not_below_horizon(y: f64) -> bool {
-    let bits = y.to_bits();
-    let magnitude = bits & !(1 << 63);
-    magnitude <= if bits >> 63 == 0 { f64::INFINITY.to_bits() } else { 1e-9f64.to_bits() }
-}
-
-/// `sum + 0.0 * v` (a product with [`Tilt`]'s zero entry), bit for bit:
-/// a zero product leaves a non-zero sum as it is, so only a zero sum (its
-/// sign) or a non-finite `v` (a NaN product) needs the arithmetic.
-fn plus_zero_times(sum: f64, v: f64) -> f64 {
-    // Non-zero: a bit below the sign set (tested on the words, which the M4
-    // does in two instructions, where a float comparison is a routine).
-    let bits = sum.to_bits();
-    if v.is_finite() && ((bits >> 32) as u32) << 1 | bits as u32 != 0 {
-        sum
-    } else {
-        sum + 0.0 * v
     }
 }
 
@@ -164,9 +195,9 @@ fn plus_zero_times(sum: f64, v: f64) -> f64 {
 /// degrees).
 #[derive(Clone, Copy, Debug)]
 pub struct GroundMap {
-    now: Tilt,
+    now: Tilt<f64>,
     /// None: the keyframe's body was at the nominal attitude.
-    then: Option<Tilt>,
+    then: Option<Tilt<f64>>,
     planar: Motion,
     heading: Rotation<f64>,
 }
@@ -359,40 +390,86 @@ mod tests {
         }
     }
 
-    #[test]
-    fn tilt_maps_match_the_plain_products_bit_for_bit() {
-        // The matrix products as written out, every term and in order.
-        fn to_ground(tilt: &Tilt, x: f64, z: f64) -> Option<(f64, f64)> {
+    /// The matrix products as written out, every term and in order, of
+    /// each precision's own stored tilt.
+    trait Plain: TiltFloat + PartialOrd + core::fmt::Debug {
+        const NEAR_ZERO: Self;
+        fn word(self) -> u64;
+    }
+    impl Plain for f64 {
+        const NEAR_ZERO: f64 = -1e-9;
+        fn word(self) -> u64 {
+            // Every NaN alike (which NaN an operation returns is the platform's).
+            if self.is_nan() { f64::NAN.to_bits() } else { self.to_bits() }
+        }
+    }
+    impl Plain for f32 {
+        const NEAR_ZERO: f32 = -1e-9;
+        fn word(self) -> u64 {
+            u64::from(if self.is_nan() { f32::NAN.to_bits() } else { self.to_bits() })
+        }
+    }
+
+    fn plain_products_bit_for_bit<T: Plain>(tilt: &Tilt<T>, coordinates: &[T], label: &str) {
+        let to_ground = |x: T, z: T| {
             let v = [x, -tilt.height_mm, z];
-            let ray = |row: &[f64; 3]| row[0] * v[0] + row[1] * v[1] + row[2] * v[2];
+            let ray = |row: &[T; 3]| row[0] * v[0] + row[1] * v[1] + row[2] * v[2];
             let (rx, ry, rz) = (ray(&tilt.turn[0]), ray(&tilt.turn[1]), ray(&tilt.turn[2]));
-            if ry >= -1e-9 {
+            if ry >= T::NEAR_ZERO {
                 return None;
             }
             let t = -tilt.centre[1] / ry;
             Some((tilt.centre[0] + t * rx, tilt.centre[2] + t * rz))
-        }
-        fn from_ground(tilt: &Tilt, x: f64, z: f64) -> Option<(f64, f64)> {
+        };
+        let from_ground = |x: T, z: T| {
             let p = [x - tilt.centre[0], -tilt.centre[1], z - tilt.centre[2]];
             let back = |k: usize| tilt.turn[0][k] * p[0] + tilt.turn[1][k] * p[1] + tilt.turn[2][k] * p[2];
             let (bx, by, bz) = (back(0), back(1), back(2));
-            if by >= -1e-9 {
+            if by >= T::NEAR_ZERO {
                 return None;
             }
             let t = -tilt.height_mm / by;
             Some((t * bx, t * bz))
+        };
+        let words = |p: Option<(T, T)>| p.map(|(x, z)| (x.word(), z.word()));
+        for &x in coordinates {
+            for &z in coordinates {
+                assert_eq!(words(tilt.to_ground(x, z)), words(to_ground(x, z)), "{label} {x:?} {z:?}");
+                assert_eq!(words(tilt.from_ground(x, z)), words(from_ground(x, z)), "{label} {x:?} {z:?}");
+            }
         }
-        // Every NaN alike (which NaN an operation returns is the platform's).
-        let bit = |v: f64| if v.is_nan() { f64::NAN.to_bits() } else { v.to_bits() };
-        let bits = |p: Option<(f64, f64)>| p.map(|(x, z)| (bit(x), bit(z)));
+    }
+
+    #[test]
+    fn tilt_maps_match_the_plain_products_bit_for_bit() {
         let attitudes = [(0.7, -0.4), (0.0, 0.3), (-0.0, -0.2), (1.5, 0.0), (-2.0, -0.0), (0.0, 0.0)];
         let coordinates = [0.0, -0.0, 1e-300, -250.0, 333.3, 1400.0, f64::INFINITY, f64::NEG_INFINITY, f64::NAN];
+        let single = coordinates.map(|v| v as f32);
         for (pitch_deg, roll_deg) in attitudes {
             let tilt = Tilt::new(&Attitude { pitch_deg, roll_deg }, 300.0);
-            for x in coordinates {
-                for z in coordinates {
-                    assert_eq!(bits(tilt.to_ground(x, z)), bits(to_ground(&tilt, x, z)), "{pitch_deg} {roll_deg} {x} {z}");
-                    assert_eq!(bits(tilt.from_ground(x, z)), bits(from_ground(&tilt, x, z)), "{pitch_deg} {roll_deg} {x} {z}");
+            let label = std::format!("{pitch_deg} {roll_deg}");
+            plain_products_bit_for_bit(&tilt, &coordinates, &label);
+            plain_products_bit_for_bit(&tilt.to_f32(), &single, &label);
+        }
+    }
+
+    /// GTI's single-precision maps stay within a few f32 ulps of the f64
+    /// ones: well under a micrometre where GTI keeps quarter millimetres.
+    #[test]
+    fn single_precision_tilt_maps_agree_to_a_micrometre() {
+        let mut state = 0x1234_5678u32;
+        let mut next = || crate::selftest::xorshift32(&mut state) as f64 / f64::from(u32::MAX);
+        for _ in 0..500 {
+            let attitude = Attitude { pitch_deg: next() * 4.0 - 2.0, roll_deg: next() * 4.0 - 2.0 };
+            let (double, single) = (Tilt::new(&attitude, 400.0), Tilt::new(&attitude, 400.0).to_f32());
+            for _ in 0..50 {
+                let (x, z) = ((next() * 1200.0 - 600.0) as f32, (250.0 + next() * 1500.0) as f32);
+                for (wide, narrow) in [
+                    (double.to_ground(f64::from(x), f64::from(z)), single.to_ground(x, z)),
+                    (double.from_ground(f64::from(x), f64::from(z)), single.from_ground(x, z)),
+                ] {
+                    let ((xw, zw), (xn, zn)) = (wide.unwrap(), narrow.unwrap());
+                    assert!((xw - f64::from(xn)).abs() < 1e-3 && (zw - f64::from(zn)).abs() < 1e-3, "{attitude:?} ({x}, {z})");
                 }
             }
         }
@@ -403,7 +480,7 @@ mod tests {
         let tiny = 1e-9f64;
         let values = [0.0, -0.0, tiny, -tiny, -tiny.next_down(), -tiny.next_up(), -1.0, 5.0, f64::INFINITY, f64::NEG_INFINITY, f64::NAN, -f64::NAN, -1e-300];
         for y in values {
-            assert_eq!(not_below_horizon(y), y >= -1e-9, "{y}");
+            assert_eq!(y.not_below_horizon(), y >= -1e-9, "{y}");
         }
     }
 

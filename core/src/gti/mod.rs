@@ -235,7 +235,7 @@ pub struct Gti {
     travel: Travel,
     /// This frame's body tilt from the nominal attitude (None: nominal):
     /// tracks live on the level ground, the KG shows it tilted.
-    tilt: Option<Tilt>,
+    tilt: Option<Tilt<f32>>,
 }
 
 impl Gti {
@@ -341,7 +341,7 @@ impl Gti {
     /// this one (in the previous robot frame; zero for the first frame).
     /// `attitude` is the body's attitude now, relative to the nominal one.
     pub fn end_frame(&mut self, motion: &Motion, attitude: &Attitude) {
-        self.tilt = (*attitude != Attitude::default()).then(|| Tilt::new(attitude, f64::from(self.mount_height_mm)));
+        self.tilt = (*attitude != Attitude::default()).then(|| Tilt::new(attitude, f64::from(self.mount_height_mm)).to_f32());
         self.lines.end_frame(self.config.lines);
         // One line's edges at a time (found for the travel correction, then
         // again for the association): every line's at once would add ~10 KB
@@ -368,8 +368,8 @@ impl Gti {
     /// The level ground point that `line` shows at `row` this frame.
     fn level_point(&self, line: &GtLine, row: f32) -> [f32; 2] {
         let p = line.point_at_row(&self.grid, row);
-        match self.tilt.and_then(|tilt| tilt.to_ground(f64::from(p[0]), f64::from(p[1]))) {
-            Some((x, z)) => [x as f32, z as f32],
+        match self.tilt.and_then(|tilt| tilt.to_ground(p[0], p[1])) {
+            Some((x, z)) => [x, z],
             None => p,
         }
     }
@@ -377,8 +377,8 @@ impl Gti {
     /// Where on `line` this frame shows the level ground point `point`: its
     /// row and its distance from the line (mm).
     fn row_of_level(&self, line: &GtLine, point: [f32; 2]) -> (f32, f32) {
-        let p = match self.tilt.and_then(|tilt| tilt.from_ground(f64::from(point[0]), f64::from(point[1]))) {
-            Some((x, z)) => [x as f32, z as f32],
+        let p = match self.tilt.and_then(|tilt| tilt.from_ground(point[0], point[1])) {
+            Some((x, z)) => [x, z],
             None => point,
         };
         line.row_of(&self.grid, p)
