@@ -149,9 +149,7 @@ pub fn bilinear_line_equals_plain() -> Outcome {
                     portable::bilinear_line(u, l, wx, wy, target);
                 }
                 for (c, &got) in target.iter().enumerate() {
-                    let top = u32::from(u[c]) * (256 - wx) + u32::from(u[c + 1]) * wx;
-                    let bottom = u32::from(l[c]) * (256 - wx) + u32::from(l[c + 1]) * wx;
-                    if u32::from(got) != (top * (256 - wy) + bottom * wy + (1 << 15)) >> 16 {
+                    if u32::from(got) != bilinear_formula((u, l), c, wx, wy) {
                         return Err("bilinear_line differs from the per-pixel formula");
                     }
                 }
@@ -164,7 +162,13 @@ pub fn bilinear_line_equals_plain() -> Outcome {
     Ok(())
 }
 
-
+/// The bilinear sample between rows `upper` and `lower` at column `x`
+/// and weights `wx`, `wy` (of 256), as the kernels define it.
+fn bilinear_formula((upper, lower): (&[u8], &[u8]), x: usize, wx: u32, wy: u32) -> u32 {
+    let top = u32::from(upper[x]) * (256 - wx) + u32::from(upper[x + 1]) * wx;
+    let bottom = u32::from(lower[x]) * (256 - wx) + u32::from(lower[x + 1]) * wx;
+    (top * (256 - wy) + bottom * wy + (1 << 15)) >> 16
+}
 
 /// `bilinear_stretch` (the selected backend's and the portable one)
 /// equals the per-pixel formula at every step: lengths 0..=200, column
@@ -225,9 +229,7 @@ pub fn bilinear_stretch_equals_plain() -> Outcome {
                 for (n, &got) in target.iter().enumerate() {
                     let (ip, jp) = (i.wrapping_add(i_step.wrapping_mul(n as u32)), j.wrapping_add((j_step as u32).wrapping_mul(n as u32)));
                     let (x, wx, wy) = ((ip >> 24) as usize, (ip >> 16) & 0xFF, (jp >> 16) & 0xFF);
-                    let top = u32::from(u[x]) * (256 - wx) + u32::from(u[x + 1]) * wx;
-                    let bottom = u32::from(l[x]) * (256 - wx) + u32::from(l[x + 1]) * wx;
-                    if u32::from(got) != (top * (256 - wy) + bottom * wy + (1 << 15)) >> 16 {
+                    if u32::from(got) != bilinear_formula((u, l), x, wx, wy) {
                         return Err("bilinear_stretch differs from the per-pixel formula");
                     }
                 }
