@@ -82,7 +82,18 @@ impl Track {
     /// Apparent position (robot frame, mm) of the feature in the current
     /// frame, for slope `slope`, from its latest observation (or on `fit`).
     pub(super) fn predict_apparent(&self, travel: &Travel, slope: f32, fit: Option<&LineFit>) -> Option<[f32; 2]> {
-        let (c_now, across_now) = travel.since(self.origin, self.axis);
+        self.apparent_after(travel, self.travelled(travel), slope, fit)
+    }
+
+    /// Distance travelled along and across the track's axis since its first
+    /// observation: worked out once a frame where it is needed more than
+    /// once (f64 software on the M4).
+    fn travelled(&self, travel: &Travel) -> (f32, f32) {
+        travel.since(self.origin, self.axis)
+    }
+
+    /// [`Track::predict_apparent`] with [`Track::travelled`] given.
+    fn apparent_after(&self, travel: &Travel, (c_now, across_now): (f32, f32), slope: f32, fit: Option<&LineFit>) -> Option<[f32; 2]> {
         let [c_last, y_last] = self.observations.last()?;
         let (c_last, y_last) = (f32::from(c_last) / OBS_UNITS_PER_MM, f32::from(y_last) / OBS_UNITS_PER_MM);
         let y = match fit {
@@ -95,10 +106,9 @@ impl Track {
         Some(travel.rotation_f32().to_robot([y * u[0] + w * u[1], y * u[1] - w * u[0]]))
     }
 
-    /// Records a matched edge at ground point `point` (robot frame).
-    fn observe(&mut self, travel: &Travel, point: [f32; 2], edge: &Edge) {
+    /// Records a matched edge at ground point `point` (robot frame), `travelled` ([`Track::travelled`]) this frame.
+    fn observe(&mut self, travel: &Travel, (c, across): (f32, f32), point: [f32; 2], edge: &Edge) {
         let q = travel.rotation_f32().to_world(point);
-        let (c, across) = travel.since(self.origin, self.axis);
         let (along, w) = along_across(q, self.axis);
         let y = along - self.y0;
         if fabsf(c) > OBS_LIMIT_MM || fabsf(y) > OBS_LIMIT_MM {
@@ -222,6 +232,8 @@ struct Gate {
     high: f32,
     /// The row an established track's fitted locus predicts.
     predicted: Option<f32>,
+    /// The track's [`Track::travelled`] this frame.
+    travelled: (f32, f32),
 }
 
 impl Gate {
@@ -303,7 +315,7 @@ impl Gti {
                 Some((edge, point)) => {
                     claim(&edges.strong, &mut taken, edge.row);
                     claim(&edges.weak, &mut weak_taken, edge.row);
-                    track.observe(&self.travel, point, &edge);
+                    track.observe(&self.travel, gate.travelled, point, &edge);
                 }
                 None => track.misses = track.misses.saturating_add(1),
             }
@@ -317,15 +329,16 @@ impl Gti {
         let mm_per_px = self.grid.mm_per_px;
         let fit = if track.observations.len() >= 2 { track.fit() } else { None };
         let widen = self.config.gate_px * (1.0 + 0.5 * f32::from(track.misses));
+        let travelled = track.travelled(&self.travel);
         match fit {
             Some(fit) if track.observations.len() >= 3 => {
-                let p = track.predict_apparent(&self.travel, -fit.slope, Some(&fit))?;
+                let p = track.apparent_after(&self.travel, travelled, -fit.slope, Some(&fit))?;
                 let (row, lateral) = self.row_of_level(line, p);
                 if off_line(lateral, mm_per_px) {
                     return None;
                 }
                 let gate = widen + 3.0 * fit.residual / mm_per_px;
-                Some(Gate { low: row - gate, high: row + gate, predicted: Some(row) })
+                Some(Gate { low: row - gate, high: row + gate, predicted: Some(row), travelled })
             }
             _ => {
                 // One or two observations: any slope in the initial range.
@@ -334,13 +347,13 @@ impl Gti {
                     Some(s) => (s * 0.85, s * 1.15),
                     None => (0.85, self.config.max_initial_slope),
                 };
-                let a = track.predict_apparent(&self.travel, low, None)?;
-                let b = track.predict_apparent(&self.travel, high, None)?;
+                let a = track.apparent_after(&self.travel, travelled, low, None)?;
+                let b = track.apparent_after(&self.travel, travelled, high, None)?;
                 let ((ra, la), (rb, lb)) = (self.row_of_level(line, a), self.row_of_level(line, b));
                 if off_line(fabsf(la).min(fabsf(lb)), mm_per_px) {
                     return None;
                 }
-                Some(Gate { low: ra.min(rb) - widen, high: ra.max(rb) + widen, predicted: None })
+                Some(Gate { low: ra.min(rb) - widen, high: ra.max(rb) + widen, predicted: None, travelled })
             }
         }
     }
