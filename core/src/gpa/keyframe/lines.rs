@@ -120,10 +120,16 @@ impl Keyframe<'_> {
             }
             return;
         }
+        // Most stacks lie wholly inside the grid: their ends are empty, and
+        // skipped here (an empty fill still calls memclr).
         for (k, row) in rows.iter_mut().enumerate() {
             let (span, out) = (&spans[k], &mut row[PAD..]);
-            out[columns.start..span.start].fill(0);
-            out[span.end..columns.end].fill(0);
+            if columns.start < span.start {
+                out[columns.start..span.start].fill(0);
+            }
+            if span.end < columns.end {
+                out[span.end..columns.end].fill(0);
+            }
             self.sample_span(one_row_down(k), span.start..common.start, out);
             self.sample_span(one_row_down(k), common.end..span.end, out);
         }
@@ -227,6 +233,9 @@ impl Keyframe<'_> {
     /// Samples `line` at the columns of `span`, which [`Self::inside_span`]
     /// found inside the grid, into `out[c]`.
     fn sample_span(&self, line: RowWarp, span: Range<usize>, out: &mut [u8]) {
+        if span.is_empty() {
+            return;
+        }
         if !line.is_bent() {
             self.sample_straight_span(line, span, out);
             return;
