@@ -332,13 +332,14 @@ impl Parallax {
             keyframe.step_positions(warp, seen.clone(), row, positions);
         }
         let mut moved = keyframe.moved_lines::<HYPOTHESES>(positions);
-        let mut samples = [0u8; MAX_GRID_SIDE];
         for k in self.hypotheses.active() {
             let offset = self.hypotheses.offset[k];
             if shared && moved.add(k, offset) {
                 continue;
             }
-            // Near the keyframe's edges: the line as sample_line finds it.
+            // Near the keyframe's edges: the line as sample_line finds it
+            // (its buffer made only here: most rows never need it).
+            let mut samples = [0u8; MAX_GRID_SIDE];
             let sampled = keyframe.sample_line(warp.moved(offset.0, offset.1), seen.clone(), &mut samples);
             for &run in runs {
                 let columns = clip(run, sampled.start, sampled.end);
@@ -437,14 +438,20 @@ impl Parallax {
             if pixels < min_pixels || self.hypotheses.usable == 0 {
                 continue;
             }
+            // A cell the hypotheses were not tried in (`spans_to_try`) has
+            // no height competing with the ground: it stays 0.
+            if self.hypotheses.active().all(|k| self.sums.pixels[k][column] == 0) {
+                continue;
+            }
             // Each hypothesis' SAD scaled to the cell's pixel count; one that
             // saw less than 3/4 of the cell (off the keyframe) does not compete.
+            // (A u16 SAD times a u8 count fits a u32.)
             let mut sads = [u32::MAX; HYPOTHESES];
             for k in core::iter::once(0).chain(self.hypotheses.active()) {
                 let sad = &mut sads[k];
                 let seen = u32::from(self.sums.pixels[k][column]);
                 if seen * 4 >= u32::from(pixels) * 3 {
-                    *sad = ((u64::from(self.sums.sad[k][column]) * u64::from(pixels)) / u64::from(seen.max(1))) as u32;
+                    *sad = u32::from(self.sums.sad[k][column]) * u32::from(pixels) / seen.max(1);
                 }
             }
             let fraction = self.hypotheses.height_fraction(&sads, pixels, min_gain, noise.floor(), config.parallax_gain_percent);

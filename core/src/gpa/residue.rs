@@ -25,11 +25,23 @@ pub(super) struct Residue {
     pub(super) cell_valid: [u8; MAX_CELLS],
     /// Residue pixels per grid row (for the blob base).
     pub(super) row_residue: [u16; MAX_GRID_SIDE],
+    /// A row's per-pixel results: 1 where the wide residue counts; the
+    /// ground residue. Scratch, written before it is read (kept here, not
+    /// on the stack, so that no row pays for zeroing them).
+    /// (Padded for [`kernels::byte_sums`]' word reads.)
+    hot_pixels: [u8; MAX_GRID_SIDE + kernels::BYTE_SUMS_PAD],
+    ground_residues: [u8; MAX_GRID_SIDE + kernels::BYTE_SUMS_PAD],
 }
 
 impl Residue {
     pub(super) const EMPTY: Residue =
-        Residue { cell_residue: [0; MAX_CELLS], cell_valid: [0; MAX_CELLS], row_residue: [0; MAX_GRID_SIDE] };
+        Residue {
+            cell_residue: [0; MAX_CELLS],
+            cell_valid: [0; MAX_CELLS],
+            row_residue: [0; MAX_GRID_SIDE],
+            hot_pixels: [0; MAX_GRID_SIDE + kernels::BYTE_SUMS_PAD],
+            ground_residues: [0; MAX_GRID_SIDE + kernels::BYTE_SUMS_PAD],
+        };
 
     pub(super) fn clear(&mut self) {
         self.cell_residue = [0; MAX_CELLS];
@@ -59,8 +71,8 @@ impl Residue {
         let cell_base = cell_row * cells.wide;
         let lines = residue_lines(row, band, s);
         let mut row_residue = 0u32;
-        // Per pixel: 1 where the wide residue counts; the ground residue.
-        let (mut hot_pixels, mut ground_residues) = ([0u8; MAX_GRID_SIDE], [0u8; MAX_GRID_SIDE]);
+        let (hot_pixels, ground_residues) = (&mut self.hot_pixels, &mut self.ground_residues);
+        let (cell_valid, cell_residue) = (&mut self.cell_valid, &mut self.cell_residue);
         for &run in runs {
             let columns = usize::from(run.0)..usize::from(run.1);
             let (hot_run, ground_run) = (&mut hot_pixels[columns.clone()], &mut ground_residues[columns.clone()]);
@@ -68,9 +80,9 @@ impl Residue {
             cells.segments(columns, |cell_column, columns| {
                 let cell = cell_base + cell_column;
                 let n = columns.len();
-                let (hot, sum) = kernels::byte_sums(&hot_pixels[columns.clone()], &ground_residues[columns]);
-                self.cell_valid[cell] = self.cell_valid[cell].saturating_add(n.min(255) as u8);
-                self.cell_residue[cell] = self.cell_residue[cell].saturating_add(hot.min(255) as u8);
+                let (hot, sum) = kernels::byte_sums(&hot_pixels[..], &ground_residues[..], columns);
+                cell_valid[cell] = cell_valid[cell].saturating_add(n.min(255) as u8);
+                cell_residue[cell] = cell_residue[cell].saturating_add(hot.min(255) as u8);
                 row_residue += hot;
                 // The ground is the null hypothesis: it gets the half-pixel
                 // tolerance, the heights must beat it outright.

@@ -7,6 +7,7 @@
 
 use super::pinhole::FLIP;
 use super::portable;
+use core::ops::Range;
 
 #[inline]
 pub fn sad(a: &[u8], b: &[u8]) -> u32 {
@@ -34,33 +35,35 @@ pub fn sad(a: &[u8], b: &[u8]) -> u32 {
     acc + portable::sad(&a[4 * words..n], &b[4 * words..n])
 }
 
-/// Both sums a word at a time by `usada8` against zero (equal lengths);
-/// the last 0-3 bytes one by one.
+/// Both sums a word at a time by `usada8` against zero; the last 1-3
+/// bytes from one more word, masked, where the padding allows it.
 #[inline]
-pub fn byte_sums(a: &[u8], b: &[u8]) -> (u32, u32) {
-    let words = a.len().min(b.len()) / 4;
+pub fn byte_sums(a: &[u8], b: &[u8], columns: Range<usize>) -> (u32, u32) {
+    let n = columns.len();
+    if columns.start > columns.end || a.len().min(b.len()) < columns.end + super::BYTE_SUMS_PAD {
+        return portable::byte_sums(a, b, columns);
+    }
     let (mut sum_a, mut sum_b) = (0u32, 0u32);
-    if words > 0 {
-        // SAFETY: reads `words` words (unaligned ldr is fine on the M4) of
-        // `a` and `b`, which hold at least 4 * words bytes each.
-        unsafe {
-            core::arch::asm!(
-                "2:",
-                "ldr {x}, [{pa}], #4",
-                "usada8 {sa}, {x}, {zero}, {sa}",
-                "ldr {x}, [{pb}], #4",
-                "usada8 {sb}, {x}, {zero}, {sb}",
-                "subs {n}, {n}, #1",
-                "bne 2b",
-                pa = inout(reg) a.as_ptr() => _, pb = inout(reg) b.as_ptr() => _,
-                n = inout(reg) words => _, zero = in(reg) 0u32,
-                sa = inout(reg) sum_a, sb = inout(reg) sum_b, x = out(reg) _,
-                options(readonly, nostack)
-            );
+    // SAFETY: every word read starts at or after columns.start and ends
+    // before columns.end + 3 <= len of both slices (checked above);
+    // unaligned word loads are fine on the M4.
+    unsafe {
+        let (pa, pb) = (a.as_ptr().add(columns.start), b.as_ptr().add(columns.start));
+        let word = |p: *const u8, at: usize| core::ptr::read_unaligned(p.add(at).cast::<u32>());
+        let mut at = 0;
+        while at + 4 <= n {
+            sum_a = usada8(word(pa, at), 0, sum_a);
+            sum_b = usada8(word(pb, at), 0, sum_b);
+            at += 4;
+        }
+        if at < n {
+            // Little-endian: the bytes in the segment are the low ones.
+            let mask = u32::MAX >> (8 * (4 - (n - at)));
+            sum_a = usada8(word(pa, at) & mask, 0, sum_a);
+            sum_b = usada8(word(pb, at) & mask, 0, sum_b);
         }
     }
-    let (tail_a, tail_b) = portable::byte_sums(&a[4 * words..], &b[4 * words..]);
-    (sum_a + tail_a, sum_b + tail_b)
+    (sum_a, sum_b)
 }
 
 /// Five shifts (the default ±2 window) per current word: the reference

@@ -48,13 +48,18 @@ pub fn sad(a: &[u8], b: &[u8]) -> u32 {
     selected::sad(a, b)
 }
 
-/// The byte sums of `a` and of `b` over their common length (a residue
-/// cell's segment: its hot pixels and its ground residues).
+/// The byte sums of `a` and of `b` over `columns` (a residue cell's
+/// segment: its hot pixels and its ground residues). Where both hold
+/// [`BYTE_SUMS_PAD`] bytes beyond `columns`, a backend may read a word
+/// reaching into them (and masks it): a segment of a few pixels then
+/// costs a word or two, not a byte loop.
 #[inline]
-pub fn byte_sums(a: &[u8], b: &[u8]) -> (u32, u32) {
-    let n = a.len().min(b.len());
-    selected::byte_sums(&a[..n], &b[..n])
+pub fn byte_sums(a: &[u8], b: &[u8], columns: core::ops::Range<usize>) -> (u32, u32) {
+    selected::byte_sums(a, b, columns)
 }
+
+/// The bytes [`byte_sums`] may read past its columns.
+pub const BYTE_SUMS_PAD: usize = 3;
 
 /// The shift search's kernel: `sums[k] += SAD(current, reference[k..k + n])`
 /// for every shift `k` in `0..sums.len()`, n = `current.len()`.
