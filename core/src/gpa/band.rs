@@ -54,20 +54,20 @@ impl Band {
         self.current_row = None;
     }
 
-    /// Samples the band of current row `j` (warp `warp`) over the `seen`
-    /// columns widened by S each side; nothing reads outside them. Only
-    /// the rows within `reach` of the prediction are needed (the residue
-    /// reads one either side, the shift search all S): a row that cannot
+    /// Samples the band of current row `j` (warp `warp`) for the columns
+    /// `read` (none: nothing), and `reach` beside them: only the rows and
+    /// columns within `reach` of the prediction are needed (the residue
+    /// reads one either side, the shift search all S); a row that cannot
     /// roll on from the last samples no more.
-    pub(super) fn sample(&mut self, keyframe: &Keyframe, j: usize, warp: RowWarp, seen: Range<usize>, s: usize, reach: usize) {
-        let columns = seen.start.saturating_sub(s)..(seen.end + s).min(keyframe.width());
+    pub(super) fn sample(&mut self, keyframe: &Keyframe, j: usize, warp: RowWarp, read: Range<usize>, s: usize, reach: usize) {
+        let reach = reach.min(s);
+        let columns = if read.is_empty() { 0..0 } else { read.start.saturating_sub(reach)..(read.end + reach).min(keyframe.width()) };
         // On translation rows the next row's warp is usually this one moved down
         // exactly one keyframe row: then its band row dg is this row's dg + 1
         // (a sample depends only on the line and the column), so the band
         // rolls up (the ring's first row moves on, no bytes are copied), and
         // only the needed rows below what the last row left are sampled.
         let window = 2 * s + 1;
-        let reach = reach.min(s);
         let needed = s - reach..s + reach + 1;
         let rolls = matches!(&self.source, Some((previous_j, previous, sampled))
             if *previous_j + 1 == j

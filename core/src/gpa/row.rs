@@ -29,7 +29,10 @@ impl Gpa<'_> {
         let in_aoi = j >= aoi.top && j < aoi.bottom;
         let shifts = in_aoi && self.search_shifts;
         let rows = self.workspace.rows();
-        rows.band.sample(keyframe, j, warp, seen.clone(), s, if shifts { s } else { 1 });
+        // Every stage reads the band within the usable runs, widened by as
+        // far as it looks beside them: that is all the band holds.
+        let usable = runs.first().zip(runs.last()).map_or(0..0, |(first, last)| usize::from(first.0)..usize::from(last.1));
+        rows.band.sample(keyframe, j, warp, usable, s, if shifts { s } else { 1 });
         let band = rows.band.rows(s);
         lap = self.profiler.charge(lap, |p| &mut p.warp);
 
