@@ -16,6 +16,7 @@ use super::parallax::CellRowSums;
 use crate::grid::MAX_GRID_SIDE;
 use crate::kernels::{self, ResidueLines};
 use crate::limits::{MAX_CELLS, MAX_SEARCH_RADIUS};
+use core::ops::Range;
 
 /// Residue evidence of the current frame.
 pub(super) struct Residue {
@@ -71,25 +72,34 @@ impl Residue {
         let cell_base = cell_row * cells.wide;
         let lines = residue_lines(row, band, s);
         let mut row_residue = 0u32;
-        let (hot_pixels, ground_residues) = (&mut self.hot_pixels, &mut self.ground_residues);
-        let (cell_valid, cell_residue) = (&mut self.cell_valid, &mut self.cell_residue);
         for &run in runs {
             let columns = usize::from(run.0)..usize::from(run.1);
-            let (hot_run, ground_run) = (&mut hot_pixels[columns.clone()], &mut ground_residues[columns.clone()]);
+            let (hot_run, ground_run) = (&mut self.hot_pixels[columns.clone()], &mut self.ground_residues[columns.clone()]);
             kernels::residues(lines.columns(columns.clone()), full, threshold, hot_run, ground_run);
-            cells.segments(columns, |cell_column, columns| {
-                let cell = cell_base + cell_column;
-                let n = columns.len();
-                let (hot, sum) = kernels::byte_sums(&hot_pixels[..], &ground_residues[..], columns);
-                cell_valid[cell] = cell_valid[cell].saturating_add(n.min(255) as u8);
-                cell_residue[cell] = cell_residue[cell].saturating_add(hot.min(255) as u8);
-                row_residue += hot;
-                // The ground is the null hypothesis: it gets the half-pixel
-                // tolerance, the heights must beat it outright.
-                ground.add(0, cell_column, n as u16, sum);
-            });
+            row_residue += self.count_cells(columns, cells, cell_base, ground);
         }
         self.row_residue[j] = self.row_residue[j].saturating_add(row_residue.min(u32::from(u16::MAX)) as u16);
+    }
+
+    /// Adds the residues of a run's `columns` to their cells (cell row
+    /// `cell_base / cells.wide`), the ground's to `ground`; returns the
+    /// hot pixels. Not inlined: a segment's few sums then keep their
+    /// registers instead of sharing the row step's.
+    #[inline(never)]
+    fn count_cells(&mut self, columns: Range<usize>, cells: &Cells, cell_base: usize, ground: &mut CellRowSums) -> u32 {
+        let mut hot_pixels = 0;
+        cells.segments(columns, |cell_column, columns| {
+            let cell = cell_base + cell_column;
+            let n = columns.len();
+            let (hot, sum) = kernels::byte_sums(&self.hot_pixels, &self.ground_residues, columns);
+            self.cell_valid[cell] = self.cell_valid[cell].saturating_add(n.min(255) as u8);
+            self.cell_residue[cell] = self.cell_residue[cell].saturating_add(hot.min(255) as u8);
+            hot_pixels += hot;
+            // The ground is the null hypothesis: it gets the half-pixel
+            // tolerance, the heights must beat it outright.
+            ground.add(0, cell_column, n as u16, sum);
+        });
+        hot_pixels
     }
 
     /// Percentage of a cell's pixels that are residue (0 for cells mostly
