@@ -39,11 +39,28 @@ fn is_routine(name: &str) -> bool {
     name.starts_with("__aeabi") || name.contains("compiler_builtins") || name.contains("libm") || name == "fminf" || name == "fmaxf"
 }
 
-/// Reads QEMU's record (`qemu_args`' file).
-pub fn read(record: impl BufRead) -> io::Result<Profile> {
-    // Block start address -> its instruction count (a block translated
-    // again replaces its entry: the record lists it before it runs).
-    let mut blocks: HashMap<u32, u64> = HashMap::new();
+/// Where a profile starts counting: at the `nth` (1-based) entry of
+/// `function` (demangled, without its hash). A function is entered at the
+/// start of its first translated block: the record lists a block before it
+/// runs, and nothing runs a function's middle before its entry.
+pub struct Start<'a> {
+    pub function: &'a str,
+    pub nth: usize,
+}
+
+/// Reads QEMU's record (`qemu_args`' file), counting from `start` (None:
+/// from the first instruction).
+pub fn read(record: impl BufRead, start: Option<Start>) -> io::Result<Profile> {
+    // The entry address of `start`'s function, once listed; its entries so far.
+    let (mut entry, mut listing_entry, mut entries) = (None, false, 0);
+    // A block's instructions by its translation, named by the host code
+    // QEMU made of it: one address can have several at once (under
+    // -icount a block that touches a peripheral is translated again, one
+    // instruction long, for that access). A listed block runs next, so the
+    // next run at its address names its translation. `latest`: each
+    // address's last listed count, for a run whose translation was not seen.
+    let (mut listed, mut latest): (HashMap<u32, u64>, HashMap<u32, u64>) = (HashMap::new(), HashMap::new());
+    let mut translations: HashMap<u64, u64> = HashMap::new();
     let mut open: Option<(u32, u64)> = None;
     let mut functions: HashMap<String, u64> = HashMap::new();
     let mut routines: HashMap<(String, String), u64> = HashMap::new();
@@ -57,20 +74,39 @@ pub fn read(record: impl BufRead) -> io::Result<Profile> {
             let Some(address) = address.split(':').next().and_then(|a| u32::from_str_radix(a, 16).ok()) else { continue };
             let block = open.get_or_insert((address, 0));
             block.1 += 1;
+            if std::mem::take(&mut listing_entry) {
+                entry = Some(address);
+            }
             continue;
         }
         if let Some((start, count)) = open.take() {
-            blocks.insert(start, count);
+            listed.insert(start, count);
+            latest.insert(start, count);
+        }
+        if let (Some(name), Some(start), None) = (line.strip_prefix("IN: "), &start, entry) {
+            listing_entry = demangled(name.trim()) == start.function;
+            continue;
         }
         // "Trace 0: 0x7f.. [00800408/08000400/00000110/ff020200] Reset"
         let Some(rest) = line.strip_prefix("Trace ") else { continue };
-        let Some((fields, name)) = rest.split_once('[').and_then(|(_, r)| r.split_once(']')) else { continue };
+        let Some((head, (fields, name))) = rest.split_once('[').and_then(|(head, r)| Some((head, r.split_once(']')?))) else { continue };
         let Some(pc) = fields.split('/').nth(1).and_then(|pc| u32::from_str_radix(pc, 16).ok()) else { continue };
+        let host = head.split_whitespace().last().and_then(|h| u64::from_str_radix(h.trim_start_matches("0x"), 16).ok());
+        let count = match (host, listed.remove(&pc)) {
+            (Some(host), Some(count)) => *translations.entry(host).insert_entry(count).get(),
+            (Some(host), None) => translations.get(&host).or(latest.get(&pc)).copied().unwrap_or(0),
+            (None, _) => latest.get(&pc).copied().unwrap_or(0),
+        };
         let name = name.trim();
         if name.contains(STOP_AT) {
             break;
         }
-        let count = blocks.get(&pc).copied().unwrap_or(0);
+        if let Some(start) = &start {
+            entries += usize::from(entry == Some(pc));
+            if entries < start.nth {
+                continue;
+            }
+        }
         total += count;
         // Demangled once: the record has a line per block run.
         let function = demangled(name);
@@ -121,10 +157,35 @@ Trace 0: 0x7f10 [00800408/08000108/00000110/ff020200] __aeabi_dmul
 Trace 0: 0x7f20 [00800408/08000200/00000110/ff020200] kernel_bench
 Trace 0: 0x7f00 [00800408/08000100/00000110/ff020200] main
 ";
-        let profile = read(record.as_bytes()).unwrap();
+        let profile = read(record.as_bytes(), None).unwrap();
         assert_eq!(profile.total, 8);
         assert_eq!(profile.functions, vec![("__aeabi_dmul".to_string(), 4), ("main".to_string(), 4)]);
         assert_eq!(profile.routines, vec![(("__aeabi_dmul".to_string(), "main".to_string()), 4)]);
         assert_eq!(profile.blocks, vec![((0x0800_0100, "main".to_string()), 4), ((0x0800_0108, "__aeabi_dmul".to_string()), 4)]);
+        // From the second entry of __aeabi_dmul on: that run only, as
+        // kernel_bench ends the record.
+        let profile = read(record.as_bytes(), Some(Start { function: "__aeabi_dmul", nth: 2 })).unwrap();
+        assert_eq!(profile.total, 2);
+        assert_eq!(profile.functions, vec![("__aeabi_dmul".to_string(), 2)]);
+    }
+
+    #[test]
+    fn a_block_translated_again_keeps_each_translation_apart() {
+        // main's block, then a one-instruction translation of its start
+        // (as -icount makes for a peripheral access), then both run again.
+        let record = "\
+IN: main
+0x08000100:  4812       ldr      r0, [pc, #0x48]
+0x08000102:  6800       ldr      r0, [r0]
+
+Trace 0: 0x7f00 [00800408/08000100/00000110/ff020200] main
+IN: main
+0x08000100:  4812       ldr      r0, [pc, #0x48]
+
+Trace 0: 0x7f80 [00800408/08000100/00000110/ff020200] main
+Trace 0: 0x7f00 [00800408/08000100/00000110/ff020200] main
+Trace 0: 0x7f80 [00800408/08000100/00000110/ff020200] main
+";
+        assert_eq!(read(record.as_bytes(), None).unwrap().total, 2 + 1 + 2 + 1);
     }
 }

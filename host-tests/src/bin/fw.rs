@@ -87,8 +87,11 @@ struct Args {
     frames: bool,
 }
 
-/// Frames `--profile` runs: QEMU's record grows by ~0.4 GB a frame.
+/// Frames `--profile` counts (QEMU's record, ~0.4 GB a frame, is read
+/// through a pipe as it is written).
 const PROFILE_FRAMES: u32 = 3;
+/// The function a frame starts with: the profile counts from FIRST's entry.
+const PROFILE_START: &str = "flatland_core::pipeline::Pipeline::begin";
 
 /// `--odometry poses|none`, `--imu poses|none`, as on `flatland detect`:
 /// whether the run uses that sensor's poses.csv columns.
@@ -235,7 +238,7 @@ fn run_recording(args: &Args, elf: &Path, exec_log: Option<&Path>) -> Result<Str
     let mut recording = Recording::open(&args.recording).map_err(|e| e.to_string())?;
     args.sensors.apply(&mut recording);
     if let (Some(_), Some(first)) = (exec_log, args.profile) {
-        recording.poses.retain(|row| (first..first + PROFILE_FRAMES).contains(&row.frame));
+        recording.poses.retain(|row| row.frame < first + PROFILE_FRAMES);
     }
     let mut mm_per_px = args.mm_per_px;
     if args.full_frame {
@@ -331,10 +334,38 @@ fn run_selftest(args: &Args, elf: &Path) -> Result<()> {
 }
 
 fn run_bench(args: &Args, elf: &Path) -> Result<()> {
-    let exec_log = args.profile.is_some().then(|| std::env::temp_dir().join(format!("flatland-exec-{}.log", std::process::id())));
+    // QEMU's record goes through a pipe, read as it is written: the frames
+    // before FIRST run (the keyframe and GTI's tracks are then what they
+    // are in the whole run) without their ~0.4 GB a frame being kept.
+    let exec_log = args.profile.is_some().then(|| std::env::temp_dir().join(format!("flatland-exec-{}.fifo", std::process::id())));
+    let reader = match (&exec_log, args.profile) {
+        (Some(path), Some(first)) => {
+            let made = std::process::Command::new("mkfifo").arg(path).status().map_err(|e| format!("mkfifo: {e}"))?;
+            if !made.success() {
+                return Err(format!("mkfifo {} failed", path.display()));
+            }
+            let mut recording = Recording::open(&args.recording).map_err(|e| e.to_string())?;
+            args.sensors.apply(&mut recording);
+            let nth = recording.poses.iter().filter(|row| row.frame < first).count() + 1;
+            let path = path.clone();
+            Some(std::thread::spawn(move || {
+                let record = std::fs::File::open(&path).map(|file| std::io::BufReader::with_capacity(1 << 20, file));
+                record.and_then(|record| m4_profile::read(record, Some(m4_profile::Start { function: PROFILE_START, nth })))
+            }))
+        }
+        _ => None,
+    };
     let log = run_recording(args, elf, exec_log.as_deref());
-    if let Some(path) = &exec_log {
-        let profile = std::fs::File::open(path).map(std::io::BufReader::new).and_then(m4_profile::read);
+    if let (Some(path), Some(reader)) = (&exec_log, reader) {
+        // Had QEMU not opened the pipe, the reader would wait for a writer:
+        // one that opens and closes without blocking ends its wait.
+        #[cfg(target_os = "linux")]
+        {
+            use std::os::unix::fs::OpenOptionsExt;
+            const O_NONBLOCK: i32 = 0o4000;
+            let _ = std::fs::OpenOptions::new().write(true).custom_flags(O_NONBLOCK).open(path);
+        }
+        let profile = reader.join().map_err(|_| "the profile's reader panicked".to_string())?;
         let _ = std::fs::remove_file(path);
         let profile = profile.map_err(|e| format!("QEMU's record {}: {e}", path.display()))?;
         print_profile(&profile, args.profile.unwrap_or(0));
@@ -400,7 +431,7 @@ fn print_frames(per_frame: &BTreeMap<String, Vec<u64>>) {
 /// The profile's biggest entries (`--profile`).
 fn print_profile(profile: &m4_profile::Profile, first: u32) {
     let share = |count: u64| 100.0 * count as f64 / profile.total.max(1) as f64;
-    println!("profile: every instruction the M4 ran on {PROFILE_FRAMES} frames from frame {first} (set-up and serial waits included); the figures after the profile are the same run's, over those frames only");
+    println!("profile: every instruction the M4 ran on {PROFILE_FRAMES} frames from frame {first} (serial waits included; the set-up and the frames before ran uncounted); the figures after the profile are the same run's, over frames 0 to {}", first + PROFILE_FRAMES - 1);
     println!("profile_total: {}", profile.total);
     for (name, count) in profile.functions.iter().take(40) {
         println!("profile: {count:>11} {:5.1} %  {name}", share(*count));
