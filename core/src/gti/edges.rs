@@ -8,6 +8,7 @@ use super::lines::LineSamples;
 use super::GtiConfig;
 use crate::limits::{MAX_EDGES_PER_LINE, MAX_LINES, MAX_LINE_SAMPLES, MAX_WEAK_EDGES_PER_LINE};
 use crate::subpixel::maximum_offset;
+use core::ops::Range;
 use heapless::Vec;
 
 /// Samples either side of an edge in its matching patch.
@@ -19,6 +20,11 @@ const WEAK_EDGE_SCALE: f32 = 0.5;
 const NOISE_BLOCK: usize = 32;
 /// Noise blocks a line can have.
 const NOISE_BLOCKS: usize = MAX_LINE_SAMPLES / NOISE_BLOCK + 1;
+/// Smoothing [1 2 1], then the difference across +-2 samples: responds to
+/// the contrast of a step spread over a few samples (far ground is
+/// magnified in the KG image, so its edges are soft) more than to
+/// single-sample floor texture. Gradient at row r uses r-REACH..=r+REACH.
+const REACH: usize = 3;
 
 /// An edge on a line in the current frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -39,15 +45,28 @@ pub(super) struct LineEdges {
     /// Above [`WEAK_EDGE_SCALE`] times the threshold (the strong ones too,
     /// with their strength over that), at most [`MAX_WEAK_EDGES_PER_LINE`].
     pub weak: Vec<Edge, MAX_WEAK_EDGES_PER_LINE>,
-    /// Each line's threshold per noise block, once a search has measured it:
-    /// a frame searches a line twice (travel correction, association), and
-    /// the noise medians are a large part of a search. Valid for one frame's
-    /// samples: a new frame starts from [`LineEdges::NONE`].
-    thresholds: [Option<[f32; NOISE_BLOCKS]>; MAX_LINES],
+    /// Each line's scan, once a search has made it: a frame searches a line
+    /// twice (travel correction, association), and the gradient, its noise
+    /// medians and the pass over its peaks are most of a search. Valid for
+    /// one frame's samples: a new frame starts from [`LineEdges::NONE`].
+    scans: [Option<LineScan>; MAX_LINES],
 }
 
+/// What a search keeps of a line's gradient for the line's next search.
+#[derive(Clone, Copy)]
+struct LineScan {
+    /// The edge threshold per noise block.
+    thresholds: [f32; NOISE_BLOCKS],
+    /// Rows that are peaks of the gradient above the weak threshold (bit r
+    /// of word r / 32): every edge either set can have, in row order.
+    peaks: [u32; PEAK_WORDS],
+}
+
+/// Words of a line's peak bits.
+const PEAK_WORDS: usize = MAX_LINE_SAMPLES.div_ceil(32);
+
 impl LineEdges {
-    pub(super) const NONE: LineEdges = LineEdges { strong: Vec::new(), weak: Vec::new(), thresholds: [None; MAX_LINES] };
+    pub(super) const NONE: LineEdges = LineEdges { strong: Vec::new(), weak: Vec::new(), scans: [None; MAX_LINES] };
 
     /// The edges of one line's samples: extrema of the smoothed gradient
     /// above `edge_threshold_sigma` robust sigmas of the gradient around them
@@ -70,73 +89,93 @@ impl LineEdges {
         let valid = samples.valid();
         let values = &samples.values;
         let n = valid.len();
-        // Smoothing [1 2 1], then the difference across +-2 samples: responds to
-        // the contrast of a step spread over a few samples (far ground is
-        // magnified in the KG image, so its edges are soft) more than to
-        // single-sample floor texture. Gradient at row r uses r-3..=r+3.
-        const REACH: usize = 3;
         if n < 2 * (PATCH_RADIUS + REACH) + 3 {
             return;
         }
-        // The gradient is exact in sixteenths of a gray level: with integer
-        // samples, 0.25 * (s(r+2) - s(r-2)) of the smoothing s = 0.25 * (a + 2b + c)
-        // is (S(r+2) - S(r-2)) / 16 of the integer sums S, within +-1020. So it
-        // is computed, compared and its noise medians selected in integers, and
-        // converted to f32 (exactly) only where a value leaves: the same
-        // thresholds and edges as f32 arithmetic, for a fraction of the M4's work.
-        // Only magnitudes are kept (the search and the noise need no more):
-        // an edge's sign is worked out again from its samples.
-        let mut magnitudes = [0u16; MAX_LINE_SAMPLES];
         let (first, last) = (valid.start + REACH, valid.end - REACH); // gradient defined on [first, last)
-        let windows = values.get(valid.clone()).unwrap_or(&[]).windows(2 * REACH + 1);
-        for (m, window) in magnitudes.get_mut(first..last).unwrap_or(&mut []).iter_mut().zip(windows) {
-            *m = gradient(window).unsigned_abs();
-        }
-        // The line's noise (sensor noise plus floor texture) is measured locally,
-        // per block of NOISE_BLOCK samples: the near floor's sharp texture must
-        // not hide the soft edges of far, magnified ground.
-        let floor = config.min_edge_contrast * 0.5;
-        let known = self.thresholds.get(l).copied().flatten();
-        let block_threshold = known.unwrap_or_else(|| block_thresholds(&magnitudes, first, last, config));
-        if let Some(slot) = self.thresholds.get_mut(l) {
-            *slot = Some(block_threshold);
-        }
-        // Patches must lie inside the valid run. Rows r in [start, end), each
-        // with its neighbours' gradient (a window: one bounds check a row).
+        // Patches must lie inside the valid run: edges at rows in [start, end).
         let (start, end) = ((first + 1).max(valid.start + PATCH_RADIUS), (last - 1).min(valid.end - PATCH_RADIUS));
-        let neighbourhoods = magnitudes.get(start - 1..end + 1).unwrap_or(&[]).windows(3);
-        for (r, window) in (start..).zip(neighbourhoods) {
-            let &[before, here, after] = window else { continue };
-            if !(here >= before && here > after) {
-                continue;
-            }
-            let threshold = block_threshold.get((r - first) / NOISE_BLOCK).copied().unwrap_or(floor);
-            // The weak threshold is the lower (the threshold is never negative).
-            let weak_threshold = WEAK_EDGE_SCALE * threshold;
-            let [before, here, after] = [before, here, after].map(sixteenths);
-            if !(here > weak_threshold) || !(with_weak || here > threshold) {
-                continue;
-            }
-            let mut patch = [0u8; PATCH];
-            for (k, slot) in patch.iter_mut().enumerate() {
-                *slot = values.get(r + k - PATCH_RADIUS).copied().unwrap_or(0);
-            }
-            let edge = Edge {
-                row: r as f32 + maximum_offset(before, here, after),
-                strength: here / weak_threshold,
-                rising: values.get(r - REACH..=r + REACH).is_some_and(|window| gradient(window) > 0),
-                patch,
-            };
-            if with_weak {
-                keep_strongest(&mut self.weak, edge);
-            }
-            if here > threshold {
-                keep_strongest(&mut self.strong, Edge { strength: here / threshold, ..edge });
+        let known = self.scans.get(l).copied().flatten();
+        let LineScan { thresholds, peaks } = known.unwrap_or_else(|| scan(values, &valid, first..last, start..end, config));
+        if let Some(slot) = self.scans.get_mut(l) {
+            *slot = Some(LineScan { thresholds, peaks });
+        }
+        let floor = config.min_edge_contrast * 0.5;
+        // A peak's gradient and its neighbours' again from the samples: a few
+        // rows, where keeping the line's gradient for the second search would
+        // cost its 512 bytes per line.
+        let gradient_at = |r: usize| values.get(r - REACH..=r + REACH).map_or(0, gradient);
+        for (w, &word) in peaks.iter().enumerate() {
+            let mut bits = word;
+            while bits != 0 {
+                let r = 32 * w + bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                let threshold = thresholds.get((r - first) / NOISE_BLOCK).copied().unwrap_or(floor);
+                // The weak threshold is the lower (the threshold is never negative).
+                let weak_threshold = WEAK_EDGE_SCALE * threshold;
+                let signed = gradient_at(r);
+                let here = sixteenths(signed.unsigned_abs());
+                if !(with_weak || here > threshold) {
+                    continue;
+                }
+                let [before, after] = [gradient_at(r - 1), gradient_at(r + 1)].map(|g| sixteenths(g.unsigned_abs()));
+                let mut patch = [0u8; PATCH];
+                for (k, slot) in patch.iter_mut().enumerate() {
+                    *slot = values.get(r + k - PATCH_RADIUS).copied().unwrap_or(0);
+                }
+                let edge = Edge { row: r as f32 + maximum_offset(before, here, after), strength: here / weak_threshold, rising: signed > 0, patch };
+                if with_weak {
+                    keep_strongest(&mut self.weak, edge);
+                }
+                if here > threshold {
+                    keep_strongest(&mut self.strong, Edge { strength: here / threshold, ..edge });
+                }
             }
         }
         self.strong.sort_unstable_by(|a, b| b.strength.total_cmp(&a.strength));
         self.weak.sort_unstable_by(|a, b| b.strength.total_cmp(&a.strength));
     }
+}
+
+/// A line's scan ([`LineScan`]): its gradient magnitudes on `gradient_rows`
+/// (`values` valid on `valid`), their thresholds per noise block, and the
+/// peaks among `edge_rows` above the weak threshold.
+fn scan(values: &[u8; MAX_LINE_SAMPLES], valid: &Range<usize>, gradient_rows: Range<usize>, edge_rows: Range<usize>, config: &GtiConfig) -> LineScan {
+    // The gradient is exact in sixteenths of a gray level: with integer
+    // samples, 0.25 * (s(r+2) - s(r-2)) of the smoothing s = 0.25 * (a + 2b + c)
+    // is (S(r+2) - S(r-2)) / 16 of the integer sums S, within +-1020. So it
+    // is computed, compared and its noise medians selected in integers, and
+    // converted to f32 (exactly) only where a value leaves: the same
+    // thresholds and edges as f32 arithmetic, for a fraction of the M4's work.
+    // Only magnitudes are kept (the search and the noise need no more):
+    // an edge's sign is worked out again from its samples.
+    let mut magnitudes = [0u16; MAX_LINE_SAMPLES];
+    let (first, last) = (gradient_rows.start, gradient_rows.end);
+    let windows = values.get(valid.clone()).unwrap_or(&[]).windows(2 * REACH + 1);
+    for (m, window) in magnitudes.get_mut(first..last).unwrap_or(&mut []).iter_mut().zip(windows) {
+        *m = gradient(window).unsigned_abs();
+    }
+    // The line's noise (sensor noise plus floor texture) is measured locally,
+    // per block of NOISE_BLOCK samples: the near floor's sharp texture must
+    // not hide the soft edges of far, magnified ground.
+    let thresholds = block_thresholds(&magnitudes, first, last, config);
+    let floor = config.min_edge_contrast * 0.5;
+    let mut peaks = [0u32; PEAK_WORDS];
+    // Each row with its neighbours' gradient (a window: one bounds check a row).
+    let neighbourhoods = magnitudes.get(edge_rows.start - 1..edge_rows.end + 1).unwrap_or(&[]).windows(3);
+    for (r, window) in edge_rows.zip(neighbourhoods) {
+        let &[before, here, after] = window else { continue };
+        if !(here >= before && here > after) {
+            continue;
+        }
+        let threshold = thresholds.get((r - first) / NOISE_BLOCK).copied().unwrap_or(floor);
+        if sixteenths(here) > WEAK_EDGE_SCALE * threshold {
+            if let Some(word) = peaks.get_mut(r / 32) {
+                *word |= 1 << (r % 32);
+            }
+        }
+    }
+    LineScan { thresholds, peaks }
 }
 
 /// The gradient at the middle of a window of 7 samples in sixteenths of a

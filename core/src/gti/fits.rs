@@ -72,16 +72,35 @@ fn flip_magnitude(bits: i32) -> i32 {
 /// empty. Selected, not sorted (the same value; sorting the lines' noise
 /// blocks was ~0.4 M M4 instructions a frame).
 pub(super) fn median(keys: &mut [i32]) -> Option<f32> {
-    let n = keys.len();
+    median_of_parts(keys, &mut [])
+}
+
+/// [`median`] of the keys of `low` and `high` together, every key of `low`
+/// below every key of `high`: only the part that holds the middle is selected.
+// Inlined: [`median`]'s empty `high` then costs the small medians nothing.
+#[inline(always)]
+fn median_of_parts(low: &mut [i32], high: &mut [i32]) -> Option<f32> {
+    let n = low.len() + high.len();
     if n == 0 {
         return None;
     }
-    let (below, &mut upper, _) = keys.select_nth_unstable(n / 2);
+    // The middle key and the keys before it in its part (`earlier`: those
+    // of the low part when it is in the high one).
+    let (before, upper, earlier): (&[i32], i32, &[i32]) = match n / 2 {
+        k if k < low.len() => {
+            let (before, &mut upper, _) = low.select_nth_unstable(k);
+            (before, upper, &[])
+        }
+        k => {
+            let (before, &mut upper, _) = high.select_nth_unstable(k - low.len());
+            (before, upper, low)
+        }
+    };
     if n % 2 == 1 {
         Some(key_value(upper))
     } else {
         // The largest of the lower half: the element a sort puts just before.
-        let lower = below.iter().copied().max()?;
+        let lower = before.iter().copied().max().or_else(|| earlier.iter().copied().max())?;
         Some(0.5 * (key_value(lower) + key_value(upper)))
     }
 }
@@ -95,17 +114,29 @@ pub(super) fn robust_line_fit(x: &[f32], y: &[f32]) -> Option<LineFit> {
     if n < 2 || n != y.len() || n > MAX_OBSERVATIONS {
         return None;
     }
-    // A Vec, not an array: the M4 would clear all 480 bytes on every refit.
+    // The pairs' slopes as order keys, those below a pivot kept ahead of the
+    // others: the median is then selected in one part only. Any pivot gives
+    // the same median; the slope across the whole run, near it, halves the
+    // part. A Vec, not an array: the M4 would clear all 480 bytes on every refit.
     let mut slopes: Vec<i32, { MAX_OBSERVATIONS * (MAX_OBSERVATIONS - 1) / 2 }> = Vec::new();
+    let pivot = order_key((y[n - 1] - y[0]) / (x[n - 1] - x[0]));
+    let mut below = 0;
     for a in 0..n {
+        let (xa, ya) = (x[a], y[a]);
         for b in a + 1..n {
-            let dx = x[b] - x[a];
+            let dx = x[b] - xa;
             if fabsf(dx) > 1e-6 {
-                let _ = slopes.push(order_key((y[b] - y[a]) / dx));
+                let key = order_key((y[b] - ya) / dx);
+                if slopes.push(key).is_ok() && key < pivot {
+                    let last = slopes.len() - 1;
+                    slopes.swap(below, last);
+                    below += 1;
+                }
             }
         }
     }
-    let slope = median(&mut slopes)?;
+    let (low, high) = slopes.split_at_mut(below);
+    let slope = median_of_parts(low, high)?;
     let mut scratch = [0i32; MAX_OBSERVATIONS];
     for (slot, (xi, yi)) in scratch.iter_mut().zip(x.iter().zip(y)) {
         *slot = order_key(yi - slope * xi);
@@ -217,6 +248,29 @@ mod tests {
             for b in values {
                 assert_eq!(order_key(a).cmp(&order_key(b)), a.total_cmp(&b), "{a} {b}");
             }
+        }
+    }
+
+    #[test]
+    fn median_of_parts_is_the_median() {
+        let mut state = 0x5EED_F175u32;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state
+        };
+        for _ in 0..5_000 {
+            let n = 1 + next() as usize % 120;
+            // Ties included: keys of a few values, or of many.
+            let spread = [3, 50, 1 << 20][next() as usize % 3];
+            let mut keys: Vec<i32, 120> = (0..n).map(|_| (next() % spread) as i32 - (spread / 2) as i32).collect();
+            let pivot = keys[next() as usize % n] + (next() % 3) as i32 - 1;
+            let mut parts: Vec<i32, 120> = keys.iter().copied().filter(|&k| k < pivot).collect();
+            let below = parts.len();
+            parts.extend(keys.iter().copied().filter(|&k| k >= pivot));
+            let (low, high) = parts.split_at_mut(below);
+            assert_eq!(median_of_parts(low, high).map(f32::to_bits), median(&mut keys).map(f32::to_bits));
         }
     }
 
