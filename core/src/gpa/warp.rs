@@ -542,7 +542,7 @@ impl Coverage {
     /// others are tested column by column. Adds to `runs` (cleared); false,
     /// `runs` untouched, if the row's positions could wrap.
     fn bent_runs(&self, warp: RowWarp, seen: Range<usize>, grid: &KgGrid, runs: &mut Runs) -> bool {
-        const CHUNK: usize = 16;
+        const CHUNK: usize = 32;
         const SANE: i64 = 1 << 30;
         if !warp.is_bent() {
             return false;
