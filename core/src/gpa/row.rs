@@ -14,8 +14,7 @@ impl Gpa<'_> {
     pub(super) fn compare_row(&mut self, keyframe: &Keyframe, j: usize, row: &[u8], exposure: Option<&[u8; 256]>) {
         let s = self.config.search_radius;
         let mut lap = self.profiler.now();
-        let warp = self.warp.row(j);
-        self.cell_row_warps[j % self.layout.cells.px] = warp;
+        let warp = self.row_line(j);
         let Some(seen) = self.coverage.seen(j) else {
             self.profiler.charge(lap, |p| &mut p.warp);
             self.end_row(keyframe, j, exposure);
@@ -92,6 +91,16 @@ impl Gpa<'_> {
         self.close_cell_row(j);
     }
 
+    /// Current row `j`'s line, kept for its cell row's hypotheses: row 0's
+    /// own, then each continuing the row above's where it may
+    /// ([`super::warp::Warp::row_after`]). Rows come in order, 0 first.
+    fn row_line(&mut self, j: usize) -> super::warp::RowWarp {
+        let px = self.layout.cells.px;
+        let line = if j == 0 { self.warp.row(0) } else { self.warp.row_after(j, self.cell_row_warps[(j - 1) % px]) };
+        self.cell_row_warps[j % px] = line;
+        line
+    }
+
     /// After row `j`: decides its cell row if `j` was that row's last.
     fn close_cell_row(&mut self, j: usize) {
         if self.ends_cell_row(j) {
@@ -119,7 +128,7 @@ impl Gpa<'_> {
         let s = self.config.search_radius;
         let grid = self.layout.grid;
         let width = grid.width();
-        let warp = self.warp.row(j);
+        let warp = self.row_line(j);
         let Some(seen) = self.coverage.seen(j) else {
             self.close_cell_row(j);
             return;

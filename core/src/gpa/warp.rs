@@ -153,6 +153,11 @@ fn fine_rows(origin: (f64, f64), row: (f64, f64)) -> Option<[(i64, i64); 2]> {
     Some([coordinate(origin.0, row.0)?, coordinate(origin.1, row.1)?])
 }
 
+/// How far (Q16.16) a row's line may lie from its own when it continues
+/// the row above's ([`Warp::row_after`]): 1/64 px, the departure below
+/// which [`Warp::row_at`] already keeps a row straight.
+const CONTINUED_Q16: i64 = 1 << (FRAC - 6);
+
 /// One pixel per column squared in [`RowWarp`]'s bend units.
 const BEND_SCALE: f64 = (1u64 << BEND_FRAC) as f64;
 
@@ -199,6 +204,32 @@ impl Warp {
     /// The warp of current row `j`.
     pub(super) fn row(&self, j: usize) -> RowWarp {
         self.row_at(j as isize)
+    }
+
+    /// The line of current row `j` right after row `j - 1`'s `above`:
+    /// `above` moved down one keyframe row wherever that stays within
+    /// [`CONTINUED_Q16`] of row `j`'s own line at every column, else its
+    /// own. Continued rows let the search band roll on, sampling one line
+    /// a row instead of 2S+1 (a tilted body's own lines differ from row to
+    /// row by a few thousandths of a pixel). Each row is held to its own
+    /// line, so the departures never add up.
+    pub(super) fn row_after(&self, j: usize, above: RowWarp) -> RowWarp {
+        let own = self.row(j);
+        let continued = above.moved(0, 1 << FRAC);
+        let last = self.grid.width().max(1) as i64 - 1;
+        let apart = |a: (i32, i32, i32), b: (i32, i32, i32)| {
+            let difference = |x: i32, y: i32| (i64::from(x) - i64::from(y)).abs();
+            difference(a.0, b.0) + last * difference(a.1, b.1) + ((last * last * difference(a.2, b.2)) >> (BEND_FRAC - FRAC))
+        };
+        let within = |a: &RowWarp, b: &RowWarp| {
+            apart((a.i_start, a.i_step, a.i_bend), (b.i_start, b.i_step, b.i_bend)) <= CONTINUED_Q16
+                && apart((a.j_start, a.j_step, a.j_bend), (b.j_start, b.j_step, b.j_bend)) <= CONTINUED_Q16
+        };
+        if within(&continued, &own) {
+            continued
+        } else {
+            own
+        }
     }
 
     /// The warp of current row `r`, which may lie beyond the grid's rows.
@@ -760,6 +791,36 @@ mod tests {
             }
             // A chord through the row's ends was off by 3 px at pitch -1.5, roll 2.
             assert!(worst < 1.0 / 16.0, "pitch {pitch_deg} roll {roll_deg}: {worst} px off");
+        }
+    }
+
+    /// Rows continued from the row above stay within 1/64 px of their own
+    /// lines at every column, however many follow one another; a tilted
+    /// body's rows mostly continue (three in four at least: the band rolls), a turning one's never
+    /// (a yaw turns the rows: one keyframe row down is not the next row).
+    #[test]
+    fn continued_rows_stay_within_a_64th_of_their_own() {
+        let grid = KgGrid { mm_per_px: 5.75, x_left_mm: -402.5, z_far_mm: 1850.0, width: 141, height: 255 };
+        for (dyaw_deg, pitch_deg, roll_deg, continue_most) in [(0.0, 0.02, -0.03, true), (0.0, 0.0, 0.0, true), (0.0, 1.0, 1.5, false), (2.0, 0.02, 0.0, false)] {
+            let motion = GroundMotion { planar: Motion { tx_mm: 5.0, tz_mm: 90.0, dyaw_deg }, attitude: Attitude { pitch_deg, roll_deg } };
+            let warp = Warp::new(&grid, &motion, &Attitude { pitch_deg: 0.01, roll_deg: 0.02 }, 400.0);
+            let (mut line, mut continued) = (warp.row(0), 0);
+            for j in 1..grid.height() {
+                let (next, own) = (warp.row_after(j, line), warp.row(j));
+                continued += usize::from(next == line.moved(0, 1 << FRAC));
+                for c in 0..grid.width() {
+                    let ((i, jj), (i_own, j_own)) = (next.at(c), own.at(c));
+                    // The bend's rounding down adds a unit each way.
+                    assert!(i64::from(i.abs_diff(i_own)).max(i64::from(jj.abs_diff(j_own))) <= CONTINUED_Q16 + 2, "yaw {dyaw_deg} pitch {pitch_deg} roll {roll_deg}: row {j} column {c}");
+                }
+                line = next;
+            }
+            let rows = grid.height() - 1;
+            if continue_most {
+                assert!(continued * 4 >= rows * 3, "yaw {dyaw_deg} pitch {pitch_deg} roll {roll_deg}: {continued} of {rows} rows continued");
+            } else if dyaw_deg != 0.0 {
+                assert_eq!(continued, 0, "a turning row continued");
+            }
         }
     }
 }
