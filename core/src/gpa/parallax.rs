@@ -276,13 +276,6 @@ impl CellRowSums {
         self.sad = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
         self.pixels = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
     }
-
-    /// Adds `pixels` pixels of SAD `sad` to hypothesis `k` of cell `column`.
-    #[inline(always)]
-    pub(super) fn add(&mut self, k: usize, column: usize, pixels: u16, sad: u32) {
-        self.pixels[k][column] += pixels as u8;
-        self.sad[k][column] += sad as u16;
-    }
 }
 
 /// Runs of grid columns, whole cells, that the hypotheses are tried in.
