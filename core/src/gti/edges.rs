@@ -299,12 +299,7 @@ mod tests {
     #[test]
     fn median_by_counting_is_the_median() {
         let mut state = 0x4D65_6469u32;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            state
-        };
+        let mut next = || crate::selftest::xorshift32(&mut state);
         for _ in 0..20_000 {
             let n = 1 + next() as usize % NOISE_BLOCK;
             // Every range of magnitudes, ties included, up to the largest (1020).

@@ -254,12 +254,7 @@ mod tests {
     #[test]
     fn median_of_parts_is_the_median() {
         let mut state = 0x5EED_F175u32;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            state
-        };
+        let mut next = || crate::selftest::xorshift32(&mut state);
         for _ in 0..5_000 {
             let n = 1 + next() as usize % 120;
             // Ties included: keys of a few values, or of many.
