@@ -39,7 +39,7 @@ impl Gpa<'_> {
         if in_cells {
             let full = self.parallax.hypotheses.ground_tolerance(j);
             let threshold = self.noise.residue_threshold();
-            rows.residue.add_row(j, row, &band, s, &runs, full, threshold, cells, cell_row, &mut self.parallax.sums);
+            rows.residue.add_row(j, row, &band, s, &runs, full, threshold);
         }
         lap = self.profiler.charge(lap, |p| &mut p.residue);
 
@@ -61,6 +61,7 @@ impl Gpa<'_> {
         let cells = self.layout.cells;
         let cell_row = j / cells.px;
         if self.ends_cell_row(j) && cell_row < cells.high {
+            self.workspace.rows().residue.finish_cell_row(&cells, cell_row, self.layout.grid.width(), &mut self.parallax.sums);
             let min_gain = self.config.parallax_min_gain.max(self.noise.level());
             let mut spans = super::parallax::CellSpans::new();
             self.parallax.spans_to_try(&cells, min_gain, &mut spans);

@@ -3,6 +3,7 @@
 //! ones equal plain per-pixel loops.
 
 use super::{bilinear, pinhole, portable, Strongest, FRAC_BITS};
+use crate::grid::MAX_GRID_SIDE;
 use crate::selftest::{xorshift32, Outcome};
 
 /// Deterministic bytes around 128, within `spread` of it (any byte from 256 up).
@@ -11,6 +12,39 @@ fn fill(buffer: &mut [u8], mut state: u32, spread: u32) {
         let random = xorshift32(&mut state);
         *byte = if spread >= 256 { random as u8 } else { 128u32.wrapping_add(random % (2 * spread + 1)).wrapping_sub(spread) as u8 };
     }
+}
+
+/// Whether [`super::add_to_columns`] (the backend's and the portable one),
+/// adding hot flags (`a`'s low bits) and ground residues (`b`) at
+/// `columns` three times over, leaves totals other than the plain sums,
+/// taken over the grid's width in pieces 1, 2, 5 and 15 columns wide.
+fn column_totals_differ(a: &[u8], b: &[u8], columns: core::ops::Range<usize>) -> bool {
+    let hot: [u8; MAX_GRID_SIDE] = core::array::from_fn(|c| a.get(c).map_or(0, |&v| v & 1));
+    let ground = &b[..MAX_GRID_SIDE];
+    let mut differs = false;
+    for px in [1, 2, 5, 15] {
+        let mut totals = [super::ColumnTotals::EMPTY, super::ColumnTotals::EMPTY];
+        for _ in 0..3 {
+            let expected: u32 = hot[columns.clone()].iter().map(|&h| u32::from(h)).sum();
+            let counted = [super::add_to_columns(&hot, ground, columns.clone(), &mut totals[0]), portable::add_to_columns(&hot, ground, columns.clone(), &mut totals[1])];
+            differs |= counted != [expected; 2];
+        }
+        for totals in &mut totals {
+            let mut pieces = [super::PieceSums::ZERO; MAX_GRID_SIDE];
+            let count = totals.take_pieces(px, MAX_GRID_SIDE, &mut pieces);
+            differs |= count != MAX_GRID_SIDE.div_ceil(px);
+            for (k, piece) in pieces[..count].iter().enumerate() {
+                let columns_of_piece = k * px..((k + 1) * px).min(MAX_GRID_SIDE);
+                let within = columns_of_piece.start.max(columns.start)..columns_of_piece.end.min(columns.end).max(columns_of_piece.start.max(columns.start));
+                let plain = |bytes: &[u8]| 3 * bytes[within.clone()].iter().map(|&v| u32::from(v)).sum::<u32>();
+                differs |= (piece.hot(), piece.pixels(), piece.ground()) != (plain(&hot), 3 * within.len() as u32, plain(ground));
+            }
+            // Taken: all 0 again.
+            totals.take_pieces(px, MAX_GRID_SIDE, &mut pieces);
+            differs |= pieces.iter().any(|&piece| piece != super::PieceSums::ZERO);
+        }
+    }
+    differs
 }
 
 /// Every length 0..=300, unaligned starts, random and edge values
@@ -36,13 +70,8 @@ pub fn dsp_kernels_equal_portable() -> Outcome {
                 if super::sad(x, y) != plain_sad(y) || portable::sad(x, y) != plain_sad(y) {
                     return Err("sad differs from the per-pixel loop");
                 }
-                let sum = |bytes: &[u8]| bytes.iter().map(|&p| u32::from(p)).sum::<u32>();
-                // The columns at the ends of both buffers (no room to read
-                // past them) and within them (a padded read).
-                let columns = [start..start + length, 307 - length..307];
-                let sums = |columns: &core::ops::Range<usize>| (sum(&a[columns.clone()]), sum(&b[columns.clone()]));
-                if columns.iter().any(|c| super::byte_sums(&a, &b, c.clone()) != sums(c) || portable::byte_sums(&a, &b, c.clone()) != sums(c)) {
-                    return Err("byte_sums differs from the per-pixel loop");
+                if length <= 250 && column_totals_differ(&a, &b, start..start + length) {
+                    return Err("add_to_columns differs from the per-pixel loop");
                 }
                 let mut expected = [0u32; 256];
                 for (&p, &q) in x.iter().zip(y) {

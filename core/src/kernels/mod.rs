@@ -33,6 +33,8 @@ use portable as selected;
 
 pub(crate) mod pinhole;
 
+use crate::grid::MAX_GRID_SIDE;
+
 #[cfg(any(test, feature = "selftest"))]
 pub mod checks;
 
@@ -48,18 +50,106 @@ pub fn sad(a: &[u8], b: &[u8]) -> u32 {
     selected::sad(a, b)
 }
 
-/// The byte sums of `a` and of `b` over `columns` (a residue cell's
-/// segment: its hot pixels and its ground residues). Where both hold
-/// [`BYTE_SUMS_PAD`] bytes beyond `columns`, a backend may read a word
-/// reaching into them (and masks it): a segment of a few pixels then
-/// costs a word or two, not a byte loop.
-#[inline]
-pub fn byte_sums(a: &[u8], b: &[u8], columns: core::ops::Range<usize>) -> (u32, u32) {
-    selected::byte_sums(a, b, columns)
+/// A cell row's residues summed per grid column as its rows come
+/// ([`add_to_columns`]), and per cell when it ends
+/// ([`ColumnTotals::take_pieces`]): each pixel is added once, where it is
+/// made, rather than per cell segment of every row.
+pub struct ColumnTotals {
+    /// Per column: 16 for each pixel counted, plus its hot flag (0 or 1).
+    /// Over a cell row's at most 15 rows both parts stay below 16.
+    tallies: [u8; MAX_GRID_SIDE],
+    /// Per column: the ground residues' sum.
+    ground: [u16; MAX_GRID_SIDE],
+    /// The columns added to since the last take (empty: start > end).
+    touched: (u16, u16),
 }
 
-/// The bytes [`byte_sums`] may read past its columns.
-pub const BYTE_SUMS_PAD: usize = 3;
+/// Rows a cell row may have: below 16, a column's pixels and hot flags
+/// each fit a nibble of its tally.
+pub const MAX_TALLIED_ROWS: usize = 15;
+
+impl ColumnTotals {
+    pub const EMPTY: ColumnTotals = ColumnTotals { tallies: [0; MAX_GRID_SIDE], ground: [0; MAX_GRID_SIDE], touched: (u16::MAX, 0) };
+
+    /// Notes that `columns` (within the grid) are added to.
+    #[inline(always)]
+    fn touch(&mut self, columns: &core::ops::Range<usize>) {
+        self.touched = (self.touched.0.min(columns.start as u16), self.touched.1.max(columns.end as u16));
+    }
+
+    /// Adds one pixel at column `c` (below [`MAX_GRID_SIDE`]): its hot flag
+    /// (0 or 1) and its ground residue.
+    #[inline(always)]
+    fn add(&mut self, c: usize, hot: u8, ground: u8) {
+        self.tallies[c] = self.tallies[c].wrapping_add(16 | hot);
+        self.ground[c] = self.ground[c].wrapping_add(u16::from(ground));
+    }
+
+    /// Writes the sums since the last call over each piece k of the first
+    /// `width` columns cut `px` wide (as many as `pieces` holds) to
+    /// `pieces[k]`, and starts every column again at 0; returns the
+    /// pieces written.
+    pub fn take_pieces(&mut self, px: usize, width: usize, pieces: &mut [PieceSums]) -> usize {
+        let (px, width) = (px.max(1), width.min(MAX_GRID_SIDE));
+        let count = width.div_ceil(px).min(pieces.len());
+        // Only the pieces of the columns added to are summed (and zeroed).
+        let (start, end) = (usize::from(self.touched.0), usize::from(self.touched.1).min(width));
+        let summed = (start / px).min(count)..end.div_ceil(px).min(count);
+        let (before, rest) = pieces[..count].split_at_mut(summed.start);
+        let (within, after) = rest.split_at_mut(summed.len());
+        before.fill(PieceSums::ZERO);
+        after.fill(PieceSums::ZERO);
+        if !within.is_empty() {
+            selected::take_pieces(self, px, summed.start * px..(summed.end * px).min(width), within);
+        }
+        let added = start.min(usize::from(self.touched.1))..usize::from(self.touched.1);
+        self.tallies[added.clone()].fill(0);
+        self.ground[added].fill(0);
+        self.touched = ColumnTotals::EMPTY.touched;
+        count
+    }
+}
+
+/// One piece's sums from [`ColumnTotals::take_pieces`], in a word: hot
+/// pixels and pixels (at most 15 * 15 each) in its two low bytes, the
+/// ground residues (at most 225 * 255) in its high halfword.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(transparent)]
+pub struct PieceSums(u32);
+
+impl PieceSums {
+    pub const ZERO: PieceSums = PieceSums(0);
+
+    /// Packs a tally's sum (hot pixels plus 16 per pixel), the sum of its
+    /// high nibbles (the pixels) and the ground residues' sum.
+    #[inline(always)]
+    fn pack(tally: u32, pixels: u32, ground: u32) -> PieceSums {
+        PieceSums((tally - 16 * pixels) | pixels << 8 | ground << 16)
+    }
+
+    pub fn hot(self) -> u32 {
+        self.0 & 0xFF
+    }
+
+    pub fn pixels(self) -> u32 {
+        (self.0 >> 8) & 0xFF
+    }
+
+    pub fn ground(self) -> u32 {
+        self.0 >> 16
+    }
+}
+
+/// Adds `hot[c]` (0 or 1) and `ground[c]` to `totals` at every column c of
+/// `columns` (within both slices and the grid); returns the hot pixels.
+#[inline]
+pub fn add_to_columns(hot: &[u8], ground: &[u8], columns: core::ops::Range<usize>, totals: &mut ColumnTotals) -> u32 {
+    let end = columns.end.min(hot.len()).min(ground.len()).min(MAX_GRID_SIDE);
+    if columns.start >= end {
+        return 0;
+    }
+    selected::add_to_columns(hot, ground, columns.start..end, totals)
+}
 
 /// The shift search's kernel: `sums[k] += SAD(current, reference[k..k + n])`
 /// for every shift `k` in `0..sums.len()`, n = `current.len()`.

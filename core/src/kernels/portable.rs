@@ -2,10 +2,30 @@
 //! (`checks`), the SIMD ones' tails, and the kernels of targets without
 //! SIMD ones. Same functions as `sse2` and `dsp`.
 
+/// The sums of `columns` cut `px` wide from its start (the last piece
+/// short where it ends), as many as `pieces` holds.
+pub fn take_pieces(totals: &super::ColumnTotals, px: usize, columns: core::ops::Range<usize>, pieces: &mut [super::PieceSums]) {
+    let columns = totals.tallies[columns.clone()].chunks(px).zip(totals.ground[columns].chunks(px));
+    for (piece, (tallies, ground)) in pieces.iter_mut().zip(columns) {
+        let (mut tally, mut pixels, mut sum) = (0u32, 0u32, 0u32);
+        for (&t, &g) in tallies.iter().zip(ground) {
+            tally += u32::from(t);
+            pixels += u32::from(t >> 4);
+            sum += u32::from(g);
+        }
+        *piece = super::PieceSums::pack(tally, pixels, sum);
+    }
+}
+
 #[inline]
-pub fn byte_sums(a: &[u8], b: &[u8], columns: core::ops::Range<usize>) -> (u32, u32) {
-    let sum = |bytes: &[u8]| bytes.iter().map(|&x| u32::from(x)).sum();
-    (sum(&a[columns.clone()]), sum(&b[columns]))
+pub fn add_to_columns(hot: &[u8], ground: &[u8], columns: core::ops::Range<usize>, totals: &mut super::ColumnTotals) -> u32 {
+    totals.touch(&columns);
+    let mut hot_pixels = 0;
+    for c in columns {
+        totals.add(c, hot[c], ground[c]);
+        hot_pixels += u32::from(hot[c]);
+    }
+    hot_pixels
 }
 
 pub fn sad(a: &[u8], b: &[u8]) -> u32 {
