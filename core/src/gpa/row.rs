@@ -17,6 +17,7 @@ impl Gpa<'_> {
         let warp = self.row_line(j);
         let Some(seen) = self.coverage.seen(j) else {
             self.profiler.charge(lap, |p| &mut p.warp);
+            self.finish_residue(j);
             self.end_row(keyframe, j, exposure);
             return;
         };
@@ -47,6 +48,8 @@ impl Gpa<'_> {
             rows.search.add_row(row, &band, s, &runs, aoi, self.layout.in_far_half(j), self.search_shifts);
         }
         lap = self.profiler.charge(lap, |p| &mut p.shift_search);
+        self.finish_residue(j);
+        lap = self.profiler.charge(lap, |p| &mut p.residue);
         self.end_row(keyframe, j, exposure);
         self.profiler.charge(lap, |p| &mut p.parallax);
     }
@@ -61,7 +64,6 @@ impl Gpa<'_> {
         let cells = self.layout.cells;
         let cell_row = j / cells.px;
         if self.ends_cell_row(j) && cell_row < cells.high {
-            self.workspace.rows().residue.finish_cell_row(&cells, cell_row, self.layout.grid.width(), &mut self.parallax.sums);
             let min_gain = self.config.parallax_min_gain.max(self.noise.level());
             let mut spans = super::parallax::CellSpans::new();
             self.parallax.spans_to_try(&cells, min_gain, &mut spans);
@@ -90,6 +92,15 @@ impl Gpa<'_> {
             }
         }
         self.close_cell_row(j);
+    }
+
+    /// After row `j`: if it was its cell row's last, that cell row's
+    /// residues counted into its cells (the ground's for the hypotheses).
+    fn finish_residue(&mut self, j: usize) {
+        let cells = self.layout.cells;
+        if self.ends_cell_row(j) && j / cells.px < cells.high {
+            self.workspace.rows().residue.finish_cell_row(&cells, j / cells.px, self.layout.grid.width(), &mut self.parallax.sums);
+        }
     }
 
     /// Current row `j`'s line, kept for its cell row's hypotheses: row 0's
