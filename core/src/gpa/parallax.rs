@@ -417,23 +417,28 @@ impl Parallax {
     }
 
     /// Decides the parallax height of each cell of finished cell row
-    /// `cell_row`, and starts the next cell row's sums.
+    /// `cell_row`, and starts the next cell row's sums. Only the cells a
+    /// height hypothesis was tried in ([`Self::spans_to_try`]) can get a
+    /// height: the others keep the 0 the frame's [`Self::clear`] gave them.
     pub(super) fn finish_cell_row(&mut self, cell_row: usize, cells: &Cells, camera_height_mm: f64, noise: &Noise, config: &GpaConfig) {
         if cell_row >= cells.high {
             return;
         }
         let min_pixels = (cells.px * cells.px / 2) as u16;
         let min_gain = config.parallax_min_gain.max(noise.level());
-        for column in 0..cells.wide {
-            let pixels = u16::from(self.sums.pixels[0][column]);
-            let cell = cell_row * cells.wide + column;
-            self.height.set(cell, 0, false);
-            if pixels < min_pixels || self.hypotheses.usable == 0 {
-                continue;
+        // A byte per cell, nonzero where any hypothesis but the ground saw
+        // it: the counts ORed four cells a word.
+        let words = cells.wide.min(MAX_CELLS_SIDE).div_ceil(4);
+        let mut tried = [0u32; MAX_CELLS_SIDE.div_ceil(4)];
+        for k in self.hypotheses.active() {
+            for (tried, seen) in tried[..words].iter_mut().zip(self.sums.pixels[k].chunks_exact(4)) {
+                *tried |= u32::from_le_bytes([seen[0], seen[1], seen[2], seen[3]]);
             }
-            // A cell the hypotheses were not tried in (`spans_to_try`) has
-            // no height competing with the ground: it stays 0.
-            if self.hypotheses.active().all(|k| self.sums.pixels[k][column] == 0) {
+        }
+        let tried = |column: usize| tried[column / 4].to_le_bytes()[column % 4] != 0;
+        for column in (0..cells.wide).filter(|&column| tried(column)) {
+            let pixels = u16::from(self.sums.pixels[0][column]);
+            if pixels < min_pixels {
                 continue;
             }
             // Each hypothesis' SAD scaled to the cell's pixel count; one that
@@ -451,7 +456,7 @@ impl Parallax {
             if let Some((fraction, strong)) = fraction {
                 let height = libm::round(fraction * camera_height_mm);
                 let magnitude = libm::fabs(height).clamp(1.0, f64::from(u8::MAX)) as i16;
-                self.height.set(cell, if height > 0.0 { magnitude } else { -magnitude }, !strong);
+                self.height.set(cell_row * cells.wide + column, if height > 0.0 { magnitude } else { -magnitude }, !strong);
             }
         }
         self.sums.clear();

@@ -1188,12 +1188,30 @@ pub fn residues<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLin
         let (k_high, k_low) = max_min(left, right);
         let (g_high, g_low) = max_min(along_up, along_down);
         let (min, max) = (extreme::<true>, extreme::<false>);
-        let wide_low = min(here, min(k_low, g_low));
-        let wide_high = max(here, max(k_high, g_high));
+        // The halfway reach is monotone and leaves `here` where it is, so
+        // min(here, half(a), half(b)) = half(min(here, a, b)) (max alike):
+        // the ground range's ends are the reaches of the ranges of `here`
+        // and the neighbours along the axes that take the half.
+        let half = |ends: u32| rounded_half(here, ends);
+        let (wide_low, wide_high, low, high) = match (FULL_K, FULL_G) {
+            (false, false) => {
+                let (low, high) = (min(here, min(k_low, g_low)), max(here, max(k_high, g_high)));
+                (low, high, half(low), half(high))
+            }
+            (true, false) => {
+                let (low, high) = (min(here, g_low), max(here, g_high));
+                (min(k_low, low), max(k_high, high), min(k_low, half(low)), max(k_high, half(high)))
+            }
+            (false, true) => {
+                let (low, high) = (min(here, k_low), max(here, k_high));
+                (min(g_low, low), max(g_high, high), min(g_low, half(low)), max(g_high, half(high)))
+            }
+            (true, true) => {
+                let (low, high) = (min(here, min(k_low, g_low)), max(here, max(k_high, g_high)));
+                (low, high, low, high)
+            }
+        };
         let wide = saturating_sub(value, wide_high) | saturating_sub(wide_low, value);
-        let reach = |other: u32, full: bool| if full { other } else { rounded_half(here, other) };
-        let low = min(here, min(reach(k_low, FULL_K), reach(g_low, FULL_G)));
-        let high = max(here, max(reach(k_high, FULL_K), reach(g_high, FULL_G)));
         let residue = saturating_sub(value, high) | saturating_sub(low, value);
         // SAFETY: as above.
         unsafe {
