@@ -633,7 +633,7 @@ impl<'b> Gpa<'b> {
             let row_warp = rows.band.sample_current_rows(store, j, &warp, s, searched);
             self.coverage.usable_runs(row_warp, seen, grid, &mut runs);
             let row = exposed(store.current_row(j), exposure, &mut adjusted);
-            rows.seed.add_row(row, &rows.band.rows(s), s, &runs, aoi, self.layout.in_far_half(j), true);
+            rows.seed.add_row(row, &rows.band.rows(s), s, &runs, aoi, self.layout.in_far_half(j), true, false);
         }
     }
 
@@ -745,7 +745,7 @@ impl<'b> Gpa<'b> {
         self.prediction.settle(refined, self.layout.grid.mm_per_px);
         self.noise.update(&rows.search.histogram(), &self.config);
         let seed = if seed_apart { &rows.seed } else { &rows.search };
-        let (sum, count) = kernels::seed_statistics(&seed.histogram());
+        let (sum, count) = if seed_apart { rows.seed.seed_sums } else { kernels::seed_statistics(&rows.search.histogram()) };
         (sum, count, seed.fit(self.config.search_radius, predicted, &self.layout))
     }
 

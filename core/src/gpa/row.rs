@@ -45,7 +45,7 @@ impl Gpa<'_> {
         lap = self.profiler.charge(lap, |p| &mut p.residue);
 
         if in_aoi {
-            rows.search.add_row(row, &band, s, &runs, aoi, self.layout.in_far_half(j), self.search_shifts);
+            rows.search.add_row(row, &band, s, &runs, aoi, self.layout.in_far_half(j), self.search_shifts, true);
         }
         lap = self.profiler.charge(lap, |p| &mut p.shift_search);
         self.finish_residue(j);

@@ -27,8 +27,12 @@ pub(super) struct ShiftSearch {
     /// The same over the far half.
     pub(super) sad_far: [[u32; MAX_WINDOW]; MAX_WINDOW],
     pub(super) compared_pixels: u32,
-    /// Histogram of the plain |diff| at the predicted shift over the AOI.
+    /// Histogram of the plain |diff| at the predicted shift over the AOI...
     pub(super) diff_hist: kernels::DiffHistogram,
+    /// ...or, for a search whose histogram nothing reads (the seed's own,
+    /// apart from the measured motion's), only the seed's statistics of it
+    /// ([`kernels::seed_sums`]).
+    pub(super) seed_sums: (u32, u32),
 }
 
 /// What the search measured in a frame.
@@ -47,6 +51,7 @@ impl ShiftSearch {
         sad_far: [[0; MAX_WINDOW]; MAX_WINDOW],
         compared_pixels: 0,
         diff_hist: kernels::DiffHistogram::EMPTY,
+        seed_sums: (0, 0),
     };
 
     pub(super) fn clear(&mut self) {
@@ -54,14 +59,16 @@ impl ShiftSearch {
         self.sad_far = [[0; MAX_WINDOW]; MAX_WINDOW];
         self.compared_pixels = 0;
         self.diff_hist.clear();
+        self.seed_sums = (0, 0);
     }
 
     /// Adds current row `row` against the `band` (search radius `s`) over
     /// the usable `runs` within the AOI's columns, to the far half's sums
     /// if `far_half`; the shifts' sums only if `shifts` (the histogram
-    /// reads band row S alone).
+    /// reads band row S alone), the histogram only if `histogram` (else
+    /// the seed's statistics alone).
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn add_row(&mut self, row: &[u8], band: &BandRows, s: usize, runs: &[(u16, u16)], aoi: &PixelRect, far_half: bool, shifts: bool) {
+    pub(super) fn add_row(&mut self, row: &[u8], band: &BandRows, s: usize, runs: &[(u16, u16)], aoi: &PixelRect, far_half: bool, shifts: bool, histogram: bool) {
         let r = MAX_SEARCH_RADIUS;
         let window = 2 * s + 1;
         for &run in runs {
@@ -70,7 +77,13 @@ impl ShiftSearch {
                 continue;
             }
             let current = &row[columns.clone()];
-            self.diff_hist.add(current, &band[s][columns.start + r..columns.end + r]);
+            let predicted = &band[s][columns.start + r..columns.end + r];
+            if histogram {
+                self.diff_hist.add(current, predicted);
+            } else {
+                let (sum, count) = kernels::seed_sums(current, predicted);
+                self.seed_sums = (self.seed_sums.0.wrapping_add(sum), self.seed_sums.1.wrapping_add(count));
+            }
             self.compared_pixels += columns.len() as u32;
             if !shifts {
                 continue;

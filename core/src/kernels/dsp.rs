@@ -204,6 +204,51 @@ fn usada8(a: u32, b: u32, acc: u32) -> u32 {
     sum
 }
 
+/// Four pixels a step: |diff| by `usub8`/`sel`; the bytes above each
+/// level made 0xFF (`uqsub8` the level, `usub8` from 0, `sel`), the
+/// differences above 30 kept by that mask and summed, the 0xFF bytes
+/// above 50 summed (255 a pixel) by `usada8` (16 instructions per 4).
+#[inline]
+pub fn seed_sums(a: &[u8], b: &[u8]) -> (u32, u32) {
+    let words = a.len().min(b.len()) / 4;
+    let (mut sum, mut above) = (0u32, 0u32);
+    if words > 0 {
+        // SAFETY: reads `words` words of `a` and `b` (at least 4 * words
+        // bytes each); unaligned words are fine on the M4.
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "ldr {x}, [{pa}], #4",
+                "ldr {y}, [{pb}], #4",
+                "usub8 {t}, {x}, {y}",
+                "usub8 {y}, {y}, {x}",
+                "sel {x}, {y}, {t}",
+                "uqsub8 {t}, {x}, {sum_level}",
+                "usub8 {t}, {zero}, {t}",
+                "sel {t}, {zero}, {bytes}",
+                "and {t}, {t}, {x}",
+                "usada8 {sum}, {t}, {zero}, {sum}",
+                "uqsub8 {t}, {x}, {count_level}",
+                "usub8 {t}, {zero}, {t}",
+                "sel {t}, {zero}, {bytes}",
+                "usada8 {above}, {t}, {zero}, {above}",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                pa = inout(reg) a.as_ptr() => _, pb = inout(reg) b.as_ptr() => _,
+                n = inout(reg) words => _,
+                sum = inout(reg) sum, above = inout(reg) above,
+                zero = in(reg) 0u32, bytes = in(reg) u32::MAX,
+                sum_level = in(reg) u32::from(super::SUM_LEVEL) * 0x0101_0101,
+                count_level = in(reg) u32::from(super::COUNT_LEVEL) * 0x0101_0101,
+                x = out(reg) _, y = out(reg) _, t = out(reg) _,
+                options(nostack, readonly)
+            );
+        }
+    }
+    let (tail_sum, tail_count) = portable::seed_sums(&a[4 * words..], &b[4 * words..]);
+    (sum.wrapping_add(tail_sum), (above / 255).wrapping_add(tail_count))
+}
+
 /// One lane: the M4 has no store-to-load stall to hide (1 KB).
 pub const HISTOGRAM_LANES: usize = 1;
 

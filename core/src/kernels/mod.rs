@@ -200,6 +200,15 @@ impl DiffHistogram {
     }
 }
 
+/// The seed's statistics of `|a[n] - b[n]|` over the common length, as
+/// [`seed_statistics`] of their histogram gives them (the sums wrap),
+/// without the histogram: a search whose histogram nothing else reads.
+#[inline]
+pub fn seed_sums(a: &[u8], b: &[u8]) -> (u32, u32) {
+    let n = a.len().min(b.len());
+    selected::seed_sums(&a[..n], &b[..n])
+}
+
 /// The seed's statistics from a |diff| histogram: the sum of |diff| above
 /// [`SUM_LEVEL`] and the count above [`COUNT_LEVEL`].
 pub fn seed_statistics(histogram: &[u32; 256]) -> (u32, u32) {

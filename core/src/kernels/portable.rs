@@ -18,6 +18,19 @@ pub fn take_pieces(totals: &super::ColumnTotals, px: usize, columns: core::ops::
 }
 
 #[inline]
+pub fn seed_sums(a: &[u8], b: &[u8]) -> (u32, u32) {
+    let (mut sum, mut count) = (0u32, 0u32);
+    for (&x, &y) in a.iter().zip(b) {
+        let d = x.abs_diff(y);
+        if d > super::SUM_LEVEL {
+            sum = sum.wrapping_add(u32::from(d));
+        }
+        count = count.wrapping_add(u32::from(d > super::COUNT_LEVEL));
+    }
+    (sum, count)
+}
+
+#[inline]
 pub fn add_to_columns(hot: &[u8], ground: &[u8], columns: core::ops::Range<usize>, totals: &mut super::ColumnTotals) -> u32 {
     totals.touch(&columns);
     let mut hot_pixels = 0;
