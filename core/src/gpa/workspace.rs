@@ -78,7 +78,7 @@ impl Workspace {
     /// The row sums as last left, or empty after the estimate.
     pub(super) fn rows(&mut self) -> &mut RowStages {
         if !matches!(self, Workspace::Rows(_)) {
-            *self = Workspace::EMPTY;
+            *self = Workspace::Rows(RowStages::EMPTY);
         }
         match self {
             Workspace::Rows(rows) => rows,
