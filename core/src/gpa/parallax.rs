@@ -266,15 +266,24 @@ impl CellHeights {
 pub(super) struct CellRowSums {
     pub(super) sad: [[u16; MAX_CELLS_SIDE]; HYPOTHESES],
     pub(super) pixels: [[u8; MAX_CELLS_SIDE]; HYPOTHESES],
+    /// False while only the ground's sums can be other than 0.
+    pub(super) tried: bool,
 }
 
 impl CellRowSums {
     pub(super) const EMPTY: CellRowSums =
-        CellRowSums { sad: [[0; MAX_CELLS_SIDE]; HYPOTHESES], pixels: [[0; MAX_CELLS_SIDE]; HYPOTHESES] };
+        CellRowSums { sad: [[0; MAX_CELLS_SIDE]; HYPOTHESES], pixels: [[0; MAX_CELLS_SIDE]; HYPOTHESES], tried: false };
 
     pub(super) fn clear(&mut self) {
         self.sad = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
         self.pixels = [[0; MAX_CELLS_SIDE]; HYPOTHESES];
+        self.tried = false;
+    }
+
+    /// [`Self::clear`] of sums only the ground's were added to.
+    fn clear_ground(&mut self) {
+        self.sad[0] = [0; MAX_CELLS_SIDE];
+        self.pixels[0] = [0; MAX_CELLS_SIDE];
     }
 }
 
@@ -320,6 +329,7 @@ impl Parallax {
         // are stepped once and serve every hypothesis, each moving them by
         // its offset, its samples differenced as they are made, cell by
         // cell for all of them at once.
+        self.sums.tried = true;
         let shared = !warp.is_translation();
         if shared {
             keyframe.step_positions(warp, seen.clone(), row, positions);
@@ -426,6 +436,11 @@ impl Parallax {
         }
         let min_pixels = (cells.px * cells.px / 2) as u16;
         let min_gain = config.parallax_min_gain.max(noise.level());
+        if !self.sums.tried {
+            // No height hypothesis was tried: their sums are still 0.
+            self.sums.clear_ground();
+            return;
+        }
         // A byte per cell, nonzero where any hypothesis but the ground saw
         // it: the counts ORed four cells a word.
         let words = cells.wide.min(MAX_CELLS_SIDE).div_ceil(4);

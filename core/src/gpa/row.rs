@@ -231,6 +231,7 @@ impl Gpa<'_> {
                 sums.sad[0][cell_column] += u16::from(ground_residue);
                 for k in hypotheses.active() {
                     if let Some(sample) = hypothesis_rows[k][c] {
+                        sums.tried = true;
                         sums.pixels[k][cell_column] += 1;
                         sums.sad[k][cell_column] += u16::from(value.abs_diff(sample));
                     }
