@@ -84,11 +84,12 @@ impl Residue {
         let mut pieces = [PieceSums::ZERO; MAX_CELLS_SIDE];
         let count = self.columns.take_pieces(px, width, &mut pieces);
         let sums = valid.iter_mut().zip(residue).zip(ground.pixels[0].iter_mut().zip(&mut ground.sad[0]));
+        // Each cell row is counted once a frame, into cells (and ground
+        // sums) still 0 from the frame's (the cell row's) start: stored.
         for (((valid, residue), (pixels, sad)), piece) in sums.zip(&pieces[..count]) {
-            *valid = valid.saturating_add(piece.pixels() as u8);
-            *residue = residue.saturating_add(piece.hot() as u8);
-            *pixels += piece.pixels() as u8;
-            *sad += piece.ground() as u16;
+            debug_assert!(*valid == 0 && *residue == 0 && *pixels == 0 && *sad == 0);
+            (*valid, *residue) = (piece.pixels() as u8, piece.hot() as u8);
+            (*pixels, *sad) = (piece.pixels() as u8, piece.ground() as u16);
         }
     }
 

@@ -54,6 +54,7 @@ pub fn sad(a: &[u8], b: &[u8]) -> u32 {
 /// ([`add_to_columns`]), and per cell when it ends
 /// ([`ColumnTotals::take_pieces`]): each pixel is added once, where it is
 /// made, rather than per cell segment of every row.
+#[repr(C, align(4))]
 pub struct ColumnTotals {
     /// Per column: 16 for each pixel counted, plus its hot flag (0 or 1).
     /// Over a cell row's at most 15 rows both parts stay below 16.
@@ -102,9 +103,9 @@ impl ColumnTotals {
         if !within.is_empty() {
             selected::take_pieces(self, px, summed.start * px..(summed.end * px).min(width), within);
         }
-        let added = start.min(usize::from(self.touched.1))..usize::from(self.touched.1);
-        self.tallies[added.clone()].fill(0);
-        self.ground[added].fill(0);
+        // Whole, aligned arrays clear in word stores (a byte range would not).
+        self.tallies = [0; MAX_GRID_SIDE];
+        self.ground = [0; MAX_GRID_SIDE];
         self.touched = ColumnTotals::EMPTY.touched;
         count
     }
