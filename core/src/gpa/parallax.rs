@@ -312,7 +312,8 @@ impl Parallax {
     /// against the keyframe at every height hypothesis but the ground
     /// (columns whose sample is off the keyframe skip that hypothesis).
     /// `positions` is scratch space for the warp's keyframe positions
-    /// (the caller's, so that a cell row's rows share one).
+    /// (the caller's, so that a cell row's rows share one), `samples` for
+    /// the lines sampled one by one.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn add_row(
         &mut self,
@@ -323,6 +324,7 @@ impl Parallax {
         row: &[u8],
         cells: &Cells,
         positions: &mut LinePositions,
+        samples: &mut [u8; MAX_GRID_SIDE],
     ) {
         // A translation line reads one keyframe row pair at constant
         // weights, a whole-line kernel; a yawed or bent line's positions
@@ -341,9 +343,8 @@ impl Parallax {
                 continue;
             }
             // Near the keyframe's edges: the line as sample_line finds it
-            // (its buffer made only here: most rows never need it).
-            let mut samples = [0u8; MAX_GRID_SIDE];
-            let sampled = keyframe.sample_line(warp.moved(offset.0, offset.1), seen.clone(), &mut samples);
+            // (it writes every column of `seen`, so the scratch needs no clearing).
+            let sampled = keyframe.sample_line(warp.moved(offset.0, offset.1), seen.clone(), &mut samples[..]);
             for &run in runs {
                 let columns = clip(run, sampled.start, sampled.end);
                 if columns.is_empty() {

@@ -32,6 +32,8 @@ pub(super) struct Residue {
     ground_residues: [u8; MAX_GRID_SIDE],
     /// The current cell row's residues per column, until it ends.
     columns: ColumnTotals,
+    /// Scratch: their sums per cell when it ends.
+    pieces: [PieceSums; MAX_CELLS_SIDE],
 }
 
 // A cell row's rows are tallied per column in a nibble each.
@@ -46,6 +48,7 @@ impl Residue {
             hot_pixels: [0; MAX_GRID_SIDE],
             ground_residues: [0; MAX_GRID_SIDE],
             columns: ColumnTotals::EMPTY,
+            pieces: [PieceSums::ZERO; MAX_CELLS_SIDE],
         };
 
     pub(super) fn clear(&mut self) {
@@ -81,8 +84,8 @@ impl Residue {
         let (Some(valid), Some(residue)) = (self.cell_valid.get_mut(cell_base..cell_base + cells.wide), self.cell_residue.get_mut(cell_base..cell_base + cells.wide)) else {
             return;
         };
-        let mut pieces = [PieceSums::ZERO; MAX_CELLS_SIDE];
-        let count = self.columns.take_pieces(px, width, &mut pieces);
+        let count = self.columns.take_pieces(px, width, &mut self.pieces);
+        let pieces = &self.pieces;
         let sums = valid.iter_mut().zip(residue).zip(ground.pixels[0].iter_mut().zip(&mut ground.sad[0]));
         // Each cell row is counted once a frame, into cells (and ground
         // sums) still 0 from the frame's (the cell row's) start: stored.

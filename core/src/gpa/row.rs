@@ -74,18 +74,18 @@ impl Gpa<'_> {
                 // on open ground few cell rows get this far.
                 let grid = &self.layout.grid;
                 let mut runs = Runs::new();
-                let mut adjusted = [0u8; crate::grid::MAX_GRID_SIDE];
+                let super::workspace::RowStages { positions, samples, adjusted, .. } = self.workspace.rows();
                 for row_j in cell_row * cells.px..=j {
                     let Some(seen) = self.coverage.seen(row_j) else { continue };
                     let warp = self.cell_row_warps[row_j % cells.px];
                     if !self.cell_row_runs[row_j % cells.px].restore(&mut runs) {
                         self.coverage.usable_runs(warp, seen.clone(), grid, &mut runs);
                     }
-                    let row = super::exposed(keyframe.current_row(row_j), exposure, &mut adjusted);
+                    let row = super::exposed(keyframe.current_row(row_j), exposure, adjusted);
                     for span in &spans {
                         let columns = seen.start.max(span.start)..seen.end.min(span.end);
                         if !columns.is_empty() {
-                            self.parallax.add_row(keyframe, warp, columns, &runs, row, &cells, &mut self.workspace.rows().positions);
+                            self.parallax.add_row(keyframe, warp, columns, &runs, row, &cells, positions, samples);
                         }
                     }
                 }

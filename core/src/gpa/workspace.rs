@@ -11,6 +11,7 @@ use super::estimate::Estimator;
 use super::keyframe::LinePositions;
 use super::residue::Residue;
 use super::shift_search::ShiftSearch;
+use crate::grid::MAX_GRID_SIDE;
 use crate::limits::MAX_RING_BYTES;
 
 /// The row stages' per-frame sums, cleared by each compare before use.
@@ -24,10 +25,14 @@ pub(super) struct RowStages {
     pub(super) seed: ShiftSearch,
     /// The parallax pass's keyframe positions of a row, shared by its hypotheses.
     pub(super) positions: LinePositions,
+    /// The parallax pass's samples of a hypothesis' line near the keyframe's
+    /// edges, and its rows brought to the keyframe's exposure.
+    pub(super) samples: [u8; MAX_GRID_SIDE],
+    pub(super) adjusted: [u8; MAX_GRID_SIDE],
 }
 
 impl RowStages {
-    const EMPTY: RowStages = RowStages { band: Band::EMPTY, residue: Residue::EMPTY, search: ShiftSearch::EMPTY, seed: ShiftSearch::EMPTY, positions: LinePositions::EMPTY };
+    const EMPTY: RowStages = RowStages { band: Band::EMPTY, residue: Residue::EMPTY, search: ShiftSearch::EMPTY, seed: ShiftSearch::EMPTY, positions: LinePositions::EMPTY, samples: [0; MAX_GRID_SIDE], adjusted: [0; MAX_GRID_SIDE] };
 }
 
 /// Whichever holds the memory now.
