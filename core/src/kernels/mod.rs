@@ -93,7 +93,7 @@ impl ColumnTotals {
     pub fn take_pieces(&mut self, px: usize, width: usize, pieces: &mut [PieceSums]) -> usize {
         let (px, width) = (px.max(1), width.min(MAX_GRID_SIDE));
         let count = width.div_ceil(px).min(pieces.len());
-        // Only the pieces of the columns added to are summed (and zeroed).
+        // Only the pieces of the columns added to are summed; the rest are 0.
         let (start, end) = (usize::from(self.touched.0), usize::from(self.touched.1).min(width));
         let summed = (start / px).min(count)..end.div_ceil(px).min(count);
         let (before, rest) = pieces[..count].split_at_mut(summed.start);
