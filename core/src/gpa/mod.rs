@@ -744,8 +744,9 @@ impl<'b> Gpa<'b> {
         let refined = if estimated { Some(measured) } else { rows.search.fit(self.config.search_radius, &measured, &self.layout).refined };
         self.prediction.settle(refined, self.layout.grid.mm_per_px);
         self.noise.update(&rows.search.histogram(), &self.config);
-        let seed = if seed_apart { &rows.seed } else { &rows.search };
-        let (sum, count) = if seed_apart { rows.seed.seed_sums } else { kernels::seed_statistics(&rows.search.histogram()) };
+        // The seed's own search summed its statistics; the one around the
+        // measured motion keeps them in its histogram.
+        let (seed, (sum, count)) = if seed_apart { (&rows.seed, rows.seed.seed_sums) } else { (&rows.search, kernels::seed_statistics(&rows.search.histogram())) };
         (sum, count, seed.fit(self.config.search_radius, predicted, &self.layout))
     }
 

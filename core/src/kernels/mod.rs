@@ -61,8 +61,6 @@ pub struct ColumnTotals {
     tallies: [u8; MAX_GRID_SIDE],
     /// Per column: the ground residues' sum.
     ground: [u16; MAX_GRID_SIDE],
-    /// The columns added to since the last take (empty: start > end).
-    touched: (u16, u16),
 }
 
 /// Rows a cell row may have: below 16, a column's pixels and hot flags
@@ -70,13 +68,7 @@ pub struct ColumnTotals {
 pub const MAX_TALLIED_ROWS: usize = 15;
 
 impl ColumnTotals {
-    pub const EMPTY: ColumnTotals = ColumnTotals { tallies: [0; MAX_GRID_SIDE], ground: [0; MAX_GRID_SIDE], touched: (u16::MAX, 0) };
-
-    /// Notes that `columns` (within the grid) are added to.
-    #[inline(always)]
-    fn touch(&mut self, columns: &core::ops::Range<usize>) {
-        self.touched = (self.touched.0.min(columns.start as u16), self.touched.1.max(columns.end as u16));
-    }
+    pub const EMPTY: ColumnTotals = ColumnTotals { tallies: [0; MAX_GRID_SIDE], ground: [0; MAX_GRID_SIDE] };
 
     /// Adds one pixel at column `c` (below [`MAX_GRID_SIDE`]): its hot flag
     /// (0 or 1) and its ground residue.
@@ -93,20 +85,12 @@ impl ColumnTotals {
     pub fn take_pieces(&mut self, px: usize, width: usize, pieces: &mut [PieceSums]) -> usize {
         let (px, width) = (px.max(1), width.min(MAX_GRID_SIDE));
         let count = width.div_ceil(px).min(pieces.len());
-        // Only the pieces of the columns added to are summed; the rest are 0.
-        let (start, end) = (usize::from(self.touched.0), usize::from(self.touched.1).min(width));
-        let summed = (start / px).min(count)..end.div_ceil(px).min(count);
-        let (before, rest) = pieces[..count].split_at_mut(summed.start);
-        let (within, after) = rest.split_at_mut(summed.len());
-        before.fill(PieceSums::ZERO);
-        after.fill(PieceSums::ZERO);
-        if !within.is_empty() {
-            selected::take_pieces(self, px, summed.start * px..(summed.end * px).min(width), within);
+        if count > 0 {
+            selected::take_pieces(self, px, 0..(count * px).min(width), &mut pieces[..count]);
         }
         // Whole, aligned arrays clear in word stores (a byte range would not).
         self.tallies = [0; MAX_GRID_SIDE];
         self.ground = [0; MAX_GRID_SIDE];
-        self.touched = ColumnTotals::EMPTY.touched;
         count
     }
 }

@@ -32,7 +32,6 @@ pub fn seed_sums(a: &[u8], b: &[u8]) -> (u32, u32) {
 
 #[inline]
 pub fn add_to_columns(hot: &[u8], ground: &[u8], columns: core::ops::Range<usize>, totals: &mut super::ColumnTotals) -> u32 {
-    totals.touch(&columns);
     let mut hot_pixels = 0;
     for c in columns {
         totals.add(c, hot[c], ground[c]);
