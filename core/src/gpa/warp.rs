@@ -566,7 +566,8 @@ impl Coverage {
         true
     }
 
-    /// [`Self::usable_runs`] of a bent row, a chunk of columns at a time: a
+    /// [`Self::usable_runs`] of a bent row, the whole row at once where
+    /// that decides it, else a chunk of columns at a time: a
     /// chunk whose positions all lie, by the bound below, in one keyframe
     /// row's reference columns is usable whole, one whose positions all lie
     /// outside them (or outside the rows) unusable whole, and only the
@@ -594,7 +595,11 @@ impl Coverage {
         if [whole.0 .0, whole.0 .1, whole.1 .0, whole.1 .1].iter().any(|v| v.abs() >= SANE) {
             return false;
         }
-        let rows_limit = i64::from(grid.height() as i32 - 1) << FRAC;
+        // A steady tilt's row mostly lies along one keyframe row: then the
+        // whole row is decided at once, as one chunk.
+        if self.decide_span(warp, seen.clone(), whole, grid, runs, false) {
+            return true;
+        }
         // Each chunk's chord runs from its first column to the next chunk's
         // (its own last at the end), so each position is worked out once;
         // the margin of a whole chunk's span bounds every chunk's.
@@ -605,50 +610,65 @@ impl Coverage {
         while first < seen.end {
             let end = (first + CHUNK).min(seen.end);
             let to = at(if end < seen.end { end } else { end - 1 });
-            let (i_range, j_range) = (bounds(from.0, to.0, margins.0), bounds(from.1, to.1, margins.1));
+            let span = (bounds(from.0, to.0, margins.0), bounds(from.1, to.1, margins.1));
             from = to;
-            let outside_rows = j_range.1 < 0 || j_range.0 >= rows_limit;
-            let within_rows = j_range.0 >= 0 && j_range.1 < rows_limit;
-            let one_row = within_rows && j_range.0 >> FRAC == j_range.1 >> FRAC;
-            let (lo, hi) = if one_row { self.reference[(j_range.0 >> FRAC) as usize] } else { (0, 0) };
-            let (lo, hi) = (i64::from(lo) << FRAC, i64::from(hi) << FRAC);
-            // A chunk across a few keyframe rows is usable whole where its
-            // columns lie in the reference columns of all of them (one row:
-            // its own, tested first, the common case).
-            let in_all_rows = || {
-                let rows = (j_range.0 >> FRAC) as usize..=(j_range.1 >> FRAC) as usize;
-                let (lo, hi) = self.reference[rows].iter().fold((0, u16::MAX), |(lo, hi), &(l, h)| (lo.max(l), hi.min(h)));
-                i_range.0 >= i64::from(lo) << FRAC && i_range.1 < i64::from(hi) << FRAC
-            };
-            if one_row && i_range.0 >= lo && i_range.1 < hi || !one_row && within_rows && (j_range.1 - j_range.0) >> FRAC < 4 && in_all_rows() {
-                extend_runs(runs, first, end);
-            } else if one_row && !(i_range.1 < lo || i_range.0 >= hi) && rising(warp, end) {
-                // One keyframe row and i rising with c: its usable columns
-                // are the run where lo <= i >> FRAC < hi, found by bisection.
-                let first_at_least = |limit: i64| {
-                    let (mut low, mut high) = (first, end);
-                    while low < high {
-                        let middle = (low + high) / 2;
-                        if i64::from(warp.at(middle).0 >> FRAC) << FRAC >= limit {
-                            high = middle;
-                        } else {
-                            low = middle + 1;
-                        }
+            self.decide_span(warp, first..end, span, grid, runs, true);
+            first = end;
+        }
+        true
+    }
+
+    /// Adds to `runs` the usable columns among `columns` of a bent row whose
+    /// positions there lie within `(i_range, j_range)` (Q16, bounds on both
+    /// sides), and returns true; where that bound leaves them mixed, tests
+    /// the columns one by one if `test_columns`, else adds nothing and
+    /// returns false.
+    fn decide_span(&self, warp: RowWarp, columns: Range<usize>, (i_range, j_range): ((i64, i64), (i64, i64)), grid: &KgGrid, runs: &mut Runs, test_columns: bool) -> bool {
+        let (first, end) = (columns.start, columns.end);
+        let rows_limit = i64::from(grid.height() as i32 - 1) << FRAC;
+        let outside_rows = j_range.1 < 0 || j_range.0 >= rows_limit;
+        let within_rows = j_range.0 >= 0 && j_range.1 < rows_limit;
+        let one_row = within_rows && j_range.0 >> FRAC == j_range.1 >> FRAC;
+        let (lo, hi) = if one_row { self.reference[(j_range.0 >> FRAC) as usize] } else { (0, 0) };
+        let (lo, hi) = (i64::from(lo) << FRAC, i64::from(hi) << FRAC);
+        // A span across a few keyframe rows is usable whole where its
+        // columns lie in the reference columns of all of them (one row:
+        // its own, tested first, the common case).
+        let in_all_rows = || {
+            let rows = (j_range.0 >> FRAC) as usize..=(j_range.1 >> FRAC) as usize;
+            let (lo, hi) = self.reference[rows].iter().fold((0, u16::MAX), |(lo, hi), &(l, h)| (lo.max(l), hi.min(h)));
+            i_range.0 >= i64::from(lo) << FRAC && i_range.1 < i64::from(hi) << FRAC
+        };
+        if one_row && i_range.0 >= lo && i_range.1 < hi || !one_row && within_rows && (j_range.1 - j_range.0) >> FRAC < 4 && in_all_rows() {
+            extend_runs(runs, first, end);
+        } else if one_row && !(i_range.1 < lo || i_range.0 >= hi) && rising(warp, end) {
+            // One keyframe row and i rising with c: its usable columns
+            // are the run where lo <= i >> FRAC < hi, found by bisection.
+            let first_at_least = |limit: i64| {
+                let (mut low, mut high) = (first, end);
+                while low < high {
+                    let middle = (low + high) / 2;
+                    if i64::from(warp.at(middle).0 >> FRAC) << FRAC >= limit {
+                        high = middle;
+                    } else {
+                        low = middle + 1;
                     }
-                    low
-                };
-                let (from, to) = (first_at_least(lo), first_at_least(hi));
-                if from < to {
-                    extend_runs(runs, from, to);
                 }
-            } else if !(outside_rows || one_row && (i_range.1 < lo || i_range.0 >= hi)) {
-                for c in first..end {
-                    if self.usable_at(warp.at(c), grid) {
-                        extend_runs(runs, c, c + 1);
-                    }
+                low
+            };
+            let (from, to) = (first_at_least(lo), first_at_least(hi));
+            if from < to {
+                extend_runs(runs, from, to);
+            }
+        } else if !(outside_rows || one_row && (i_range.1 < lo || i_range.0 >= hi)) {
+            if !test_columns {
+                return false;
+            }
+            for c in first..end {
+                if self.usable_at(warp.at(c), grid) {
+                    extend_runs(runs, c, c + 1);
                 }
             }
-            first = end;
         }
         true
     }
