@@ -288,6 +288,39 @@ impl CellRowSums {
 }
 
 /// Runs of grid columns, whole cells, that the hypotheses are tried in.
+/// Whether a cell's ground leaves room for a height: its tolerant residue
+/// (hypothesis 0's SAD) reaches `min_gain` per pixel. Below that a
+/// height could beat the ground only in texture too faint to measure it
+/// (a weak height there would be noise), so none is decided; and the
+/// hypotheses need not be tried there ([`Parallax::spans_to_try`]).
+struct Room {
+    min_gain: f64,
+    /// The last pixel count and its least residue: most cells are whole.
+    least: Option<(u16, u32)>,
+}
+
+impl Room {
+    fn new(min_gain: f64) -> Room {
+        Room { min_gain, least: None }
+    }
+
+    /// `residue >= min_gain * pixels`, in integers: for a whole residue R
+    /// and a product x, R < x exactly when R < ceil(x) (saturated: `as`
+    /// makes a NaN or negative ceiling 0, which no R is below, as no R is
+    /// below x then).
+    fn for_height(&mut self, residue: u16, pixels: u16) -> bool {
+        let least = match self.least {
+            Some((counted, ceiling)) if counted == pixels => ceiling,
+            _ => {
+                let ceiling = libm::ceil(self.min_gain * f64::from(pixels)) as u32;
+                self.least = Some((pixels, ceiling));
+                ceiling
+            }
+        };
+        u32::from(residue) >= least
+    }
+}
+
 pub(super) type CellSpans = heapless::Vec<Range<usize>, { MAX_CELLS_SIDE / 2 + 1 }>;
 
 /// Parallax evidence of the current frame.
@@ -382,38 +415,19 @@ impl Parallax {
     }
 
     /// The runs of columns of the current cell row's cells in which a
-    /// height could beat the ground: a height wins only by at least
-    /// `min_gain` per pixel over the ground's SAD, which is at most the
-    /// tolerant residue (hypothesis 0, summed by the residue stage), so a
-    /// cell whose residue is below that, or that saw too little, keeps
-    /// height 0 whatever the hypotheses sum. `min_gain` is
-    /// [`Self::finish_cell_row`]'s.
+    /// height may be found ([`Room::for_height`]): in the others no
+    /// hypothesis is tried, and they keep height 0, as they would were
+    /// every cell tried. `min_gain` is [`Self::finish_cell_row`]'s.
     pub(super) fn spans_to_try(&self, cells: &Cells, min_gain: f64, spans: &mut CellSpans) {
         spans.clear();
         if self.hypotheses.usable == 0 {
             return;
         }
         let min_pixels = (cells.px * cells.px / 2) as u16;
-        // `residue < min_gain * pixels` in integers: for a whole residue R
-        // and a product x, R < x exactly when R < ceil(x) (saturated: `as`
-        // makes a NaN or negative ceiling 0, which no R is below, as no R
-        // is below x then). Most cells are whole, so the last pixel
-        // count's ceiling is kept.
-        let mut least: Option<(u16, u32)> = None;
+        let mut room = Room::new(min_gain);
         for column in 0..cells.wide {
             let pixels = u16::from(self.sums.pixels[0][column]);
-            if pixels < min_pixels {
-                continue;
-            }
-            let least_residue = match least {
-                Some((counted, ceiling)) if counted == pixels => ceiling,
-                _ => {
-                    let ceiling = libm::ceil(min_gain * f64::from(pixels)) as u32;
-                    least = Some((pixels, ceiling));
-                    ceiling
-                }
-            };
-            if u32::from(self.sums.sad[0][column]) < least_residue {
+            if pixels < min_pixels || !room.for_height(self.sums.sad[0][column], pixels) {
                 continue;
             }
             let columns = column * cells.px..(column + 1) * cells.px;
@@ -429,8 +443,9 @@ impl Parallax {
 
     /// Decides the parallax height of each cell of finished cell row
     /// `cell_row`, and starts the next cell row's sums. Only the cells a
-    /// height hypothesis was tried in ([`Self::spans_to_try`]) can get a
-    /// height: the others keep the 0 the frame's [`Self::clear`] gave them.
+    /// height hypothesis was tried in ([`Self::spans_to_try`]) and whose
+    /// ground leaves [`Room`] for a height can get one: the others keep
+    /// the 0 the frame's [`Self::clear`] gave them.
     pub(super) fn finish_cell_row(&mut self, cell_row: usize, cells: &Cells, camera_height_mm: f64, noise: &Noise, config: &GpaConfig) {
         if cell_row >= cells.high {
             return;
@@ -452,9 +467,10 @@ impl Parallax {
             }
         }
         let tried = |column: usize| tried[column / 4].to_le_bytes()[column % 4] != 0;
+        let mut room = Room::new(min_gain);
         for column in (0..cells.wide).filter(|&column| tried(column)) {
             let pixels = u16::from(self.sums.pixels[0][column]);
-            if pixels < min_pixels {
+            if pixels < min_pixels || !room.for_height(self.sums.sad[0][column], pixels) {
                 continue;
             }
             // Each hypothesis' SAD scaled to the cell's pixel count; one that
@@ -476,5 +492,45 @@ impl Parallax {
             }
         }
         self.sums.clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A height is decided only where the ground leaves room for one: a
+    /// hypothesis that matches a cell outright, where the ground's residue
+    /// is just below the least gain, gives no height even when tried, so
+    /// trying only [`Parallax::spans_to_try`]'s cells loses none; over a
+    /// ground with room the same sums give one.
+    #[test]
+    fn a_height_needs_room_over_the_ground() {
+        let grid = KgGrid { mm_per_px: 5.0, x_left_mm: -350.0, z_far_mm: 1600.0, width: 141, height: 120 };
+        let config = GpaConfig::default();
+        let motion = Motion { tx_mm: 0.0, tz_mm: 100.0, dyaw_deg: 0.0 };
+        let cells = Cells { px: 7, wide: 20, high: 17 };
+        let mut parallax = Parallax::EMPTY;
+        parallax.hypotheses = Hypotheses::plan(&motion, &motion, &grid, &config, 400.0);
+        let min_gain = config.parallax_min_gain.max(Noise::NONE.level());
+        let pixels = 49u8;
+        let least = libm::ceil(min_gain * f64::from(pixels)) as u16;
+        // A height 0.27 of the camera's: clear of the ground-like ones.
+        let matching = 5;
+        for (column, ground) in [(0, least - 1), (1, least + 200)] {
+            parallax.sums.pixels[0][column] = pixels;
+            parallax.sums.sad[0][column] = ground;
+            for k in parallax.hypotheses.active() {
+                parallax.sums.pixels[k][column] = pixels;
+                parallax.sums.sad[k][column] = if k == matching { 0 } else { ground + 400 };
+            }
+        }
+        parallax.sums.tried = true;
+        let mut spans = CellSpans::new();
+        parallax.spans_to_try(&cells, min_gain, &mut spans);
+        assert!(spans.len() == 1 && spans[0] == (7..14), "{spans:?}");
+        parallax.finish_cell_row(0, &cells, 400.0, &Noise::NONE, &config);
+        assert_eq!(parallax.height.any(0), 0, "not even a weak height");
+        assert_eq!((parallax.height.get(1), parallax.height.is_weak(1)), (108, false));
     }
 }

@@ -56,9 +56,9 @@ impl Gpa<'_> {
 
     /// After row `j`: if it was its cell row's last, the height hypotheses
     /// of that cell row, then its decision. The hypotheses run only in the
-    /// cells whose ground residue leaves room for a height to beat it by
-    /// the least gain ([`super::parallax::Parallax::spans_to_try`]); in
-    /// the others no height can win, so the heights are the same as when
+    /// cells whose ground residue leaves room for a height
+    /// ([`super::parallax::Parallax::spans_to_try`]); the others get
+    /// none whatever they would sum, so the heights are the same as when
     /// every cell is tried, at a fraction of the cost on open ground.
     fn end_row(&mut self, keyframe: &Keyframe, j: usize, exposure: Option<&[u8; 256]>) {
         let cells = self.layout.cells;
