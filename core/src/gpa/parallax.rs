@@ -287,28 +287,33 @@ impl CellRowSums {
     }
 }
 
-/// Runs of grid columns, whole cells, that the hypotheses are tried in.
-/// Whether a cell's ground leaves room for a height: its tolerant residue
-/// (hypothesis 0's SAD) reaches `min_gain` per pixel. Below that a
-/// height could beat the ground only in texture too faint to measure it
-/// (a weak height there would be noise), so none is decided; and the
-/// hypotheses need not be tried there ([`Parallax::spans_to_try`]).
+/// Whether a cell leaves room for a height: it saw at least half its
+/// pixels, and its ground's tolerant residue (hypothesis 0's SAD) reaches
+/// `min_gain` per pixel. Below that a height could beat the ground only
+/// in texture too faint to measure it (a weak height there would be
+/// noise), so none is decided; and the hypotheses need not be tried
+/// there ([`Parallax::spans_to_try`]).
 struct Room {
+    min_pixels: u16,
     min_gain: f64,
     /// The last pixel count and its least residue: most cells are whole.
     least: Option<(u16, u32)>,
 }
 
 impl Room {
-    fn new(min_gain: f64) -> Room {
-        Room { min_gain, least: None }
+    fn new(cells: &Cells, min_gain: f64) -> Room {
+        Room { min_pixels: (cells.px * cells.px / 2) as u16, min_gain, least: None }
     }
 
-    /// `residue >= min_gain * pixels`, in integers: for a whole residue R
-    /// and a product x, R < x exactly when R < ceil(x) (saturated: `as`
+    /// For a cell of `pixels` pixels and ground `residue`:
+    /// `residue >= min_gain * pixels` in integers (for a whole residue R
+    /// and a product x, R < x exactly when R < ceil(x); saturated: `as`
     /// makes a NaN or negative ceiling 0, which no R is below, as no R is
     /// below x then).
     fn for_height(&mut self, residue: u16, pixels: u16) -> bool {
+        if pixels < self.min_pixels {
+            return false;
+        }
         let least = match self.least {
             Some((counted, ceiling)) if counted == pixels => ceiling,
             _ => {
@@ -321,6 +326,7 @@ impl Room {
     }
 }
 
+/// Runs of grid columns, whole cells, that the hypotheses are tried in.
 pub(super) type CellSpans = heapless::Vec<Range<usize>, { MAX_CELLS_SIDE / 2 + 1 }>;
 
 /// Parallax evidence of the current frame.
@@ -423,11 +429,10 @@ impl Parallax {
         if self.hypotheses.usable == 0 {
             return;
         }
-        let min_pixels = (cells.px * cells.px / 2) as u16;
-        let mut room = Room::new(min_gain);
+        let mut room = Room::new(cells, min_gain);
         for column in 0..cells.wide {
             let pixels = u16::from(self.sums.pixels[0][column]);
-            if pixels < min_pixels || !room.for_height(self.sums.sad[0][column], pixels) {
+            if !room.for_height(self.sums.sad[0][column], pixels) {
                 continue;
             }
             let columns = column * cells.px..(column + 1) * cells.px;
@@ -450,7 +455,6 @@ impl Parallax {
         if cell_row >= cells.high {
             return;
         }
-        let min_pixels = (cells.px * cells.px / 2) as u16;
         let min_gain = config.parallax_min_gain.max(noise.level());
         if !self.sums.tried {
             // No height hypothesis was tried: their sums are still 0.
@@ -467,10 +471,10 @@ impl Parallax {
             }
         }
         let tried = |column: usize| tried[column / 4].to_le_bytes()[column % 4] != 0;
-        let mut room = Room::new(min_gain);
+        let mut room = Room::new(cells, min_gain);
         for column in (0..cells.wide).filter(|&column| tried(column)) {
             let pixels = u16::from(self.sums.pixels[0][column]);
-            if pixels < min_pixels || !room.for_height(self.sums.sad[0][column], pixels) {
+            if !room.for_height(self.sums.sad[0][column], pixels) {
                 continue;
             }
             // Each hypothesis' SAD scaled to the cell's pixel count; one that

@@ -597,7 +597,7 @@ impl Coverage {
         }
         // A steady tilt's row mostly lies along one keyframe row: then the
         // whole row is decided at once, as one chunk.
-        if self.decide_span(warp, seen.clone(), whole, grid, runs, false) {
+        if self.decide_span(warp, seen.clone(), whole, grid, runs) {
             return true;
         }
         // Each chunk's chord runs from its first column to the next chunk's
@@ -612,7 +612,13 @@ impl Coverage {
             let to = at(if end < seen.end { end } else { end - 1 });
             let span = (bounds(from.0, to.0, margins.0), bounds(from.1, to.1, margins.1));
             from = to;
-            self.decide_span(warp, first..end, span, grid, runs, true);
+            if !self.decide_span(warp, first..end, span, grid, runs) {
+                for c in first..end {
+                    if self.usable_at(warp.at(c), grid) {
+                        extend_runs(runs, c, c + 1);
+                    }
+                }
+            }
             first = end;
         }
         true
@@ -620,10 +626,9 @@ impl Coverage {
 
     /// Adds to `runs` the usable columns among `columns` of a bent row whose
     /// positions there lie within `(i_range, j_range)` (Q16, bounds on both
-    /// sides), and returns true; where that bound leaves them mixed, tests
-    /// the columns one by one if `test_columns`, else adds nothing and
-    /// returns false.
-    fn decide_span(&self, warp: RowWarp, columns: Range<usize>, (i_range, j_range): ((i64, i64), (i64, i64)), grid: &KgGrid, runs: &mut Runs, test_columns: bool) -> bool {
+    /// sides), and returns true; where that bound leaves them mixed, adds
+    /// nothing and returns false (the caller tests them one by one).
+    fn decide_span(&self, warp: RowWarp, columns: Range<usize>, (i_range, j_range): ((i64, i64), (i64, i64)), grid: &KgGrid, runs: &mut Runs) -> bool {
         let (first, end) = (columns.start, columns.end);
         let rows_limit = i64::from(grid.height() as i32 - 1) << FRAC;
         let outside_rows = j_range.1 < 0 || j_range.0 >= rows_limit;
@@ -661,14 +666,7 @@ impl Coverage {
                 extend_runs(runs, from, to);
             }
         } else if !(outside_rows || one_row && (i_range.1 < lo || i_range.0 >= hi)) {
-            if !test_columns {
-                return false;
-            }
-            for c in first..end {
-                if self.usable_at(warp.at(c), grid) {
-                    extend_runs(runs, c, c + 1);
-                }
-            }
+            return false;
         }
         true
     }
