@@ -8,8 +8,10 @@
 //! - `dsp`: Cortex-M4/M7, `asm!` with the DSP extension (cfg `flatland_dsp`,
 //!   set by build.rs for `thumbv7em`).
 //!
-//! `selected` below is the backend the entry points of this module call;
-//! nothing else looks at the target. All backends give identical results;
+//! `selected` below is the backend the entry points of this module call.
+//! Apart from it, the parallax hypotheses' sampling loop
+//! (`gpa::keyframe::lines::offsets`) has its own: `asm!` on the M4, AVX2
+//! on an x86_64 that has it ([`avx2`], found at run time). All give identical results;
 //! `checks` compares them with the portable ones and with per-pixel
 //! loops, on the host and on the emulated M4 (`cargo fw-test`).
 
@@ -32,6 +34,20 @@ use sse2 as selected;
 use portable as selected;
 
 pub(crate) mod pinhole;
+
+// Whether this x86_64 CPU has AVX2, found once at run time by `cpufeatures`
+// (`cpuid` and the OS's saved vector state, without std).
+#[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+cpufeatures::new!(cpu_avx2, "avx2");
+
+/// Whether the AVX2 kernels run: the parallax hypotheses' gathered samples
+/// (`gpa::keyframe::lines::offsets`), beside the baseline SSE2 ones. Their
+/// tests compare them with the plain versions where the CPU has AVX2.
+#[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+#[inline(always)]
+pub(crate) fn avx2() -> bool {
+    cpu_avx2::get()
+}
 
 use crate::grid::MAX_GRID_SIDE;
 

@@ -114,6 +114,19 @@ impl<const N: usize> MovedLines<'_, N> {
         let first = columns.start - positions.columns.start;
         let at = &positions.at[..positions.columns.len()][first..first + columns.len()];
         let image = &keyframe.images[keyframe.key_half][..keyframe.height * keyframe.width];
+        #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+        if !at.is_empty() && N <= avx2::LANES && crate::kernels::avx2() {
+            let offsets: heapless::Vec<(u32, u32), N> = self.offsets.iter().map(|&(_, (di, dj))| (offset_q24(di), offset_q24(dj))).collect();
+            let mut sums = [0u32; avx2::LANES];
+            // SAFETY: the CPU has AVX2, and each added line lies inside the
+            // grid at each of its columns (`Self::add`).
+            if unsafe { avx2::sads(image, keyframe.width, at, &offsets, &mut sums) } {
+                for (&(key, _), sum) in self.offsets.iter().zip(sums) {
+                    f(key, sum);
+                }
+                return;
+            }
+        }
         for &(key, offset) in &self.offsets {
             let sum = if at.is_empty() {
                 0
@@ -204,3 +217,138 @@ unsafe fn moved_sad(image: &[u8], width: usize, at: &[Position], (di, dj): (u32,
     sum
 }
 
+/// `MovedLines::sads` on x86_64 with AVX2 (detected at run time): the
+/// lines' samples at one column, eight lines a vector, each sample's two
+/// pixel pairs gathered and blended across by `vpmaddwd`
+/// (`p00 (256 - wx) + p01 wx` is `blend`'s `p00 << 8 + (p01 - p00) wx`),
+/// then down as `blend` does. A cell segment is 5-15 columns, too short to
+/// run along; the lines are as many as the hypotheses, all at once.
+#[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+mod avx2 {
+    use super::Position;
+    use core::arch::x86_64::*;
+
+    /// Lines a call takes: two vectors.
+    pub(super) const LANES: usize = 16;
+
+    /// Adds to `sums[k]` the SAD of line k (`offsets[k]`, Q8.24, at most
+    /// [`LANES`]) over the positions `at`; false, with nothing added, when
+    /// a gather could read past the image's end (its last row's last two
+    /// pixels: a gather reads four bytes from a pixel pair's first).
+    ///
+    /// # Safety
+    /// The CPU has AVX2, and every line moved by its offset lies inside the
+    /// grid at every position of `at` (`MovedLines::add`).
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn sads(image: &[u8], width: usize, at: &[Position], offsets: &[(u32, u32)], sums: &mut [u32; LANES]) -> bool {
+        let Some(&first) = offsets.first() else { return true };
+        // Unused lanes repeat the first line (inside), their sums dropped.
+        let lane = |k: usize| offsets.get(k).copied().unwrap_or(first);
+        let vector = |k0: usize, part: fn((u32, u32)) -> u32| {
+            let v: [u32; 8] = core::array::from_fn(|k| part(lane(k0 + k)));
+            // SAFETY: 32 bytes from an array of 8 u32.
+            unsafe { _mm256_loadu_si256(v.as_ptr().cast()) }
+        };
+        let di = [vector(0, |o| o.0), vector(8, |o| o.0)];
+        let dj = [vector(0, |o| o.1), vector(8, |o| o.1)];
+        let halves = if offsets.len() > 8 { 2 } else { 1 };
+        let (low_byte, second_byte) = (_mm256_set1_epi32(0xFF), _mm256_set1_epi32(0xFF00));
+        let (full, half) = (_mm256_set1_epi32(256), _mm256_set1_epi32(1 << 15));
+        let stride = _mm256_set1_epi32(width as i32);
+        let limit = _mm256_set1_epi32(image.len().saturating_sub(width + 4) as i32);
+        let mut acc = [_mm256_setzero_si256(); 2];
+        let mut beyond = _mm256_setzero_si256();
+        for position in at {
+            let (i, j, value) = (_mm256_set1_epi32(position.i as i32), _mm256_set1_epi32(position.j as i32), _mm256_set1_epi32(position.value as i32));
+            for h in 0..halves {
+                let i = _mm256_add_epi32(i, di[h]);
+                let j = _mm256_add_epi32(j, dj[h]);
+                let index = _mm256_add_epi32(_mm256_mullo_epi32(_mm256_srli_epi32::<24>(j), stride), _mm256_srli_epi32::<24>(i));
+                let out = _mm256_cmpgt_epi32(index, limit);
+                beyond = _mm256_or_si256(beyond, out);
+                // A lane that could read past the end reads the image's first
+                // pixels instead (and the call adds nothing).
+                let index = _mm256_andnot_si256(out, index);
+                let wx = _mm256_and_si256(_mm256_srli_epi32::<16>(i), low_byte);
+                let wy = _mm256_and_si256(_mm256_srli_epi32::<16>(j), low_byte);
+                let weights = _mm256_or_si256(_mm256_sub_epi32(full, wx), _mm256_slli_epi32::<16>(wx));
+                // A gathered word's two low bytes as two 16-bit lanes.
+                let pair = |word: __m256i| _mm256_or_si256(_mm256_and_si256(word, low_byte), _mm256_slli_epi32::<8>(_mm256_and_si256(word, second_byte)));
+                // SAFETY: every index is at most the image's length - width - 4
+                // (lanes beyond were set to 0 above), so both rows' four bytes
+                // lie inside `image`.
+                let (upper, lower) = unsafe {
+                    (_mm256_i32gather_epi32::<1>(image.as_ptr().cast(), index), _mm256_i32gather_epi32::<1>(image.as_ptr().add(width).cast(), index))
+                };
+                let top = _mm256_madd_epi16(pair(upper), weights);
+                let bottom = _mm256_madd_epi16(pair(lower), weights);
+                let down = _mm256_mullo_epi32(_mm256_sub_epi32(bottom, top), wy);
+                let sample = _mm256_srli_epi32::<16>(_mm256_add_epi32(_mm256_add_epi32(_mm256_slli_epi32::<8>(top), down), half));
+                acc[h] = _mm256_add_epi32(acc[h], _mm256_abs_epi32(_mm256_sub_epi32(sample, value)));
+            }
+        }
+        if _mm256_movemask_epi8(beyond) != 0 {
+            return false;
+        }
+        let mut lanes = [0u32; LANES];
+        // SAFETY: 2 x 32 bytes into an array of 16 u32.
+        unsafe {
+            _mm256_storeu_si256(lanes.as_mut_ptr().cast(), acc[0]);
+            _mm256_storeu_si256(lanes.as_mut_ptr().add(8).cast(), acc[1]);
+        }
+        for (sum, lane) in sums.iter_mut().zip(lanes).take(offsets.len()) {
+            *sum += lane;
+        }
+        true
+    }
+}
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    use super::*;
+
+    /// The AVX2 sums equal the plain loop's, line by line: up to 11 lines
+    /// (as many as the hypotheses), positions anywhere in the grid, and
+    /// some at its last row and column, where a gather could pass the
+    /// image's end: there the call must refuse, adding nothing.
+    #[test]
+    fn avx2_sads_equal_the_plain_ones() {
+        if !crate::kernels::avx2() {
+            std::println!("this CPU has no AVX2: its kernel is not run here");
+            return;
+        }
+        let (width, height) = (141usize, 97usize);
+        let mut seed = 0xA5A5_0001u32;
+        let mut next = |n: u32| crate::selftest::xorshift32(&mut seed) % n;
+        let image: std::vec::Vec<u8> = (0..width * height).map(|_| next(256) as u8).collect();
+        let (mut compared, mut refused) = (0, 0);
+        for round in 0..3_000 {
+            let lines = 1 + next(11) as usize;
+            // Offsets within +-8 px; positions leave them room inside.
+            let offsets: std::vec::Vec<(u32, u32)> = (0..lines).map(|_| ((next(16 << 24) as i32 - (8 << 24)) as u32, (next(16 << 24) as i32 - (8 << 24)) as u32)).collect();
+            let edge = round % 10 == 0;
+            let at: std::vec::Vec<Position> = (0..1 + next(15))
+                .map(|_| {
+                    let (i, j) = if edge { (width as u32 - 10, height as u32 - 10) } else { (8 + next(width as u32 - 26), 8 + next(height as u32 - 26)) };
+                    // Q8.24: whole pixels, the weight's byte, finer bits.
+                    Position { i: (i << 24) | next(1 << 24), j: (j << 24) | next(1 << 24), value: next(256) }
+                })
+                .collect();
+            let mut sums = [7u32; avx2::LANES];
+            // SAFETY: the CPU has AVX2; every moved position lies 8 px or more inside.
+            let done = unsafe { avx2::sads(&image, width, &at, &offsets, &mut sums) };
+            if !done {
+                assert!(sums.iter().all(|&sum| sum == 7), "a refused call added to its sums");
+                refused += 1;
+                continue;
+            }
+            for (k, &offset) in offsets.iter().enumerate() {
+                // SAFETY: as above.
+                let plain = unsafe { moved_sad(&image, width, &at, offset) };
+                assert_eq!(sums[k], 7 + plain, "line {k} of {lines}, round {round}");
+            }
+            compared += 1;
+        }
+        assert!(compared > 2_000, "too few calls compared: {compared} ({refused} refused)");
+    }
+}
