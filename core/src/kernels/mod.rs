@@ -11,9 +11,10 @@
 //! `selected` below is the backend the entry points of this module call.
 //! Apart from it, the parallax hypotheses' sampling loop
 //! (`gpa::keyframe::lines::offsets`) has its own: `asm!` on the M4, AVX2
-//! on an x86_64 that has it ([`avx2`], found at run time). All give identical results;
-//! `checks` compares them with the portable ones and with per-pixel
-//! loops, on the host and on the emulated M4 (`cargo fw-test`).
+//! on an x86_64 that has it (`avx2()`, found at run time). All give
+//! identical results; `checks` compares them with the portable ones and
+//! with per-pixel loops, on the host and on the emulated M4
+//! (`cargo fw-test`).
 
 // Where a SIMD backend is selected, only its tails and the checks call the
 // portable one, each a part of it.
