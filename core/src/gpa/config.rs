@@ -2,7 +2,11 @@
 //! and grids.
 
 use super::GpaError;
+use crate::grid::KgGrid;
 use crate::limits::MAX_SEARCH_RADIUS;
+
+/// The least keyframe travel, in grid pixels ([`GpaConfig::for_grid`]).
+pub const KEYFRAME_TRAVEL_PX: f64 = 12.0;
 
 /// Tuning, in physical units so it carries across cameras and grids.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -108,6 +112,15 @@ impl GpaConfig {
         drop_imu_sigma_limit_deg: 0.5,
     };
 
+    /// The configuration a grid of `grid`'s resolution runs with: the
+    /// keyframe travel at least [`KEYFRAME_TRAVEL_PX`] grid pixels, so a
+    /// coarse grid (a car's camera, ~50 mm a pixel) compares over a
+    /// baseline whose parallax spans pixels, as a fine one does over
+    /// 100 mm.
+    pub(super) fn for_grid(self, grid: &KgGrid) -> GpaConfig {
+        GpaConfig { keyframe_travel_mm: self.keyframe_travel_mm.max(KEYFRAME_TRAVEL_PX * grid.mm_per_px), ..self }
+    }
+
     /// [`GpaError::Config`] unless the search radius is in
     /// 1..=[`MAX_SEARCH_RADIUS`] and every real value is finite and positive.
     pub(super) fn check(&self) -> Result<(), GpaError> {
@@ -137,5 +150,20 @@ impl GpaConfig {
             return Err(GpaError::Config);
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A car camera's coarse grid (53.6 mm a pixel) compares over at least
+    /// 12 of its pixels; a robot's fine grid keeps the configured 100 mm.
+    #[test]
+    fn the_keyframe_travel_spans_pixels_of_the_grid() {
+        let grid = |mm_per_px| KgGrid { mm_per_px, x_left_mm: -1000.0, z_far_mm: 2000.0, width: 64, height: 64 };
+        let config = GpaConfig::DEFAULT;
+        assert_eq!(config.for_grid(&grid(5.75)).keyframe_travel_mm, 100.0);
+        assert_eq!(config.for_grid(&grid(53.625)).keyframe_travel_mm, 12.0 * 53.625);
     }
 }

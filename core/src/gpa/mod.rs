@@ -334,7 +334,7 @@ impl<'b> Gpa<'b> {
         if first.len() < needed || second.len() < needed {
             return Err(GpaError::BufferTooSmall { needed });
         }
-        self.config = config;
+        self.config = config.for_grid(grid);
         self.layout = Layout::new(rig, grid, config.cell_mm);
         self.coverage.init(grid, table, config.search_radius);
         self.keyframe = Keyframe::new(first, second, grid);
@@ -342,7 +342,7 @@ impl<'b> Gpa<'b> {
         self.warp = Warp::NONE;
         self.workspace = Workspace::EMPTY;
         self.parallax.hypotheses = Hypotheses::NONE;
-        self.parallax.clear();
+        self.parallax.clear(self.layout.camera_height_mm);
         self.noise = Noise::new(&config);
         self.typical_misregistration = TypicalMisregistration::default();
         self.hazard_mask.forget();
@@ -656,7 +656,7 @@ impl<'b> Gpa<'b> {
         rows.search.clear();
         rows.residue.clear();
         rows.band.forget();
-        self.parallax.clear();
+        self.parallax.clear(self.layout.camera_height_mm);
         let mut adjusted = [0u8; MAX_GRID_SIDE];
         for j in 0..self.layout.analysis_rows {
             let row = exposed(store.current_row(j), exposure, &mut adjusted);

@@ -206,19 +206,32 @@ fn by_rank(rank: usize) -> usize {
 }
 
 /// Parallax height per cell (mm, 0 = ground or undecided, negative below
-/// the ground), up to 255 mm either way: one byte and two bits a cell, for
-/// the M4's RAM. A weak height beat the ground clearly but by less than
-/// the absolute gain (low contrast: vignetting darkens the image's corners,
-/// and it shades one ground point differently in two views): too uncertain
-/// to count as a measurement, it only shows that a surface goes on there.
+/// the ground): one byte and two bits a cell, for the M4's RAM. The byte
+/// counts [`Self::unit_mm`], which scales with the camera's height, so
+/// the highest hypothesis (half the camera's height: a car's roof from a
+/// car's camera) fits whatever the rig. A weak height beat the ground
+/// clearly but by less than the absolute gain (low contrast: vignetting
+/// darkens the image's corners, and it shades one ground point
+/// differently in two views): too uncertain to count as a measurement, it
+/// only shows that a surface goes on there.
 pub(super) struct CellHeights {
     magnitude: [u8; MAX_CELLS],
     below: CellSet,
     weak: CellSet,
+    unit_mm: u8,
 }
 
 impl CellHeights {
-    pub(super) const EMPTY: CellHeights = CellHeights { magnitude: [0; MAX_CELLS], below: CellSet::EMPTY, weak: CellSet::EMPTY };
+    pub(super) const EMPTY: CellHeights =
+        CellHeights { magnitude: [0; MAX_CELLS], below: CellSet::EMPTY, weak: CellSet::EMPTY, unit_mm: 1 };
+
+    /// No heights, counted in the unit of a camera `camera_height_mm` up:
+    /// 1 mm up to a camera 510 mm up, coarser above (4 mm for a car's
+    /// 1.66 m), so that half its height fits a byte.
+    pub(super) fn for_camera(camera_height_mm: f64) -> CellHeights {
+        let unit = libm::ceil(0.5 * camera_height_mm / f64::from(u8::MAX)).clamp(1.0, f64::from(u8::MAX));
+        CellHeights { unit_mm: unit as u8, ..CellHeights::EMPTY }
+    }
 
     /// A cell's measured height (0 for a weak one).
     pub(super) fn get(&self, cell: usize) -> i16 {
@@ -231,7 +244,7 @@ impl CellHeights {
 
     /// A cell's height, measured or weak.
     pub(super) fn any(&self, cell: usize) -> i16 {
-        let magnitude = i16::from(self.magnitude[cell]);
+        let magnitude = i16::from(self.magnitude[cell]) * i16::from(self.unit_mm);
         if self.below.contains(cell) {
             -magnitude
         } else {
@@ -244,9 +257,11 @@ impl CellHeights {
         self.weak.contains(cell)
     }
 
-    /// Sets a cell's height, clamped to ±255 mm, and whether it is weak.
+    /// Sets a cell's height (mm), rounded down to the unit and clamped to
+    /// 255 units either way (at least one), and whether it is weak.
     pub(super) fn set(&mut self, cell: usize, height: i16, weak: bool) {
-        self.magnitude[cell] = height.unsigned_abs().min(u16::from(u8::MAX)) as u8;
+        let units = (height.unsigned_abs() / u16::from(self.unit_mm)).clamp(1, u16::from(u8::MAX));
+        self.magnitude[cell] = units as u8;
         if height < 0 {
             self.below.insert(cell);
         } else {
@@ -342,8 +357,9 @@ impl Parallax {
     pub(super) const EMPTY: Parallax =
         Parallax { hypotheses: Hypotheses::NONE, sums: CellRowSums::EMPTY, height: CellHeights::EMPTY };
 
-    pub(super) fn clear(&mut self) {
-        self.height = CellHeights::EMPTY;
+    /// Starts a frame of a camera `camera_height_mm` up.
+    pub(super) fn clear(&mut self, camera_height_mm: f64) {
+        self.height = CellHeights::for_camera(camera_height_mm);
         self.sums.clear();
     }
 
@@ -491,7 +507,7 @@ impl Parallax {
             let fraction = self.hypotheses.height_fraction(&sads, pixels, min_gain, noise.floor(), config.parallax_gain_percent);
             if let Some((fraction, strong)) = fraction {
                 let height = libm::round(fraction * camera_height_mm);
-                let magnitude = libm::fabs(height).clamp(1.0, f64::from(u8::MAX)) as i16;
+                let magnitude = libm::fabs(height).clamp(1.0, f64::from(i16::MAX)) as i16;
                 self.height.set(cell_row * cells.wide + column, if height > 0.0 { magnitude } else { -magnitude }, !strong);
             }
         }
@@ -502,6 +518,22 @@ impl Parallax {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A car's camera, 1.66 m up, keeps the heights of a car ahead (up to
+    /// half its own height) rather than clipping them at a byte's 255 mm,
+    /// and a robot's camera keeps its millimetres.
+    #[test]
+    fn heights_scale_with_the_camera() {
+        let mut car = CellHeights::for_camera(1657.0);
+        car.set(0, 828, false);
+        car.set(1, -300, false);
+        car.set(2, 21, false);
+        assert_eq!((car.get(0), car.get(1), car.get(2)), (828, -300, 20));
+        let mut robot = CellHeights::for_camera(400.0);
+        robot.set(0, 199, false);
+        robot.set(1, 19, true);
+        assert_eq!((robot.get(0), robot.any(1), robot.get(1)), (199, 19, 0));
+    }
 
     /// A height is decided only where the ground leaves room for one: a
     /// hypothesis that matches a cell outright, where the ground's residue
