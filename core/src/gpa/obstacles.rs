@@ -307,12 +307,13 @@ fn parallax_group(
         let mut depths: heapless::Vec<i16, MAX_BLOB_CELLS> = heapless::Vec::new();
         let mut spans: heapless::Vec<CellSpan, MAX_BLOB_CELLS> = heapless::Vec::new();
         let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
-        let mut group = 0usize;
+        let (mut group, mut nearest_row) = (0usize, 0usize);
         flood_cells((w, h), side.bridge(), start, &mut seen, reaches, linked, |cell, r, c| {
             if heights.is_weak(cell) {
                 return;
             }
             group += 1;
+            nearest_row = nearest_row.max(r);
             with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
             let height = f64::from(heights.get(cell));
             // The cell's measured height belongs to its centre.
@@ -348,6 +349,8 @@ fn parallax_group(
         // A short baseline measures heights coarsely, so its footprints
         // wander: there a blob must be large to raise an alarm by itself.
         let large = group >= LARGE_GROUP_CELLS;
+        // The near side of the group's nearest cell row, as seen on the ground.
+        let nearest_seen = grid.pixel_to_ground(0.0, ((nearest_row + 1) * cells.px) as f64 - 0.5).1;
         if group < 3 || (!with_residue && group < 4) || (short_baseline && !large) {
             continue;
         }
@@ -377,6 +380,14 @@ fn parallax_group(
             Side::Below => 0,
         };
         let nearest = *footprints.select_nth_unstable_by(rank, |a, b| a.total_cmp(b)).1;
+        // Nor beyond where the group is seen to start: a thing standing on
+        // the ground is seen from its footprint on (its base), so a group
+        // whose heights place it farther (a car ahead moving away from the
+        // camera's parallax, which the static heights misread) starts there.
+        let nearest = match side {
+            Side::Above => nearest.min(nearest_seen),
+            Side::Below => nearest,
+        };
         for span in &spans {
             scan.add_span(f64::from(span.z).max(nearest), f64::from(span.left), f64::from(span.right));
         }
