@@ -5,6 +5,7 @@
 
 use super::config::GpaConfig;
 use super::keyframe;
+use super::layout::AoiMm;
 use super::obstacles::Footprint;
 use crate::motion::Motion;
 
@@ -96,10 +97,18 @@ pub(super) struct Alarm {
     /// An obstacle the frame being decided sees just beyond the AOI
     /// ([`Self::sees_beyond_the_aoi`]).
     beyond: Option<Footprint>,
+    /// The AOI of the frame being decided ([`Self::sees_the_aoi`]).
+    aoi: Option<AoiMm>,
 }
 
 impl Alarm {
-    pub(super) const NONE: Alarm = Alarm { source: AlarmSource::None, previous: None, shallowest_drop_mm: 0.0, beyond: None };
+    pub(super) const NONE: Alarm = Alarm { source: AlarmSource::None, previous: None, shallowest_drop_mm: 0.0, beyond: None, aoi: None };
+
+    /// The frame being decided has this AOI: a held hazard that the
+    /// robot's motion (a turn in place) took out of it is not held.
+    pub(super) fn sees_the_aoi(&mut self, aoi: AoiMm) {
+        self.aoi = Some(aoi);
+    }
 
     /// The next frame to decide tells drops from `shallowest_mm` deep on
     /// from the ground (its baseline, against its ground tolerance): a held
@@ -168,7 +177,10 @@ impl Alarm {
         };
         let found = parallax.map(|(footprint, height)| (footprint, Some(height))).or(residue.map(|footprint| (footprint, None)));
         let moved_previous = self.previous.map(|((footprint, height), found_at)| ((footprint.moved(step), height), found_at));
-        let held = moved_previous.filter(|_| self.previous.is_some_and(|previous| self.cannot_clear(&previous, baseline_mm, drops_looked_for, config)));
+        let still_in_view = |moved: &(Hazard, f64)| self.aoi.as_ref().is_none_or(|aoi| moved.0 .0.in_aoi(aoi));
+        let held = moved_previous
+            .filter(still_in_view)
+            .filter(|_| self.previous.is_some_and(|previous| self.cannot_clear(&previous, baseline_mm, drops_looked_for, config)));
         let found = found.map(|found| match moved_previous {
             Some((last, _)) => nearer_drop_edge(found, &last),
             None => found,
@@ -291,6 +303,26 @@ mod tests {
         // An obstacle standing up is where it is found.
         alarm.decide(Some((at(1000), -30)), None, 100.0, true, &config, &STEP);
         assert_eq!(alarm.decide(Some((at(1000), 80)), None, 100.0, true, &config, &STEP), Some((at(1000), Some(80))));
+    }
+
+    /// A robot turning in place (no baseline: nothing can be cleared) holds
+    /// what it found where it now is: turned with it, and let go once the
+    /// turn has taken it out of the AOI.
+    #[test]
+    fn a_turn_in_place_carries_the_held_obstacle_out_of_the_aoi() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        alarm.sees_the_aoi(AoiMm { near: 300.0, far: 1000.0, half_width: 200.0 });
+        let ahead = Footprint { near_mm: 800, left_mm: 100, right_mm: 180 };
+        alarm.decide(Some((ahead, 80)), None, 100.0, true, &config, &STEP);
+        let turn = Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 5.0 };
+        let (turned, _) = alarm.decide(None, None, 0.0, true, &config, &turn).expect("held through the turn's first step");
+        assert_eq!(alarm.source(), AlarmSource::Held);
+        assert!(turned.near_mm < 800 && turned.left_mm != 100, "turned with the robot: {turned:?}");
+        for _ in 0..4 {
+            alarm.decide(None, None, 0.0, true, &config, &turn);
+        }
+        assert_eq!(alarm.decide(None, None, 0.0, true, &config, &turn), None, "20 degrees on, it is out of the AOI");
     }
 
     /// An obstacle standing up is seen whatever the attitude: blindness to

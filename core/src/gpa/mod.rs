@@ -701,6 +701,7 @@ impl<'b> Gpa<'b> {
         self.blobs = obstacles::residue_blobs(layout, &rows.residue, config);
         let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &rows.residue, config);
         self.alarm.sees_drops_from(self.parallax.hypotheses.shallowest_drop_mm);
+        self.alarm.sees_the_aoi(layout.aoi_mm());
         let hazard = self.alarm.decide(parallax, residue, baseline_mm, drops_looked_for, config, &self.prediction.step);
         self.hazard_mask.record(self.frame, layout.cells, &self.parallax.height, &rows.residue, config);
         let obstacle = hazard.map(|(footprint, _)| footprint);

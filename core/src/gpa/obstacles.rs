@@ -8,7 +8,7 @@
 
 use super::config::GpaConfig;
 use super::parallax::CellHeights;
-use super::layout::{CellSet, Layout};
+use super::layout::{AoiMm, CellSet, Layout};
 use super::residue::Residue;
 use crate::limits::{MAX_BLOBS, MAX_BLOB_CELLS, MAX_CELLS_SIDE, MAX_FLOOD_CELLS};
 use crate::motion::Motion;
@@ -44,10 +44,21 @@ impl Footprint {
         self.left_mm <= other.right_mm && self.right_mm >= other.left_mm
     }
 
-    /// Where it stands after the robot moved by `step`.
+    /// Where it stands after the robot moved by `step`, turn included: its
+    /// near edge's two ends in the later frame, and the span between them
+    /// (a robot turning in place sweeps what it found out of its AOI).
     pub(super) fn moved(&self, step: &Motion) -> Footprint {
-        let moved = |v: i32, d: f64| libm::round(f64::from(v) - d) as i32;
-        Footprint { near_mm: moved(self.near_mm, step.tz_mm), left_mm: moved(self.left_mm, step.tx_mm), right_mm: moved(self.right_mm, step.tx_mm) }
+        let (near, left, right) = (f64::from(self.near_mm), f64::from(self.left_mm), f64::from(self.right_mm));
+        let (left_x, left_z) = step.to_later_frame(left, near);
+        let (right_x, right_z) = step.to_later_frame(right, near);
+        let mm = |v: f64| libm::round(v) as i32;
+        Footprint { near_mm: mm(left_z.min(right_z)), left_mm: mm(left_x.min(right_x)), right_mm: mm(left_x.max(right_x)) }
+    }
+
+    /// Whether any of it lies in `aoi` (its near edge within the far edge,
+    /// its span across the AOI's).
+    pub(super) fn in_aoi(&self, aoi: &AoiMm) -> bool {
+        f64::from(self.near_mm) <= aoi.far && f64::from(self.right_mm) >= -aoi.half_width && f64::from(self.left_mm) <= aoi.half_width
     }
 }
 
