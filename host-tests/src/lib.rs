@@ -11,10 +11,10 @@
 //!   rig.toml's rewrite;
 //! - `pictures`: what a person looks at (frame pictures, the run's
 //!   summary and animation);
-//! - `bench`, `heights`: `flatland bench` and `flatland heights`;
 //! - `link`: the firmware's output streams read on the host (serial
 //!   protocol, MAVLink) and the autopilots' readers of it;
-//! - `qemu`: the firmware run in QEMU, and its instruction profile.
+//! - `qemu`: the firmware run in QEMU, and its instruction profile;
+//! - `bench`, `heights`: `flatland bench` and `flatland heights`.
 //!
 //! The binaries: `src/cli/` (`flatland`) and `src/bin/fw.rs` (`cargo fw*`).
 
