@@ -1,4 +1,4 @@
-//! Enables the Cortex-M4/M7 DSP kernels (`usada8` & co. in `kernels/dsp.rs`) on
+//! Enables the Cortex-M4/M7 DSP kernels (`usada8` & co. in `kernels/dsp/`) on
 //! targets that have the DSP extension; rustc does not expose it as a
 //! `target_feature` cfg for thumbv7em.
 fn main() {

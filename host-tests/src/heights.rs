@@ -6,7 +6,7 @@
 //! behind the same odometry gate.
 
 use crate::detect::{DetectConfig, Detector, FrameOutcome};
-use crate::images::{Anchor, RgbImage};
+use crate::pictures::raster::{Anchor, RgbImage};
 use crate::recording::{Frame, Recording};
 use flatland_core::grid::KgGrid;
 use flatland_core::gti::{Gti, GtiConfig, HeightPoint, TrackView};

@@ -3,8 +3,7 @@
 //!
 //! Every error names the file and, where there is one, the line.
 
-use crate::calibrate::rig_with_aoi_in_view;
-use flatland_core::geometry::{AoiEdge, Rig, RigError};
+use flatland_core::geometry::{Aoi, AoiEdge, Intrinsics, Mount, Rig, RigError};
 use flatland_core::limits::MAX_IMAGE_SIDE;
 use flatland_core::motion::{Attitude, Pose};
 use flatland_core::pgm::{Pgm, PgmError};
@@ -211,6 +210,30 @@ pub fn parse_rig_for_calibration(path: &Path, text: &str) -> Result<(Rig, Binnin
         }
         rig_with_aoi_in_view(record.camera, record.mount, record.aoi)
     })
+}
+
+/// A rig with `aoi` limited to what the image sees at `mount`: a rig.toml
+/// whose mount is wrong may put part of its AOI out of view, which does not
+/// matter to calibration (it samples the ground it sees). The edge a refusal
+/// names is pulled in until the AOI fits; the first refusal when it cannot.
+pub fn rig_with_aoi_in_view(camera: Intrinsics, mount: Mount, aoi: Aoi) -> Result<Rig, RigError> {
+    let mut fitted = aoi;
+    let mut first_error = None;
+    for _ in 0..200 {
+        let error = match Rig::new_checked(camera, mount, fitted) {
+            Ok(rig) => return Ok(rig),
+            Err(e) => e,
+        };
+        let first = *first_error.get_or_insert(error);
+        let depth = fitted.far_mm - fitted.near_mm;
+        match error {
+            RigError::AoiOutsideImage(AoiEdge::Near) => fitted.near_mm += 0.02 * depth,
+            RigError::AoiOutsideImage(AoiEdge::Far) | RigError::AoiBeyondHorizon => fitted.far_mm -= 0.02 * depth,
+            RigError::AoiOutsideImage(AoiEdge::Left | AoiEdge::Right) => fitted.half_width_mm *= 0.95,
+            _ => return Err(first),
+        }
+    }
+    Err(first_error.unwrap_or(RigError::AoiEmpty))
 }
 
 fn parse_rig_with(path: &Path, text: &str, build: impl Fn(&RigRecord) -> Result<Rig, RigError>) -> Result<(Rig, Binning), RecordingError> {

@@ -6,11 +6,11 @@ mod common;
 use common::{data, TempRecording};
 use flatland_core::geometry::{Mount, Pixel, Rig};
 use flatland_core::motion::Attitude;
-use flatland_host::calibrate::{
-    calibrate, calibrated_rig_toml, parse_camera_info, rig_with_aoi_in_view, Body, CalibrationConfig, CalibrationError, MountEstimate,
+use flatland_host::calibration::{
+    calibrate, calibrated_rig_toml, parse_camera_info, Body, CalibrationConfig, CalibrationError, MountEstimate,
 };
 use flatland_host::detect::{DetectConfig, Detector};
-use flatland_host::recording::{parse_poses, parse_rig, Recording};
+use flatland_host::recording::{parse_poses, parse_rig, rig_with_aoi_in_view, Recording};
 use std::path::Path;
 use std::process::Command;
 

@@ -7,7 +7,7 @@
 //! Python reference implementation, host-tests/tools/mavlink_check.py) and by
 //! `flatland serial decode --mavlink`: each QEMU run serves all three. Every
 //! captured OBSTACLE_DISTANCE gives ArduPilot and both PX4 readers every
-//! hazard of the host's scan (`flatland_host::autopilot`).
+//! hazard of the host's scan (`flatland_host::link::autopilot`).
 
 mod common;
 
@@ -17,9 +17,9 @@ use std::process::Command;
 use std::sync::{Mutex, OnceLock};
 
 use flatland_core::scan::{Scan, Sector, SCAN_INCREMENT_MDEG};
-use flatland_host::autopilot::lost_hazards;
+use flatland_host::link::autopilot::lost_hazards;
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
-use flatland_host::mavlink_decode::{decode, frames_by_time, write_scan_csv, Decoded, RowKey};
+use flatland_host::link::mavlink::{decode, frames_by_time, write_scan_csv, Decoded, RowKey};
 use flatland_host::qemu::{self, PoseMessages, RunRequest};
 use flatland_host::recording::Recording;
 use mavlink::dialects::common::{MavFrame, MavMessage, MavSeverity, MavState, OBSTACLE_DISTANCE_DATA};

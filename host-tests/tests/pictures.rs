@@ -6,10 +6,10 @@
 
 use flatland_core::geometry::Point3;
 use flatland_host::detect::{DetectConfig, Detector};
-use flatland_host::frame_picture::{FrameLayout, Hazard, GIF_SCALE, PNG_SCALE};
+use flatland_host::pictures::frame::{FrameLayout, Hazard, GIF_SCALE, PNG_SCALE};
 use flatland_host::heights::{BAR_LEFT, BAR_WIDTH, COLOUR_BAR_STRIP};
 use flatland_host::recording::{Recording, TruthObstacle};
-use flatland_host::summary::SUMMARY_SIZE;
+use flatland_host::pictures::summary::SUMMARY_SIZE;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

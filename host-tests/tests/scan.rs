@@ -169,14 +169,14 @@ fn cli_prints_the_scan() {
 }
 
 /// The scan as OBSTACLE_DISTANCE, read by ArduPilot and both PX4 readers
-/// (modelled from their sources in `flatland_host::autopilot`): each gets
+/// (modelled from their sources in `flatland_host::link::autopilot`): each gets
 /// every hazard of every judged frame, at its distance or nearer, and no
 /// element sits at max_distance. The firmware's stream is this message
 /// (firmware_mavlink.rs compares it field for field and checks it alike).
 #[test]
 fn every_autopilot_reads_every_hazard() {
     use flatland_core::mavlink::obstacle_distance;
-    use flatland_host::autopilot::{hazards, lost_hazards};
+    use flatland_host::link::autopilot::{hazards, lost_hazards};
     let mut checked = 0;
     for name in bundled() {
         for (report, scan) in scans(&name).0 {

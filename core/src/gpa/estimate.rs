@@ -40,7 +40,7 @@ use super::direct::{self, Alignment, Direct, Geometry, Images, Schedule};
 use super::homography::{Params, SinCosMemo};
 use super::pyramid::LEVELS;
 use super::warp::Coverage;
-use super::Profiler;
+use super::profile::Profiler;
 use crate::grid::KgGrid;
 use crate::kernels;
 use crate::motion::{Attitude, GroundMotion, Motion};

@@ -44,7 +44,8 @@ use flatland_core::protocol::Message;
 use flatland_host::bench::FullFrame;
 use flatland_host::qemu::{self, RunRequest, Sensors, DEFAULT_RECORDING};
 use flatland_host::recording::Recording;
-use flatland_host::{m4_profile, mavlink_decode, serial_decode};
+use flatland_host::link::{mavlink as mavlink_decode, serial as serial_decode};
+use flatland_host::qemu::profile as m4_profile;
 
 type Result<T> = std::result::Result<T, String>;
 

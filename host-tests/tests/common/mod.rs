@@ -12,7 +12,7 @@ use flatland_core::report::CSV_HEADER;
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::qemu::{self, RunOutcome, RunRequest, Sensors};
 use flatland_host::recording::Recording;
-use flatland_host::serial_decode::{run_serial_decode, DecodeSummary};
+use flatland_host::link::serial::{run_serial_decode, DecodeSummary};
 
 /// Per QEMU run; a run that hangs fails the test instead of hanging it.
 pub const TIMEOUT: Duration = Duration::from_secs(300);

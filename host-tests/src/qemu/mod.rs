@@ -7,6 +7,9 @@
 //! `$FLRDY` (normally the rig, the poses and `$FLEND`, see [`host_script`])
 //! and collects what the firmware sends back. The defmt log goes through
 //! defmt-print. Every run has a deadline: QEMU is killed after it.
+//! [`profile`]: where the firmware's instructions go, from QEMU's record.
+
+pub mod profile;
 
 use std::fs;
 use std::io::{self, BufRead, BufReader, Read, Write};
@@ -235,7 +238,7 @@ fn qemu_command(elf: &Path, serial: &str, append: &str, icount: bool, exec_log: 
         command.args(["-icount", "shift=0"]);
     }
     if let Some(path) = exec_log {
-        command.args(crate::m4_profile::qemu_args(path));
+        command.args(crate::qemu::profile::qemu_args(path));
     }
     if !append.is_empty() {
         command.args(["-append", append]);
@@ -448,7 +451,7 @@ pub struct RunRequest<'a> {
     pub bench_no_margins: bool,
     /// Print the defmt log live.
     pub echo_log: bool,
-    /// QEMU's record of every block it runs, for [`crate::m4_profile`].
+    /// QEMU's record of every block it runs, for [`crate::qemu::profile`].
     pub exec_log: Option<&'a Path>,
     pub timeout: Duration,
     /// The firmware speaks MAVLink (the `mavlink` build): the script goes

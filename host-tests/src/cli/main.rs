@@ -2,25 +2,19 @@
 
 use clap::{Args, Parser, Subcommand};
 use flatland_core::grid::GridConfig;
-use flatland_core::report::{FrameReport, CSV_HEADER, MOTION_SCALE, SHIFT_SCALE};
-use flatland_core::scan::{write_csv_header, Scan, Sector, SCAN_INCREMENT_MDEG};
+use flatland_core::scan::write_csv_header;
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
-use flatland_host::evaluate::{is_grace, score, score_hazard};
-use flatland_host::recording::Hazard;
-use flatland_host::animation::Animation;
-use flatland_host::frame_picture::{frame_picture, key_colours, FrameInputs, FrameLayout, GIF_SCALE, PNG_SCALE};
-use flatland_host::images::save_gray;
-use flatland_host::recording::Frame;
-use flatland_host::summary::summary_picture;
-use std::cell::RefCell;
+use flatland_host::pictures::raster::save_gray;
 use flatland_host::perturb::Perturbation;
-use flatland_host::recording::Truth;
 use std::io::Write;
 use flatland_host::kg::KgFrontEnd;
 use flatland_host::recording::Recording;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+
+mod detect;
+use detect::run_detect;
 
 #[derive(Parser)]
 #[command(name = "flatland", version, about = "Obstacle detection from a tilted camera on a ground robot")]
@@ -298,91 +292,6 @@ fn run_kg(recording: &Path, frames: Option<Range<u32>>, out: &Path, mm_per_px: O
     ExitCode::SUCCESS
 }
 
-/// One `detect --format json` row: the csv's fields (the attitude ones
-/// left out) and the scan.
-#[derive(serde::Serialize)]
-struct JsonRow {
-    frame: u32,
-    ref_frame: u32,
-    alarm: bool,
-    nearest_mm: Option<i32>,
-    left_mm: Option<i32>,
-    right_mm: Option<i32>,
-    sad: u32,
-    count50: u32,
-    shift_k: Decimal,
-    shift_g: Decimal,
-    tx_mm: Decimal,
-    tz_mm: Decimal,
-    obstacle_h_mm: Option<i32>,
-    status: String,
-    scan: JsonScan,
-}
-
-/// The scan as JSON: hazard ranges in mm, `"inf"` free, null unknown.
-#[derive(serde::Serialize)]
-struct JsonScan {
-    angle_start_deg: Decimal,
-    increment_deg: Decimal,
-    range_min_mm: u16,
-    range_max_mm: u16,
-    ranges_mm: Vec<JsonRange>,
-}
-
-/// A fixed-point value written as the csv writes it: shortest decimal, no
-/// `.0` on whole numbers.
-struct Decimal(f64);
-
-impl serde::Serialize for Decimal {
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        if self.0.fract() == 0.0 {
-            serializer.serialize_i64(self.0 as i64)
-        } else {
-            serializer.serialize_f64(self.0)
-        }
-    }
-}
-
-struct JsonRange(Sector);
-
-impl serde::Serialize for JsonRange {
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        match self.0 {
-            Sector::Unknown => serializer.serialize_none(),
-            Sector::Free => serializer.serialize_str("inf"),
-            Sector::Hazard(range) => serializer.serialize_u16(range),
-        }
-    }
-}
-
-fn json_row(report: &FrameReport, scan: &Scan) -> String {
-    let layout = scan.layout();
-    let row = JsonRow {
-        frame: report.frame,
-        ref_frame: report.ref_frame,
-        alarm: report.alarm,
-        nearest_mm: report.nearest_mm,
-        left_mm: report.left_mm,
-        right_mm: report.right_mm,
-        sad: report.sad,
-        count50: report.count50,
-        shift_k: Decimal(f64::from(report.shift_k) / f64::from(SHIFT_SCALE)),
-        shift_g: Decimal(f64::from(report.shift_g) / f64::from(SHIFT_SCALE)),
-        tx_mm: Decimal(f64::from(report.tx) / f64::from(MOTION_SCALE)),
-        tz_mm: Decimal(f64::from(report.tz) / f64::from(MOTION_SCALE)),
-        obstacle_h_mm: report.obstacle_h_mm,
-        status: report.status.to_string(),
-        scan: JsonScan {
-            angle_start_deg: Decimal(f64::from(layout.angle_start_mdeg()) / 1000.0),
-            increment_deg: Decimal(f64::from(SCAN_INCREMENT_MDEG) / 1000.0),
-            range_min_mm: layout.range_min_mm,
-            range_max_mm: layout.range_max_mm,
-            ranges_mm: scan.sectors().map(JsonRange).collect(),
-        },
-    };
-    serde_json::to_string(&row).expect("plain fields serialise")
-}
-
 /// Which pictures `detect` writes, and whether they compensate the attitude.
 struct Pictures<'a> {
     /// One PNG per compared frame.
@@ -398,148 +307,6 @@ impl Pictures<'_> {
     fn per_frame(&self) -> bool {
         self.dir.is_some() || self.gif.is_some()
     }
-}
-
-/// The recording's name for the pictures: its directory's.
-fn recording_name(path: &Path) -> String {
-    let path = path.canonicalize().unwrap_or_else(|_| path.to_path_buf());
-    path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned())
-}
-
-fn run_detect(
-    path: &Path,
-    format: Format,
-    pictures: Pictures,
-    truth: bool,
-    perturbation: Option<Box<Perturbation>>,
-    verbose: bool,
-    sensors: &Sensors,
-) -> ExitCode {
-    let mut recording = match sensors.open(path) {
-        Ok(r) => r,
-        Err(e) => return fatal(e),
-    };
-    let mut perturber = perturbation.map(|p| p.apply(&mut recording));
-    let mut detector = match Detector::new(&recording.rig, &DetectConfig::default()) {
-        Ok(d) => d,
-        Err(e) => return fatal(format!("{}: {e}", path.display())),
-    };
-    if let Some(dir) = pictures.dir {
-        if let Err(e) = std::fs::create_dir_all(dir) {
-            return fatal(format!("{}: {e}", dir.display()));
-        }
-    }
-    let grid = detector.grid();
-    let name = recording_name(path);
-    let png_layout = FrameLayout::new(&recording.rig, &grid, PNG_SCALE);
-    let gif_layout = FrameLayout::new(&recording.rig, &grid, GIF_SCALE);
-    let mut animation = match pictures.gif.map(|file| Animation::create(file, gif_layout.width, gif_layout.height, &key_colours()).map_err(|e| format!("{}: {e}", file.display()))) {
-        None => None,
-        Some(Ok(animation)) => Some(animation),
-        Some(Err(e)) => return fatal(e),
-    };
-    let mut reports = Vec::new();
-    let mut previous_kg: Option<Vec<u8>> = None;
-    // The camera frame as the pipeline saw it (binned, perturbed), for the pictures.
-    let camera: RefCell<Option<Frame>> = RefCell::new(None);
-    let stdout = std::io::stdout();
-    let mut out = stdout.lock();
-    if format == Format::Csv {
-        let _ = writeln!(out, "{CSV_HEADER}");
-    }
-    let mut picture_error = None;
-    let alter = |index: u32, frame: &mut Frame| {
-        if let Some(p) = perturber.as_mut() {
-            p.alter(index, frame)
-        }
-        if pictures.per_frame() {
-            *camera.borrow_mut() = Some(frame.clone());
-        }
-    };
-    let result = detector.run_with(&recording, alter, |outcome, pipeline| match outcome {
-        FrameOutcome::Report { report, kg } => {
-            let gpa = pipeline.gpa();
-            let judged = report.is_judged();
-            let line = match format {
-                Format::Csv => {
-                    let mut line = String::new();
-                    let _ = report.write_csv(&mut line);
-                    line
-                }
-                Format::Json if judged => json_row(&report, gpa.scan()),
-                // Nothing compared: every sector unknown (the detector's
-                // scan is the last judged frame's).
-                Format::Json => json_row(&report, &Scan::new(gpa.scan().layout())),
-            };
-            let _ = writeln!(out, "{line}");
-            if verbose {
-                match report.status.judged() {
-                    Ok(()) => eprintln!("frame {}: {:?}", report.frame, gpa.alarm_source()),
-                    Err(reason) => eprintln!("frame {}: not judged ({}): {reason}", report.frame, report.status),
-                }
-            }
-            // Pictures are of the frames compared.
-            if let (true, true, Some(reference), Some(frame)) = (judged, pictures.per_frame(), previous_kg.as_ref(), camera.borrow().as_ref()) {
-                let inputs = FrameInputs {
-                    name: &name,
-                    rig: &recording.rig,
-                    grid: &grid,
-                    camera: frame,
-                    reference_kg: reference,
-                    current_kg: &kg,
-                    report: &report,
-                    gpa,
-                    truth: recording.truth.as_ref().map(|t| t.pair(report.frame)),
-                    attitude: pictures.attitude,
-                };
-                if let Some(dir) = pictures.dir {
-                    let path = dir.join(format!("{:06}.png", report.frame));
-                    if let Err(e) = frame_picture(&inputs, &png_layout).save(&path) {
-                        picture_error.get_or_insert(format!("{}: {e}", path.display()));
-                    }
-                }
-                if let (Some(animation), Some(file)) = (animation.as_mut(), pictures.gif) {
-                    if let Err(e) = animation.push(&frame_picture(&inputs, &gif_layout)) {
-                        picture_error.get_or_insert(format!("{}: {e}", file.display()));
-                    }
-                }
-            }
-            if gpa.keyframe_frame() == Some(report.frame) {
-                previous_kg = Some(kg);
-            }
-            reports.push(report);
-        }
-        FrameOutcome::Keyframe { kg, .. } => previous_kg = Some(kg),
-        FrameOutcome::Skipped { frame, error } => {
-            eprintln!("flatland: skipping frame {frame}: {error}");
-        }
-    });
-    drop(out);
-    if let Err(e) = result {
-        return fatal(format!("{}: {e}", path.display()));
-    }
-    if let Some(e) = picture_error {
-        return fatal(e);
-    }
-    if let (Some(animation), Some(file)) = (animation, pictures.gif) {
-        if let Err(e) = animation.finish() {
-            return fatal(format!("{}: {e}", file.display()));
-        }
-    }
-    if let Some(file) = pictures.summary {
-        let written = summary_picture(&name, &reports, recording.truth.as_ref(), recording.rig.aoi())
-            .and_then(|picture| picture.save(file).map_err(Into::into));
-        if let Err(e) = written {
-            return fatal(format!("{}: {e}", file.display()));
-        }
-    }
-    if truth {
-        match &recording.truth {
-            None => return fatal(format!("{}: no truth.toml", path.display())),
-            Some(truth) => print_confusion(truth, &reports),
-        }
-    }
-    ExitCode::SUCCESS
 }
 
 fn run_scan(path: &Path, sensors: &Sensors) -> ExitCode {
@@ -580,33 +347,6 @@ fn run_scan(path: &Path, sensors: &Sensors) -> ExitCode {
     }
 }
 
-fn print_confusion(truth: &Truth, reports: &[FrameReport]) {
-    let (c, rows) = score(truth, reports);
-    let wrong: Vec<String> = rows
-        .iter()
-        .filter(|(frame, want, got)| want != got && !is_grace(truth, *frame))
-        .map(|(frame, want, _)| format!("{frame}{}", if *want { "(missed)" } else { "(false)" }))
-        .collect();
-    eprintln!("                 detected alarm   detected clear");
-    eprintln!("truth alarm      {:>14}   {:>14}", c.true_alarm, c.missed);
-    eprintln!("truth clear      {:>14}   {:>14}", c.false_alarm, c.true_clear);
-    let not_judged: Vec<String> = reports.iter().filter(|r| !r.is_judged() && truth.pair(r.frame).is_some()).map(|r| format!("{}({})", r.frame, r.status)).collect();
-    eprintln!("grace frames: {} right, {} wrong; unreported: {}", c.grace_right, c.grace_wrong, c.unreported);
-    eprintln!("not judged (alarm asserted): {}{}", c.not_judged, if not_judged.is_empty() { String::new() } else { format!(" [{}]", not_judged.join(", ")) });
-    eprintln!("errors outside grace frames: {}{}", c.errors(), if wrong.is_empty() { String::new() } else { format!(" [{}]", wrong.join(", ")) });
-    for (name, kind) in [("obstacles", Hazard::Obstacle), ("drops", Hazard::Drop)] {
-        let (c, _) = score_hazard(truth, reports, Some(kind));
-        eprintln!(
-            "{name:>9} alone: {} alarms right, {} missed, {} false, {} clear; errors outside grace frames: {}",
-            c.true_alarm,
-            c.missed,
-            c.false_alarm,
-            c.true_clear,
-            c.errors()
-        );
-    }
-}
-
 /// FILE, or stdin when absent or `-`.
 fn open_input(file: Option<&Path>) -> Result<Box<dyn std::io::Read>, String> {
     Ok(match file {
@@ -618,7 +358,7 @@ fn open_input(file: Option<&Path>) -> Result<Box<dyn std::io::Read>, String> {
 
 /// `flatland serial decode --mavlink`: OBSTACLE_DISTANCE as scan csv rows.
 fn run_mavlink_decode(file: Option<&Path>, recording: Option<&Path>) -> ExitCode {
-    use flatland_host::mavlink_decode::{decode, frames_by_time, write_scan_csv, RowKey, ScanCsvError};
+    use flatland_host::link::mavlink::{decode, frames_by_time, write_scan_csv, RowKey, ScanCsvError};
     let mut bytes = Vec::new();
     if let Err(e) = open_input(file).and_then(|mut input| input.read_to_end(&mut bytes).map_err(|e| e.to_string())) {
         return fatal(e);
@@ -644,7 +384,7 @@ fn run_serial_decode(file: Option<&Path>) -> ExitCode {
         Ok(input) => input,
         Err(e) => return fatal(e),
     };
-    match flatland_host::serial_decode::run_serial_decode(&mut input, &mut std::io::stdout().lock()) {
+    match flatland_host::link::serial::run_serial_decode(&mut input, &mut std::io::stdout().lock()) {
         Ok(summary) => {
             for fault in summary.frame_faults {
                 eprintln!("flatland: firmware skipped frame {}: {}", fault.frame, fault.code.as_str());
@@ -713,7 +453,7 @@ fn main() -> ExitCode {
 }
 
 fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Source, camera_info: Option<&Path>) -> ExitCode {
-    use flatland_host::calibrate::{
+    use flatland_host::calibration::{
         calibrate, camera_values, mount_values, parse_camera_info, report, with_section_values, CalibrationConfig,
     };
     let mut recording = match Recording::open_for_calibration(path) {
@@ -744,7 +484,7 @@ fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Sou
             // camera_info has no readout: rig.toml's stays.
             readout_ms: recording.rig.camera().readout_ms,
         };
-        recording.rig = match flatland_host::calibrate::rig_with_aoi_in_view(camera, *recording.rig.mount(), *recording.rig.aoi()) {
+        recording.rig = match flatland_host::recording::rig_with_aoi_in_view(camera, *recording.rig.mount(), *recording.rig.aoi()) {
             Ok(rig) => rig,
             Err(e) => return fatal(format!("rig with the camera_info intrinsics: {e}")),
         };

@@ -185,7 +185,7 @@ mod tests {
     /// (its checksums and field counts are right).
     #[test]
     fn documented_example_decodes_to_the_documented_csv() {
-        let doc = include_str!("../../firmware/PROTOCOL.md");
+        let doc = include_str!("../../../firmware/PROTOCOL.md");
         let examples = doc.split_once("## Examples").expect("PROTOCOL.md has examples").1;
         // Text, session, text, csv, ...: the code blocks are the odd pieces.
         let pieces: Vec<&str> = examples.split("```").collect();

@@ -10,7 +10,7 @@
 //! [`Rig::ground_to_pixel`] / [`Rig::point_to_pixel`], lens distortion
 //! included; the top views' are KG pixels of the grid.
 
-use crate::images::{Anchor, RgbImage};
+use crate::pictures::raster::{Anchor, RgbImage};
 use crate::recording::{Frame, TruthPair};
 use flatland_core::geometry::{Point3, Rig};
 use flatland_core::gpa::{AlarmSource, Gpa};
@@ -154,7 +154,7 @@ impl FrameLayout {
         let header_height = MARGIN + title_size as usize + 8 + text_size as usize + 6;
         let header = Panel { left: 0, top: 0, width: 0, height: header_height };
         let panels_top = header_height + small_size as usize + 8;
-        let ruler_width = crate::images::text_size("0000", small_size).0 as usize + 14;
+        let ruler_width = crate::pictures::raster::text_size("0000", small_size).0 as usize + 14;
         let camera_panel = Panel { left: MARGIN, top: panels_top, width: cw, height: ch };
         let ruler = Panel { left: camera_panel.left + cw + GAP, top: panels_top, width: ruler_width, height: kh };
         let mut left = ruler.left + ruler_width + 2;
@@ -171,7 +171,7 @@ impl FrameLayout {
         let mut legend = Vec::new();
         let (mut x, mut y) = (MARGIN, legend_top);
         for item in legend_items() {
-            let w = swatch + 6 + crate::images::text_size(item.text, small_size).0 as usize + 18;
+            let w = swatch + 6 + crate::pictures::raster::text_size(item.text, small_size).0 as usize + 18;
             if x > MARGIN && x + w > width - MARGIN {
                 x = MARGIN;
                 y += row_height;
@@ -254,7 +254,7 @@ fn millimetres(value: Option<i32>) -> String {
 /// The largest size up to `size` at which `text` is at most `width` px wide.
 fn fitting_size(text: &str, size: u32, width: i32) -> u32 {
     let mut size = size;
-    while size > 9 && crate::images::text_size(text, size).0 > width {
+    while size > 9 && crate::pictures::raster::text_size(text, size).0 > width {
         size -= 1;
     }
     size
@@ -429,7 +429,7 @@ fn camera_view(inputs: &FrameInputs, s: usize) -> RgbImage {
     for ((x, y), z) in labels {
         let text = z.to_string();
         // Off the image's left edge: at the edge instead; never cut at the top or bottom.
-        let (x, anchor) = if x - crate::images::text_size(&text, small).0 < 3 { (3, Anchor::CentreLeft) } else { (x - 2, Anchor::CentreRight) };
+        let (x, anchor) = if x - crate::pictures::raster::text_size(&text, small).0 < 3 { (3, Anchor::CentreLeft) } else { (x - 2, Anchor::CentreRight) };
         let y = y.clamp(half_height, view.height as i32 - half_height);
         view.label(x, y, &text, small, TICKS, [0; 3], anchor, 2);
     }

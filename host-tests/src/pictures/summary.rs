@@ -5,7 +5,7 @@
 //! not judged is a grey alarm bar and has no values in the other panels.
 
 use crate::evaluate::{is_grace, score};
-use crate::images::{RgbImage, FONT};
+use crate::pictures::raster::{RgbImage, FONT};
 use crate::recording::Truth;
 use flatland_core::geometry::Aoi;
 use flatland_core::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE};

@@ -8,7 +8,7 @@
 //! else (antialiased coloured labels). A fixed palette keeps colours from
 //! shifting between frames, as per-frame quantisation would.
 
-use crate::images::RgbImage;
+use crate::pictures::raster::RgbImage;
 use std::collections::HashMap;
 use std::fs::File;
 use std::io::BufWriter;

@@ -33,9 +33,18 @@
 //!
 //! The user's AOI plays no part: the solve's rigs ([`ground_rig`]) check
 //! only that the mount sees the ground.
+//!
+//! Beside the solve: [`camera_info`] reads a ROS camera_info file as the
+//! camera, and [`rig_toml`] writes the values found into rig.toml.
+
+pub mod camera_info;
+pub mod rig_toml;
+
+pub use camera_info::{camera_values, parse_camera_info, CameraInfo, CameraInfoError};
+pub use rig_toml::{calibrated_rig_toml, mount_values, with_section_values};
 
 use crate::recording::{Frame, Recording, RecordingError};
-use flatland_core::geometry::{Aoi, AoiEdge, Distortion, Intrinsics, Mount, Pixel, Rig, RigError};
+use flatland_core::geometry::{Aoi, Intrinsics, Mount, Pixel, Rig, RigError};
 use flatland_core::motion::{Attitude, GroundMap, GroundMotion, Motion};
 use std::fmt;
 
@@ -455,30 +464,6 @@ impl Level<'_> {
     fn rig(&self, state: &State) -> Result<Rig, RigError> {
         ground_rig(self.camera, state.mount())
     }
-}
-
-/// A rig with `aoi` limited to what the image sees at `mount`: a rig.toml
-/// whose mount is wrong may put part of its AOI out of view, which does not
-/// matter to calibration (it samples the ground it sees). The edge a refusal
-/// names is pulled in until the AOI fits; the first refusal when it cannot.
-pub fn rig_with_aoi_in_view(camera: Intrinsics, mount: Mount, aoi: Aoi) -> Result<Rig, RigError> {
-    let mut fitted = aoi;
-    let mut first_error = None;
-    for _ in 0..200 {
-        let error = match Rig::new_checked(camera, mount, fitted) {
-            Ok(rig) => return Ok(rig),
-            Err(e) => e,
-        };
-        let first = *first_error.get_or_insert(error);
-        let depth = fitted.far_mm - fitted.near_mm;
-        match error {
-            RigError::AoiOutsideImage(AoiEdge::Near) => fitted.near_mm += 0.02 * depth,
-            RigError::AoiOutsideImage(AoiEdge::Far) | RigError::AoiBeyondHorizon => fitted.far_mm -= 0.02 * depth,
-            RigError::AoiOutsideImage(AoiEdge::Left | AoiEdge::Right) => fitted.half_width_mm *= 0.95,
-            _ => return Err(first),
-        }
-    }
-    Err(first_error.unwrap_or(RigError::AoiEmpty))
 }
 
 /// A rig for `mount` that checks what calibration needs (the camera, a
@@ -1060,144 +1045,6 @@ pub fn report(estimate: &MountEstimate) -> String {
         estimate.pairs,
         estimate.samples,
     )
-}
-
-/// rig.toml's text with the `[mount]` section's values replaced (comments
-/// and the other sections kept; roll and yaw added when absent).
-///
-/// # Panics
-/// When `original` is not TOML: it is a rig.toml the recording has read
-/// (the command itself goes through [`with_section_values`], which reports).
-pub fn calibrated_rig_toml(original: &str, mount: &Mount) -> String {
-    with_section_values(original, "mount", &mount_values(mount)).expect("rig.toml is TOML: the recording read it")
-}
-
-/// The `[mount]` values of an estimate, for [`with_section_values`]: the
-/// decimals rig.toml's readers need (0.1 mm, 0.001 degree).
-pub fn mount_values(mount: &Mount) -> Vec<(&'static str, String)> {
-    vec![
-        ("height_mm", format!("{:.1}", mount.height_mm)),
-        ("tilt_deg", format!("{:.3}", mount.tilt_deg)),
-        ("roll_deg", format!("{:.3}", mount.roll_deg)),
-        ("yaw_deg", format!("{:.3}", mount.yaw_deg)),
-    ]
-}
-
-/// TOML text with `section`'s keys set to `values` (each a TOML value's
-/// text, written as given): keys present are replaced in place, keeping
-/// their comments, absent ones added after the section's last key, an
-/// absent section added at the end. toml_edit keeps everything else as the
-/// file spells it.
-pub fn with_section_values(original: &str, section: &str, values: &[(&str, String)]) -> Result<String, toml_edit::TomlError> {
-    let mut document: toml_edit::DocumentMut = original.parse()?;
-    let table = document.entry(section).or_insert_with(toml_edit::table);
-    let table = table.as_table_like_mut().expect("a [section] is a table: the recording read rig.toml's sections as tables");
-    for (key, text) in values {
-        let mut value: toml_edit::Value = text.parse()?;
-        match table.get_mut(key).and_then(|item| item.as_value_mut()) {
-            Some(old) => {
-                // The old value's spacing and trailing comment.
-                *value.decor_mut() = old.decor().clone();
-                *old = value;
-            }
-            None => {
-                value.decor_mut().clear();
-                table.insert(key, toml_edit::Item::Value(value));
-            }
-        }
-    }
-    Ok(document.to_string())
-}
-
-/// A ROS `sensor_msgs/CameraInfo` YAML file (camera_calibration's output)
-/// as flatland uses it: the camera at the recorded size, its matrix and
-/// plumb_bob distortion (None when all coefficients are zero or absent).
-pub type CameraInfo = Intrinsics;
-
-/// Why a camera_info file could not be used.
-#[derive(Debug)]
-pub enum CameraInfoError {
-    /// Not YAML, a key missing or of the wrong type (the message names the
-    /// key and, where it can, the line and column).
-    Yaml(serde_norway::Error),
-    /// A matrix's `data` with another count of numbers than its shape.
-    MatrixSize { matrix: &'static str, numbers: usize, expected: usize },
-    /// A distortion model flatland does not implement.
-    DistortionModel(String),
-}
-
-impl fmt::Display for CameraInfoError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            CameraInfoError::Yaml(e) => write!(f, "{e}"),
-            CameraInfoError::MatrixSize { matrix, numbers, expected } => {
-                write!(f, "{matrix} has {numbers} numbers, expected {expected}")?;
-                if *matrix == "distortion_coefficients" {
-                    f.write_str(" (plumb_bob)")?;
-                }
-                Ok(())
-            }
-            CameraInfoError::DistortionModel(model) => write!(f, "distortion_model {model}: only plumb_bob is supported"),
-        }
-    }
-}
-
-impl std::error::Error for CameraInfoError {}
-
-/// The keys of camera_info YAML that flatland reads; the others
-/// (camera_name, rectification and projection matrices) are ignored.
-#[derive(serde::Deserialize)]
-struct CameraInfoYaml {
-    image_width: u16,
-    image_height: u16,
-    camera_matrix: YamlMatrix,
-    distortion_model: Option<String>,
-    distortion_coefficients: Option<YamlMatrix>,
-}
-
-/// A camera_info matrix: `rows` and `cols` (not needed: each matrix's shape
-/// is fixed) and the numbers, row by row.
-#[derive(serde::Deserialize)]
-struct YamlMatrix {
-    data: Vec<f64>,
-}
-
-/// Reads the keys flatland needs from camera_info YAML: `image_width`,
-/// `image_height`, `camera_matrix: data: [...]` (9 numbers),
-/// `distortion_model` (plumb_bob, or absent) and
-/// `distortion_coefficients: data: [...]` (5 numbers, or none).
-pub fn parse_camera_info(text: &str) -> Result<CameraInfo, CameraInfoError> {
-    let yaml: CameraInfoYaml = serde_norway::from_str(text).map_err(CameraInfoError::Yaml)?;
-    let k = &yaml.camera_matrix.data;
-    if k.len() != 9 {
-        return Err(CameraInfoError::MatrixSize { matrix: "camera_matrix", numbers: k.len(), expected: 9 });
-    }
-    if let Some(model) = yaml.distortion_model.filter(|m| m != "plumb_bob") {
-        return Err(CameraInfoError::DistortionModel(model));
-    }
-    let d = yaml.distortion_coefficients.map(|m| m.data).unwrap_or_default();
-    let distortion = match d.len() {
-        0 => None,
-        5 => Some([d[0], d[1], d[2], d[3], d[4]]).filter(|c| c.iter().any(|v| *v != 0.0)).map(Distortion::from_coefficients),
-        n => return Err(CameraInfoError::MatrixSize { matrix: "distortion_coefficients", numbers: n, expected: 5 }),
-    };
-    Ok(Intrinsics { width: yaml.image_width, height: yaml.image_height, fx: k[0], fy: k[4], cx: k[2], cy: k[5], distortion, readout_ms: 0.0 })
-}
-
-/// The `[camera]` values of a camera_info, for [`with_section_values`].
-pub fn camera_values(info: &CameraInfo) -> Vec<(&'static str, String)> {
-    let mut values = vec![
-        ("width", info.width.to_string()),
-        ("height", info.height.to_string()),
-        ("fx", format!("{}", info.fx)),
-        ("fy", format!("{}", info.fy)),
-        ("cx", format!("{}", info.cx)),
-        ("cy", format!("{}", info.cy)),
-    ];
-    if let Some(d) = info.distortion.map(|d| d.coefficients()) {
-        values.push(("distortion", format!("[{}, {}, {}, {}, {}]", d[0], d[1], d[2], d[3], d[4])));
-    }
-    values
 }
 
 #[cfg(test)]
