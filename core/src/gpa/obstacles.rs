@@ -423,6 +423,46 @@ fn parallax_group(
     (hazard, beyond.map(|(z, left, right)| Footprint { near_mm: mm(z), left_mm: mm(left), right_mm: mm(right) }))
 }
 
+/// The nearest group of cells that move with the robot
+/// ([`CellHeights::is_moving`]): at least three cells, neighbours within a
+/// cell. Such a thing shows no height, so it is placed where its nearest
+/// cell's near side is seen on the ground: its own footprint where it
+/// meets the ground (a car's bumper and the shadow under it), never nearer
+/// than it is; at the AOI's near edge when it covers it.
+pub(super) fn moving_obstacle(layout: &Layout, heights: &CellHeights) -> Option<Footprint> {
+    let (grid, cells) = (&layout.grid, &layout.cells);
+    let (w, h) = (cells.wide, cells.high);
+    let moving = |cell: usize| heights.is_moving(cell);
+    let aoi = layout.aoi_mm();
+    let mut seen = CellSet::EMPTY;
+    let mut best: Option<Footprint> = None;
+    for start in 0..h * w {
+        if seen.contains(start) || !moving(start) {
+            continue;
+        }
+        let (mut group, mut nearest_row, mut left_column, mut right_column) = (0usize, 0usize, usize::MAX, 0usize);
+        flood_cells((w, h), 1, start, &mut seen, moving, None, |_, r, c| {
+            group += 1;
+            nearest_row = nearest_row.max(r);
+            left_column = left_column.min(c);
+            right_column = right_column.max(c);
+        });
+        if group < 3 {
+            continue;
+        }
+        // The nearest cell row's near side: the bottom of its last pixel row.
+        let (_, near) = grid.pixel_to_ground(0.0, ((nearest_row + 1) * cells.px) as f64 - 0.5);
+        let (left, _) = grid.pixel_to_ground((left_column * cells.px) as f64, 0.0);
+        let (right, _) = grid.pixel_to_ground(((right_column + 1) * cells.px) as f64 - 1.0, 0.0);
+        let mm = |v: f64| libm::round(v) as i32;
+        let found = Footprint { near_mm: mm(near.max(aoi.near)), left_mm: mm(left.max(-aoi.half_width)), right_mm: mm(right.min(aoi.half_width)) };
+        if found.in_aoi(&aoi) && best.is_none_or(|b| found.near_mm < b.near_mm) {
+            best = Some(found);
+        }
+    }
+    best
+}
+
 /// Labels the cells active with residue into blobs (at most [`MAX_BLOBS`]).
 pub(super) fn residue_blobs(layout: &Layout, residue: &Residue, config: &GpaConfig) -> heapless::Vec<Blob, MAX_BLOBS> {
     let mut blobs: heapless::Vec<Blob, MAX_BLOBS> = heapless::Vec::new();

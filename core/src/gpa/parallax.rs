@@ -29,16 +29,28 @@ pub const HEIGHT_FRACTIONS: [f64; 8] = [0.0, 0.04, 0.08, 0.13, 0.19, 0.27, 0.37,
 /// dip against the 25 mm drop is decided by the parabola around it), the
 /// last at the deepest, with one between for the parabola.
 pub const DROP_STEPS: [f64; 4] = [0.1, 0.2, 0.45, 1.0];
-pub(super) const HYPOTHESES: usize = HEIGHT_FRACTIONS.len() + DROP_STEPS.len();
+/// Lag hypotheses past the deepest drop, as fractions of the baseline a
+/// cell lags the ground by (1: it stays where it was in the top view). A
+/// thing moving along with the robot (a car ahead, slower than the robot
+/// but not by much) shows the ground's parallax scaled by its own share
+/// of the motion: it lags the ground by up to the whole baseline, which no
+/// height or drop explains. A cell that matches one of these best moves
+/// with the robot (or lies past a drop deeper than any looked for): a
+/// hazard whose height the images do not give. Only those past the
+/// deepest drop's lag take part ([`Hypotheses::plan`]).
+pub const LAG_FRACTIONS: [f64; 3] = [0.4, 0.7, 1.0];
+pub(super) const HYPOTHESES: usize = HEIGHT_FRACTIONS.len() + DROP_STEPS.len() + LAG_FRACTIONS.len();
+/// Index of the first lag hypothesis (after the ground, heights and drops).
+const FIRST_LAG: usize = HEIGHT_FRACTIONS.len() + DROP_STEPS.len();
 /// Where the ground (index 0) sits when the hypotheses are ordered by
-/// displacement: after the drops, deepest first.
-const GROUND_RANK: usize = DROP_STEPS.len();
+/// displacement: after the lags and the drops, deepest first.
+const GROUND_RANK: usize = DROP_STEPS.len() + LAG_FRACTIONS.len();
 
 /// This frame's hypotheses: where each one samples the keyframe and which
 /// of them take part.
 pub(super) struct Hypotheses {
     /// Extra keyframe offset (KG px, Q16.16) per hypothesis: index 0 the
-    /// ground, then [`HEIGHT_FRACTIONS`], then [`DROP_STEPS`].
+    /// ground, then [`HEIGHT_FRACTIONS`], [`DROP_STEPS`], [`LAG_FRACTIONS`].
     pub(super) offset: [(i32, i32); HYPOTHESES],
     /// Extra displacement per hypothesis, as a fraction of the baseline:
     /// f / (1 - f) for a height f*H, negative below the ground.
@@ -47,6 +59,9 @@ pub(super) struct Hypotheses {
     /// the in-place keyframe update (the drops always do: they reach less
     /// far than the ground).
     pub(super) usable: usize,
+    /// Lag hypotheses FIRST_LAG..lags_end take part: those that lag the
+    /// ground by more than the deepest drop does.
+    lags_end: usize,
     /// Per axis (K, G): may the odometry error exceed half a pixel this frame?
     pub(super) full_tolerance: (bool, bool),
     /// Ranks (hypotheses ordered by displacement) whose displacement the
@@ -65,6 +80,7 @@ impl Hypotheses {
         offset: [(0, 0); HYPOTHESES],
         displacement: [0.0; HYPOTHESES],
         usable: 0,
+        lags_end: FIRST_LAG,
         full_tolerance: (false, false),
         ground_like: GROUND_RANK..GROUND_RANK + 1,
         shallowest_drop_mm: f64::INFINITY,
@@ -80,9 +96,12 @@ impl Hypotheses {
         let deepest = -config.max_drop_mm / (camera_height_mm + config.max_drop_mm);
         let heights = HEIGHT_FRACTIONS.iter().map(|f| f / (1.0 - f));
         let drops = DROP_STEPS.iter().map(|step| step * deepest);
-        for (slot, g) in displacement.iter_mut().zip(heights.chain(drops)) {
+        let lags = LAG_FRACTIONS.iter().map(|lag| -lag);
+        for (slot, g) in displacement.iter_mut().zip(heights.chain(drops).chain(lags)) {
             *slot = g;
         }
+        // A lag within the drops' reach is a drop's; the rest take part.
+        let lags_end = FIRST_LAG + LAG_FRACTIONS.iter().filter(|&&lag| -lag < deepest).count();
         let mut offset = [(0, 0); HYPOTHESES];
         let (di, dj) = (predicted.tx_mm / grid.mm_per_px, -predicted.tz_mm / grid.mm_per_px);
         for (slot, g) in offset.iter_mut().zip(displacement) {
@@ -124,12 +143,12 @@ impl Hypotheses {
             }
         }
         let yaw_blurred_rows = sharp;
-        Hypotheses { offset, displacement, usable: HEIGHT_FRACTIONS.len(), full_tolerance, ground_like, shallowest_drop_mm, yaw_blurred_rows }
+        Hypotheses { offset, displacement, usable: HEIGHT_FRACTIONS.len(), lags_end, full_tolerance, ground_like, shallowest_drop_mm, yaw_blurred_rows }
     }
 
     /// The hypotheses this frame compares besides the ground.
     pub(super) fn active(&self) -> impl Iterator<Item = usize> {
-        (1..self.usable).chain(if self.usable > 0 { HEIGHT_FRACTIONS.len()..HYPOTHESES } else { 0..0 })
+        (1..self.usable).chain(if self.usable > 0 { HEIGHT_FRACTIONS.len()..self.lags_end } else { 0..0 })
     }
 
     /// How far (K, G) the ground hypothesis's residue of row `j` reaches: a
@@ -144,6 +163,8 @@ impl Hypotheses {
     /// at, and whether it beats the ground by the absolute gain too (else
     /// it is [`CellHeights`]' weak kind); None if the ground explains the
     /// cell as well. `noise_floor` is the median plain |diff| per pixel.
+    /// A cell best matched by a lag hypothesis gives `-inf`: it moves with
+    /// the robot, its height unknown.
     fn height_fraction(&self, sads: &[u32; HYPOTHESES], pixels: u16, min_gain: f64, noise_floor: u8, gain_percent: u32) -> Option<(f64, bool)> {
         // Ordered by displacement, so neighbours are neighbouring heights.
         let sad = |rank: usize| sads[by_rank(rank)];
@@ -180,9 +201,12 @@ impl Hypotheses {
         if !(relative && distinct) {
             return None;
         }
+        if by_rank(best) >= FIRST_LAG {
+            return Some((f64::NEG_INFINITY, absolute));
+        }
         // Parabola through the neighbouring hypotheses, in the displacement
         // they stand for (f / (1 - f)), not in index.
-        let displacement = if best == 0 || best + 1 >= HYPOTHESES || sad(best + 1) == u32::MAX || sad(best - 1) == u32::MAX {
+        let displacement = if best == 0 || best + 1 >= HYPOTHESES || sad(best + 1) == u32::MAX || sad(best - 1) == u32::MAX || by_rank(best - 1) >= FIRST_LAG {
             g(best)
         } else {
             let offset = subpixel::minimum_offset(f64::from(sad(best - 1)), f64::from(best_sad), f64::from(sad(best + 1)));
@@ -196,8 +220,8 @@ impl Hypotheses {
     }
 }
 
-/// The hypothesis index at `rank` in displacement order: the drops deepest
-/// first, the ground, then the heights.
+/// The hypothesis index at `rank` in displacement order: the lags and the
+/// drops deepest first, the ground, then the heights.
 fn by_rank(rank: usize) -> usize {
     match rank {
         r if r < GROUND_RANK => HYPOTHESES - 1 - r,
@@ -206,24 +230,27 @@ fn by_rank(rank: usize) -> usize {
 }
 
 /// Parallax height per cell (mm, 0 = ground or undecided, negative below
-/// the ground): one byte and two bits a cell, for the M4's RAM. The byte
+/// the ground): one byte and three bits a cell, for the M4's RAM. The byte
 /// counts [`Self::unit_mm`], which scales with the camera's height, so
 /// the highest hypothesis (half the camera's height: a car's roof from a
 /// car's camera) fits whatever the rig. A weak height beat the ground
 /// clearly but by less than the absolute gain (low contrast: vignetting
 /// darkens the image's corners, and it shades one ground point
 /// differently in two views): too uncertain to count as a measurement, it
-/// only shows that a surface goes on there.
+/// only shows that a surface goes on there. A moving cell matched a lag
+/// hypothesis ([`LAG_FRACTIONS`]): it moves with the robot, and its height
+/// is not measured (0).
 pub(super) struct CellHeights {
     magnitude: [u8; MAX_CELLS],
     below: CellSet,
     weak: CellSet,
+    moving: CellSet,
     unit_mm: u8,
 }
 
 impl CellHeights {
     pub(super) const EMPTY: CellHeights =
-        CellHeights { magnitude: [0; MAX_CELLS], below: CellSet::EMPTY, weak: CellSet::EMPTY, unit_mm: 1 };
+        CellHeights { magnitude: [0; MAX_CELLS], below: CellSet::EMPTY, weak: CellSet::EMPTY, moving: CellSet::EMPTY, unit_mm: 1 };
 
     /// No heights, counted in the unit of a camera `camera_height_mm` up:
     /// 1 mm up to a camera 510 mm up, coarser above (4 mm for a car's
@@ -255,6 +282,19 @@ impl CellHeights {
     /// Did the cell's height beat the ground by less than the absolute gain?
     pub(super) fn is_weak(&self, cell: usize) -> bool {
         self.weak.contains(cell)
+    }
+
+    /// Does the cell move with the robot (measured, not weak)?
+    pub(super) fn is_moving(&self, cell: usize) -> bool {
+        self.moving.contains(cell) && !self.weak.contains(cell)
+    }
+
+    /// Marks a cell as moving with the robot (weak when `weak`); its height stays 0.
+    pub(super) fn set_moving(&mut self, cell: usize, weak: bool) {
+        self.moving.insert(cell);
+        if weak {
+            self.weak.insert(cell);
+        }
     }
 
     /// Sets a cell's height (mm), rounded down to the unit and clamped to
@@ -505,10 +545,15 @@ impl Parallax {
                 }
             }
             let fraction = self.hypotheses.height_fraction(&sads, pixels, min_gain, noise.floor(), config.parallax_gain_percent);
-            if let Some((fraction, strong)) = fraction {
-                let height = libm::round(fraction * camera_height_mm);
-                let magnitude = libm::fabs(height).clamp(1.0, f64::from(i16::MAX)) as i16;
-                self.height.set(cell_row * cells.wide + column, if height > 0.0 { magnitude } else { -magnitude }, !strong);
+            let cell = cell_row * cells.wide + column;
+            match fraction {
+                Some((fraction, strong)) if fraction == f64::NEG_INFINITY => self.height.set_moving(cell, !strong),
+                Some((fraction, strong)) => {
+                    let height = libm::round(fraction * camera_height_mm);
+                    let magnitude = libm::fabs(height).clamp(1.0, f64::from(i16::MAX)) as i16;
+                    self.height.set(cell, if height > 0.0 { magnitude } else { -magnitude }, !strong);
+                }
+                None => {}
             }
         }
         self.sums.clear();
