@@ -192,7 +192,20 @@ impl Alarm {
         let explained_by_held_drop = |found: &Hazard| {
             found.1.is_none() && held.is_some_and(|(drop, _)| is_drop(&drop) && f64::from(found.0.near_mm) >= f64::from(drop.0.near_mm) - config.cell_mm)
         };
+        // A baseline too short to clear a hazard is too short to move it
+        // away too: what it finds farther, overlapping it sideways, is the
+        // held one seen less well (a car ahead's lag shows only over a
+        // long baseline).
+        let farther_than_held = |found: &Hazard| {
+            held.is_some_and(|(held, _)| {
+                !is_drop(found) && !is_drop(&held) && found.0.overlaps_sideways(&held.0) && held.0.near_mm < found.0.near_mm
+            })
+        };
         let (hazard, found_at) = match (found, held) {
+            (Some(found), Some((held, _))) if farther_than_held(&found) => {
+                self.source = AlarmSource::Held;
+                (Some(held), baseline_mm)
+            }
             (Some(found), _) if !explained_by_held_drop(&found) => (Some(found), baseline_mm),
             (_, Some((held, found_at))) => {
                 self.source = AlarmSource::Held;
@@ -323,6 +336,25 @@ mod tests {
             alarm.decide(None, None, 0.0, true, &config, &turn);
         }
         assert_eq!(alarm.decide(None, None, 0.0, true, &config, &turn), None, "20 degrees on, it is out of the AOI");
+    }
+
+    /// A baseline too short to clear an obstacle does not move it away: a
+    /// farther one it finds across it leaves the held one (moved by the
+    /// step); one beside it, or nearer, is what it found.
+    #[test]
+    fn a_short_baseline_does_not_move_an_obstacle_away() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        alarm.decide(Some((at(800), 120)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(Some((at(1100), 90)), None, 40.0, true, &config, &STEP), Some((at(750), Some(120))));
+        assert_eq!(alarm.source(), AlarmSource::Held);
+        let beside = Footprint { near_mm: 1100, left_mm: 200, right_mm: 300 };
+        assert_eq!(alarm.decide(Some((beside, 90)), None, 40.0, true, &config, &STEP), Some((beside, Some(90))));
+        alarm.decide(Some((at(800), 120)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(Some((at(700), 90)), None, 40.0, true, &config, &STEP), Some((at(700), Some(90))));
+        // A full baseline measures it again, wherever it finds it.
+        alarm.decide(Some((at(800), 120)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(Some((at(1100), 90)), None, 100.0, true, &config, &STEP), Some((at(1100), Some(90))));
     }
 
     /// An obstacle standing up is seen whatever the attitude: blindness to
