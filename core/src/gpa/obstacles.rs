@@ -429,6 +429,9 @@ fn parallax_group(
 /// cell's near side is seen on the ground: its own footprint where it
 /// meets the ground (a car's bumper and the shadow under it), never nearer
 /// than it is; at the AOI's near edge when it covers it.
+// Not inlined: its flood's work stack stays out of `decide`'s frame, which
+// the parallax groups' floods stand on.
+#[inline(never)]
 pub(super) fn moving_obstacle(layout: &Layout, heights: &CellHeights) -> Option<Footprint> {
     let (grid, cells) = (&layout.grid, &layout.cells);
     let (w, h) = (cells.wide, cells.high);
