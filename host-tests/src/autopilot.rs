@@ -122,7 +122,8 @@ impl Reader {
         let range_cm = (100.0 * sensor_range + 0.5) as u16;
         let (held, max_range) = (self.held[bin], self.max_ranges[bin]);
         if reading < sensor_range {
-            (held < max_range && range_cm <= max_range) || held >= max_range
+            // The source's `(held < max && range <= max) || held >= max`, reduced.
+            range_cm <= max_range || held >= max_range
         } else {
             (held >= max_range && range_cm >= max_range) || (held < max_range && range_cm == max_range)
         }
