@@ -485,3 +485,29 @@ fn a_frame_not_judged_is_unknown_and_says_why() {
     states.dedup();
     assert_eq!(states, [MavState::MAV_STATE_STANDBY, MavState::MAV_STATE_ACTIVE, MavState::MAV_STATE_STANDBY], "{log}");
 }
+
+/// Issue 52: a frame given up (frame 4's file missing: `frame_missing`)
+/// sends doubt under its pose's time, before the STATUSTEXT that says why,
+/// and so does frame 5, which restarts the keyframe: every autopilot's
+/// reader holds back through both (check_against), where before frame 4
+/// sent no OBSTACLE_DISTANCE at all and frame 5 an all-unknown one.
+#[test]
+fn a_frame_given_up_sends_doubt() {
+    let copy = common::TempRecording::copy_of("flat_marks", "mavlink-frame-missing");
+    std::fs::remove_file(copy.frame(4)).unwrap();
+    let recording = Recording::open(&copy.dir).unwrap();
+    let (decoded, log) = run(&copy.dir, qemu::mavlink_script(&recording, PoseMessages::Odometry).unwrap());
+    let compared = check_against("frame_missing", &recording, &decoded);
+    assert_eq!(compared, recording.poses.len() - 3, "frames 0, 4 and 5 compare nothing:\n{log}");
+    let frame_4 = flatland_core::mavlink::time_usec(recording.poses.iter().find(|row| row.frame == 4).unwrap().t_s);
+    let order: Vec<String> = decoded
+        .messages
+        .iter()
+        .filter_map(|(_, m)| match m {
+            MavMessage::OBSTACLE_DISTANCE(o) if o.time_usec == frame_4 => Some("doubt".to_string()),
+            MavMessage::STATUSTEXT(t) if t.severity == MavSeverity::MAV_SEVERITY_ERROR => t.text.to_str().ok().map(str::to_string),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(order, ["doubt", "frame 4: frame_missing"], "{log}");
+}
