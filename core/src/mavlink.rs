@@ -12,13 +12,20 @@
 //!
 //! Frames (vehicle conventions, ArduPilot and PX4 alike):
 //! - `OBSTACLE_DISTANCE` in `MAV_FRAME_BODY_FRD`: element j is centred
-//!   j * 5 degrees clockwise from the vehicle's front (`angle_offset` 0,
-//!   `increment_f` 5), so the 72 elements go once round. Each element
-//!   carries the nearest hazard within +-5 degrees of its centre
-//!   ([`obstacle_distance`]): the windows overlap so that every reader
-//!   gets every hazard, whichever elements it takes (PX4's 36 bins of 10
-//!   degrees read only the even elements; ArduPilot and PX4's 72 bins read
-//!   each); docs/MAVLINK.md has the readers.
+//!   5j - 180 degrees clockwise from the vehicle's front (`angle_offset`
+//!   -180, `increment_f` 5), so the 72 elements go once round starting
+//!   straight behind. Starting behind keeps the front face whole:
+//!   ArduPilot walks the elements in order and writes a face each time the
+//!   walk leaves it, so a face split across element 0 is written twice and
+//!   its second half wins. Each element carries the nearest hazard within
+//!   +-5 degrees of its centre ([`obstacle_distance`]): the windows overlap
+//!   so that every reader gets every hazard, whichever elements it takes
+//!   (PX4's 36 bins of 10 degrees read only the even elements; ArduPilot
+//!   and PX4's 72 bins read each). A frame that says nothing about the
+//!   ground sends a hazard at `min_distance` wherever the camera looks
+//!   ([`obstacle_distance_in_doubt`]): both autopilots skip unknown
+//!   elements, so doubt sent as unknown would read as free. docs/MAVLINK.md
+//!   has the readers.
 //! - Positions NED (x north, y east), attitude as aerospace angles or a
 //!   body-FRD-to-NED quaternion; converted to RECORDING.md's frames
 //!   (x east, z north, yaw positive left; pitch positive nose down, roll
@@ -31,7 +38,7 @@
 use crate::health::Health;
 use crate::motion::{Attitude, Pose};
 use crate::pipeline::PoseSample;
-use crate::scan::{Scan, Sector, SCAN_INCREMENT_MDEG};
+use crate::scan::{Scan, ScanLayout, Sector, SCAN_INCREMENT_MDEG};
 use core::fmt;
 use mavlink::dialects::common::{
     MavAutopilot, MavDistanceSensor, MavFrame, MavModeFlag, MavSeverity, MavState, MavType, ATTITUDE_DATA, HEARTBEAT_DATA,
@@ -51,6 +58,9 @@ pub const BIN_DEG: f32 = 5.0;
 const BIN_MDEG: i32 = 5000;
 /// Elements of `OBSTACLE_DISTANCE`.
 pub const BINS: usize = 72;
+/// Element 0's direction, degrees clockwise from the front: straight
+/// behind, where the camera never looks (see the module docs).
+pub const ANGLE_OFFSET_DEG: f32 = -180.0;
 /// Longest MAVLink 2 frame: 10 header bytes, 255 payload, 2 CRC, 13 signature.
 pub const MAX_FRAME: usize = 280;
 
@@ -140,50 +150,75 @@ pub fn status_text(severity: MavSeverity, text: &str) -> STATUSTEXT_DATA {
 }
 
 /// The `OBSTACLE_DISTANCE` range fields for a scan (cm): `min_distance`
-/// the scan's nearest range, `max_distance` one cm beyond its farthest, so
-/// that every hazard (whole cm, rounded down) lies below it: PX4 reads a
-/// value at `max_distance` as free, ArduPilot as an obstacle.
-pub fn distance_limits_cm(scan: &Scan) -> (u16, u16) {
-    let layout = scan.layout();
-    (layout.range_min_mm / 10, layout.range_max_mm / 10 + 1)
+/// the scan's nearest range (at least 1: ArduPilot skips 0), `max_distance`
+/// one cm beyond its farthest, so that every hazard (whole cm, rounded down)
+/// lies below it: PX4 reads a value at `max_distance` as free, ArduPilot as
+/// an obstacle.
+pub fn distance_limits_cm(layout: &ScanLayout) -> (u16, u16) {
+    ((layout.range_min_mm / 10).max(1), layout.range_max_mm / 10 + 1)
 }
 
-/// `OBSTACLE_DISTANCE` for `scan` at `time_usec`. Element j merges the
-/// scan's sectors whose centres lie within 5 degrees of 5j (four of them):
-/// the nearest hazard if any (cm, rounded down, so never read farther than
-/// it is, and below `max_distance`), else `max_distance + 1` (free) when
-/// all four are free, else `UINT16_MAX` (unknown). Each sector thus sits in
-/// two neighbouring elements, and the even elements alone (or the odd ones)
-/// hold every hazard.
-pub fn obstacle_distance(scan: &Scan, time_usec: u64) -> OBSTACLE_DISTANCE_DATA {
-    let (min_cm, max_cm) = distance_limits_cm(scan);
-    let layout = scan.layout();
-    let seen: [Merge; BINS] = core::array::from_fn(|element| {
-        // Centred on (-180, 180] degrees, as the scan counts.
-        let centre = if element > BINS / 2 { element as i32 - BINS as i32 } else { element as i32 } * BIN_MDEG;
-        // The sectors centred within 5 degrees; one outside the scan is unknown.
-        [-3, -1, 1, 3].into_iter().fold(Merge::Free, |merge, quarter| {
-            let offset = centre + quarter * SCAN_INCREMENT_MDEG / 2 - layout.angle_start_mdeg();
-            let k = offset.div_euclid(SCAN_INCREMENT_MDEG);
-            merge.with(usize::try_from(k).map_or(Sector::Unknown, |k| scan.sector(k)))
-        })
-    });
-    let distances = seen.map(|merge| match merge {
-        Merge::Unknown => u16::MAX,
-        Merge::Free => max_cm + 1,
-        Merge::Hazard(mm) => (mm / 10).clamp(min_cm, max_cm - 1),
-    });
+/// The scan sectors element `element` merges: the four centred within 5
+/// degrees of its centre, `None` where the scan has no such sector.
+fn element_sectors(layout: &ScanLayout, element: usize) -> [Option<usize>; 4] {
+    let centre = (element as i32 - BINS as i32 / 2) * BIN_MDEG;
+    [-3, -1, 1, 3].map(|quarter| {
+        let offset = centre + quarter * SCAN_INCREMENT_MDEG / 2 - layout.angle_start_mdeg();
+        usize::try_from(offset.div_euclid(SCAN_INCREMENT_MDEG)).ok().filter(|&k| k < usize::from(layout.sectors))
+    })
+}
+
+/// `OBSTACLE_DISTANCE` with `distances` and the fields every message shares.
+fn message(layout: &ScanLayout, time_usec: u64, distances: [u16; BINS]) -> OBSTACLE_DISTANCE_DATA {
+    let (min_distance, max_distance) = distance_limits_cm(layout);
     OBSTACLE_DISTANCE_DATA {
         time_usec,
         distances,
-        min_distance: min_cm,
-        max_distance: max_cm,
+        min_distance,
+        max_distance,
         sensor_type: MavDistanceSensor::MAV_DISTANCE_SENSOR_UNKNOWN,
         increment: BIN_DEG as u8,
         increment_f: BIN_DEG,
-        angle_offset: 0.0,
+        angle_offset: ANGLE_OFFSET_DEG,
         frame: MavFrame::MAV_FRAME_BODY_FRD,
     }
+}
+
+/// `OBSTACLE_DISTANCE` for `scan` at `time_usec`. Element j merges the
+/// scan's sectors whose centres lie within 5 degrees of 5j - 180 (four of
+/// them): the nearest hazard if any (cm, rounded down, so never read
+/// farther than it is, and below `max_distance`), else `max_distance + 1`
+/// (free) when all four are free, else `UINT16_MAX` (unknown). Each sector
+/// thus sits in two neighbouring elements, and the even elements alone (or
+/// the odd ones) hold every hazard.
+pub fn obstacle_distance(scan: &Scan, time_usec: u64) -> OBSTACLE_DISTANCE_DATA {
+    let layout = scan.layout();
+    let (min_cm, max_cm) = distance_limits_cm(&layout);
+    let distances = core::array::from_fn(|element| {
+        let merge = element_sectors(&layout, element)
+            .into_iter()
+            .fold(Merge::Free, |merge, k| merge.with(k.map_or(Sector::Unknown, |k| scan.sector(k))));
+        match merge {
+            Merge::Unknown => u16::MAX,
+            Merge::Free => max_cm + 1,
+            Merge::Hazard(mm) => (mm / 10).clamp(min_cm, max_cm - 1),
+        }
+    });
+    message(&layout, time_usec, distances)
+}
+
+/// `OBSTACLE_DISTANCE` for a frame that tells nothing about the ground
+/// (only (re)started the keyframe, not judged, lost or late): a hazard at
+/// `min_distance` in every element that holds any of the scan's sectors,
+/// unknown elsewhere. This is the alarm pin's rule (doubt is an obstacle)
+/// in the autopilots' terms: ArduPilot clears every face on each message
+/// and skips unknown elements, PX4 keeps a bin's last value while its
+/// element is unknown, so an all-unknown message would let both drive on.
+pub fn obstacle_distance_in_doubt(layout: &ScanLayout, time_usec: u64) -> OBSTACLE_DISTANCE_DATA {
+    let (min_cm, _) = distance_limits_cm(layout);
+    let distances =
+        core::array::from_fn(|element| if element_sectors(layout, element).iter().any(Option::is_some) { min_cm } else { u16::MAX });
+    message(layout, time_usec, distances)
 }
 
 /// Sectors merged into one element.
@@ -641,13 +676,27 @@ mod tests {
         scan.add_point(-1.0, 809.0); // sector [-2.5, 0)
         let message = obstacle_distance(&scan, 5);
         assert_eq!((message.min_distance, message.max_distance), (45, 151), "max one cm beyond 1500 mm");
-        assert_eq!(message.distances[0], 80, "809 mm rounded down");
-        assert_eq!(message.distances[71], 80, "-5 degrees holds -1.25 too");
-        assert_eq!(message.distances[1], 152, "1.25..8.75 free: max + 1");
-        assert_eq!(message.distances[2], u16::MAX, "half outside the scan: unknown");
-        assert_eq!(message.distances[70], u16::MAX, "-8.75 unseen");
-        assert_eq!(message.distances[36], u16::MAX);
-        assert_eq!((message.increment_f, message.angle_offset, message.frame), (5.0, 0.0, MavFrame::MAV_FRAME_BODY_FRD));
+        // Element j is centred on 5j - 180 degrees: straight ahead is 36.
+        assert_eq!(message.distances[36], 80, "809 mm rounded down");
+        assert_eq!(message.distances[35], 80, "-5 degrees holds -1.25 too");
+        assert_eq!(message.distances[37], 152, "1.25..8.75 free: max + 1");
+        assert_eq!(message.distances[38], u16::MAX, "half outside the scan: unknown");
+        assert_eq!(message.distances[34], u16::MAX, "-8.75 unseen");
+        assert_eq!(message.distances[0], u16::MAX);
+        assert_eq!((message.increment_f, message.angle_offset, message.frame), (5.0, -180.0, MavFrame::MAV_FRAME_BODY_FRD));
+    }
+
+    #[test]
+    fn doubt_is_a_hazard_at_min_distance_wherever_the_scan_reaches() {
+        // Sectors centred on -8.75..8.75 degrees: the elements centred on
+        // -10..10 degrees hold some of them, the ones on +-15 none.
+        let layout = ScanLayout::new(10.0, 450.0, 1500.0);
+        let message = obstacle_distance_in_doubt(&layout, 7);
+        let expected: [u16; 72] = core::array::from_fn(|j| if (34..=38).contains(&j) { 45 } else { u16::MAX });
+        assert_eq!(message.distances, expected);
+        assert_eq!((message.min_distance, message.max_distance, message.time_usec), (45, 151, 7));
+        // A nearest range under 10 mm still sends at least 1 cm: ArduPilot skips 0.
+        assert_eq!(obstacle_distance_in_doubt(&ScanLayout::new(10.0, 5.0, 1500.0), 7).distances[36], 1);
     }
 
     #[test]
@@ -657,7 +706,7 @@ mod tests {
         scan.mark_view(15.0, |_, _| View::Seen);
         scan.add_point(0.5, 1500.0);
         let message = obstacle_distance(&scan, 5);
-        assert_eq!((message.distances[0], message.max_distance), (150, 151));
+        assert_eq!((message.distances[36], message.max_distance), (150, 151));
     }
 
     #[test]

@@ -508,7 +508,7 @@ where
                 }
                 self.fail_safe.frame_done(frame, Err(failure.sensor_fault()));
                 defmt::error!("fault {=str} (frame {=u32})", failure.code.as_str(), frame);
-                self.protocol.frame_failed(frame, failure.code);
+                self.protocol.frame_failed(frame, sample.t_s, failure.code, session.pipeline.gpa().scan());
             }
         }
     }

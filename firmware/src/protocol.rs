@@ -81,8 +81,9 @@ pub trait Protocol {
     /// Frame `frame` came to `outcome`. `scan` is the detector's (the last
     /// judged frame's), `t_s` the frame's time.
     fn frame_done(&mut self, frame: u32, t_s: f64, outcome: &Outcome, scan: &Scan);
-    /// Frame `frame` was given up.
-    fn frame_failed(&mut self, frame: u32, code: FaultCode);
+    /// Frame `frame` (its pose's time `t_s`) was given up; `scan` as in
+    /// [`Protocol::frame_done`].
+    fn frame_failed(&mut self, frame: u32, t_s: f64, code: FaultCode, scan: &Scan);
     /// Odometry stopped after `frame` (the alarm is already asserted).
     fn odometry_lost(&mut self, frame: u32);
     /// Between inputs, with the sensor's health: status outputs.

@@ -16,8 +16,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::{Mutex, OnceLock};
 
-use flatland_core::scan::{Scan, Sector, SCAN_INCREMENT_MDEG};
-use flatland_host::link::autopilot::lost_hazards;
+use flatland_core::scan::{Scan, ScanLayout, Sector, SCAN_INCREMENT_MDEG};
+use flatland_host::link::autopilot::Readers;
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::link::mavlink::{decode, frames_by_time, write_scan_csv, Decoded, RowKey};
 use flatland_host::qemu::{self, PoseMessages, RunRequest};
@@ -73,13 +73,16 @@ fn capture(name: &str) -> &'static Capture {
     })
 }
 
-/// `flatland scan`'s scans (in-process), by frame time in microseconds.
-fn host_scans(recording: &Recording) -> (BTreeMap<u64, Scan>, BTreeMap<u64, u32>) {
+/// `flatland scan`'s scans (in-process), by frame time in microseconds, the
+/// frames by time, and the scans' layout.
+fn host_scans(recording: &Recording) -> (BTreeMap<u64, Scan>, BTreeMap<u64, u32>, ScanLayout) {
     let times: BTreeMap<u32, u64> = recording.poses.iter().map(|row| (row.frame, (row.t_s * 1e6).round() as u64)).collect();
     let mut detector = Detector::new(&recording.rig, &DetectConfig::default()).unwrap();
     let mut scans = BTreeMap::new();
+    let mut layout = None;
     detector
         .run(recording, |outcome, pipeline| {
+            layout = Some(pipeline.gpa().scan().layout());
             // Frames judged have a scan; the others compared nothing.
             match outcome {
                 FrameOutcome::Report { report, .. } if report.is_judged() => {
@@ -89,28 +92,39 @@ fn host_scans(recording: &Recording) -> (BTreeMap<u64, Scan>, BTreeMap<u64, u32>
             }
         })
         .unwrap();
-    (scans, times.into_iter().map(|(frame, t)| (t, frame)).collect())
+    (scans, times.into_iter().map(|(frame, t)| (t, frame)).collect(), layout.expect("a frame was read"))
 }
 
-/// OBSTACLE_DISTANCE as docs/MAVLINK.md documents it, from a scan's sectors:
-/// element j holds the sectors centred within 5 degrees of 5j, all four of
-/// them in the scan for free; hazards in cm rounded down, max_distance one
-/// cm beyond the scan's range.
-fn expected(scan: &Scan) -> ([u16; 72], u16, u16) {
+/// The range fields as docs/MAVLINK.md documents them (cm): the scan's
+/// nearest range (at least 1), one beyond its farthest.
+fn limits(layout: &ScanLayout) -> (u16, u16) {
+    ((layout.range_min_mm / 10).max(1), layout.range_max_mm / 10 + 1)
+}
+
+/// The scan's sectors each element holds: element j (centred on 5j - 180
+/// degrees) the sectors centred within 5 degrees of it.
+fn groups(scan: &Scan) -> BTreeMap<usize, Vec<Sector>> {
     let layout = scan.layout();
-    let (min, max) = (layout.range_min_mm / 10, layout.range_max_mm / 10 + 1);
     let mut groups: BTreeMap<usize, Vec<Sector>> = BTreeMap::new();
     for (k, sector) in scan.sectors().enumerate() {
         let centre_mdeg = layout.angle_start_mdeg() + k as i32 * SCAN_INCREMENT_MDEG;
         for bin in 0..72i32 {
-            let apart = (centre_mdeg - bin * 5000 + 180_000).rem_euclid(360_000) - 180_000;
+            let apart = (centre_mdeg - bin * 5000).rem_euclid(360_000) - 180_000;
             if apart.abs() < 5000 {
                 groups.entry(bin as usize).or_default().push(sector);
             }
         }
     }
+    groups
+}
+
+/// OBSTACLE_DISTANCE as docs/MAVLINK.md documents it, from a scan's sectors:
+/// element j holds the sectors centred within 5 degrees of 5j - 180, all
+/// four of them in the scan for free; hazards in cm rounded down.
+fn expected(scan: &Scan) -> ([u16; 72], u16, u16) {
+    let (min, max) = limits(&scan.layout());
     let mut distances = [u16::MAX; 72];
-    for (bin, sectors) in groups {
+    for (bin, sectors) in groups(scan) {
         let nearest = sectors.iter().filter_map(|s| if let Sector::Hazard(mm) = s { Some(*mm) } else { None }).min();
         distances[bin] = match nearest {
             Some(mm) => (mm / 10).clamp(min, max - 1),
@@ -121,13 +135,25 @@ fn expected(scan: &Scan) -> ([u16; 72], u16, u16) {
     (distances, min, max)
 }
 
+/// Doubt as docs/MAVLINK.md documents it: min_distance in every element
+/// that holds a sector of the scan, unknown elsewhere.
+fn expected_doubt(layout: ScanLayout) -> ([u16; 72], u16, u16) {
+    let (min, max) = limits(&layout);
+    let mut distances = [u16::MAX; 72];
+    for bin in groups(&Scan::new(layout)).into_keys() {
+        distances[bin] = min;
+    }
+    (distances, min, max)
+}
+
 fn obstacle_distances(decoded: &Decoded) -> Vec<&OBSTACLE_DISTANCE_DATA> {
     decoded.messages.iter().filter_map(|(_, m)| if let MavMessage::OBSTACLE_DISTANCE(o) = m { Some(o) } else { None }).collect()
 }
 
 /// Checks a run against the host: one OBSTACLE_DISTANCE per pose, equal to
-/// the host's scan field for field (all unknown where the host compared
-/// nothing); returns how many carried a scan.
+/// the host's scan field for field (doubt where the host compared nothing),
+/// and read by every autopilot without a hazard lost or, after doubt, the
+/// vehicle released; returns how many carried a scan.
 fn check_against_host(name: &str, dir: &Path, decoded: &Decoded) -> usize {
     check_against(name, &Recording::open(dir).unwrap(), decoded)
 }
@@ -135,24 +161,29 @@ fn check_against_host(name: &str, dir: &Path, decoded: &Decoded) -> usize {
 /// [`check_against_host`] on a recording as opened (sensors left out).
 fn check_against(name: &str, recording: &Recording, decoded: &Decoded) -> usize {
     assert!(decoded.errors.is_empty(), "{name}: {:?}", decoded.errors);
-    let (scans, frames) = host_scans(recording);
+    let (scans, frames, layout) = host_scans(recording);
     let messages = obstacle_distances(decoded);
     assert_eq!(messages.len(), frames.len(), "{name}: one OBSTACLE_DISTANCE per pose");
     let mut compared = 0;
+    let mut readers = Readers::default();
     for message in messages {
         let frame = frames[&message.time_usec];
-        assert_eq!((message.increment_f, message.increment, message.angle_offset), (5.0, 5, 0.0), "{name} frame {frame}");
+        assert_eq!((message.increment_f, message.increment, message.angle_offset), (5.0, 5, -180.0), "{name} frame {frame}");
         assert_eq!(message.frame, MavFrame::MAV_FRAME_BODY_FRD);
+        readers.read(message);
+        let (distances, min, max) = scans.get(&message.time_usec).map_or(expected_doubt(layout), expected);
+        assert_eq!((message.min_distance, message.max_distance), (min, max), "{name} frame {frame}");
+        assert_eq!(message.distances, distances, "{name} frame {frame}");
         match scans.get(&message.time_usec) {
             Some(scan) => {
-                let (distances, min, max) = expected(scan);
-                assert_eq!((message.min_distance, message.max_distance), (min, max), "{name} frame {frame}");
-                assert_eq!(message.distances, distances, "{name} frame {frame}");
-                let lost = lost_hazards(message, scan);
+                let lost = readers.lost_hazards(message, scan);
                 assert!(lost.is_empty(), "{name} frame {frame}: an autopilot loses hazards: {lost:?}");
                 compared += 1;
             }
-            None => assert!(message.distances.iter().all(|&d| d == u16::MAX), "{name} frame {frame}: nothing compared, all unknown"),
+            None => {
+                let released = readers.released(&layout, min);
+                assert!(released.is_empty(), "{name} frame {frame}: nothing compared, yet released: {released:?}");
+            }
         }
     }
     compared
@@ -309,22 +340,17 @@ fn pymavlink_decodes_every_recording_and_agrees_with_flatland_scan() {
         for (kind, count) in type_counts(&decoded) {
             assert_eq!(report.counts.get(&kind), Some(&count), "{name}: {kind}");
         }
-        let (scans, frames) = host_scans(&Recording::open(&dir).unwrap());
+        let (scans, frames, layout) = host_scans(&Recording::open(&dir).unwrap());
         assert_eq!(report.obstacles.len(), frames.len(), "{name}: one OBSTACLE_DISTANCE per pose");
         for message in &report.obstacles {
             let frame = frames[&message.time_usec];
             assert_eq!(message.sender, (1, 196), "{name} frame {frame}");
             assert_eq!(message.frame, MavFrame::MAV_FRAME_BODY_FRD as u8, "{name} frame {frame}");
-            assert_eq!((message.increment, message.increment_f, message.angle_offset), (5, 5.0, 0.0), "{name} frame {frame}");
-            match scans.get(&message.time_usec) {
-                Some(scan) => {
-                    let (distances, min, max) = expected(scan);
-                    assert_eq!(message.limits, (min, max), "{name} frame {frame}");
-                    assert_eq!(message.distances, distances, "{name} frame {frame}");
-                    compared += 1;
-                }
-                None => assert!(message.distances.iter().all(|&d| d == u16::MAX), "{name} frame {frame}: nothing compared, all unknown"),
-            }
+            assert_eq!((message.increment, message.increment_f, message.angle_offset), (5, 5.0, -180.0), "{name} frame {frame}");
+            let (distances, min, max) = scans.get(&message.time_usec).map_or(expected_doubt(layout), expected);
+            assert_eq!(message.limits, (min, max), "{name} frame {frame}");
+            assert_eq!(message.distances, distances, "{name} frame {frame}");
+            compared += usize::from(scans.contains_key(&message.time_usec));
         }
     }
     assert!(compared > 150, "{compared}");
@@ -333,13 +359,14 @@ fn pymavlink_decodes_every_recording_and_agrees_with_flatland_scan() {
 /// `flatland serial decode --mavlink --recording REC` on each capture prints,
 /// per pose, the scan merged into OBSTACLE_DISTANCE's 5-degree bins by the
 /// docs/MAVLINK.md's rule, from -180 degrees, in `flatland scan`'s csv form (mm, `inf`
-/// free, empty unknown); frames that compared nothing are all unknown.
+/// free, empty unknown); frames that compared nothing show doubt (the
+/// nearest range wherever the camera looks).
 #[test]
 fn serial_decode_mavlink_prints_the_merged_scan() {
     for name in &common::bundled() {
         let dir = common::data(name);
         let capture = capture(name);
-        let (scans, frames) = host_scans(&Recording::open(&dir).unwrap());
+        let (scans, frames, layout) = host_scans(&Recording::open(&dir).unwrap());
         let mut expected_csv = String::from("frame,angle_start_deg,increment_deg");
         for k in 0..72 {
             expected_csv += &format!(",d{k}_mm");
@@ -347,11 +374,10 @@ fn serial_decode_mavlink_prints_the_merged_scan() {
         expected_csv.push('\n');
         for (time, frame) in &frames {
             expected_csv += &format!("{frame},-180.000,5.000");
-            // Frames that compared nothing: every cell empty.
-            let (distances, _, max) = scans.get(time).map_or(([u16::MAX; 72], 0, 0), expected);
-            for k in 0..72 {
+            let (distances, _, max) = scans.get(time).map_or(expected_doubt(layout), expected);
+            for distance in distances {
                 expected_csv.push(',');
-                match distances[(k + 36) % 72] {
+                match distance {
                     u16::MAX => {}
                     d if d == max + 1 => expected_csv += "inf",
                     d => expected_csv += &(u32::from(d) * 10).to_string(),
@@ -429,9 +455,10 @@ fn damaged_and_foreign_frames_are_counted_and_ignored() {
 /// Issue 33: a floor without texture (frames 4-7 of flat_marks made uniform
 /// gray) and no odometry (ODOMETRY with x, y NaN). Frames 1-3 are judged;
 /// frames 4-7 cannot be: each sends what the fail-safe says, an
-/// OBSTACLE_DISTANCE with every element unknown (not the last judged
-/// frame's scan: no stale clear), a STATUSTEXT warning that says why, and
-/// the status falls back to standby.
+/// OBSTACLE_DISTANCE of doubt (not the last judged frame's scan: no stale
+/// clear; not all unknown, which ArduPilot and PX4 read as free: issue
+/// 52), which holds every autopilot's reader back, a STATUSTEXT warning
+/// that says why, and the status falls back to standby.
 #[test]
 fn a_frame_not_judged_is_unknown_and_says_why() {
     let copy = common::TempRecording::copy_of("flat_marks", "mavlink-not-judged");
@@ -457,4 +484,30 @@ fn a_frame_not_judged_is_unknown_and_says_why() {
     let mut states = heartbeats(&decoded);
     states.dedup();
     assert_eq!(states, [MavState::MAV_STATE_STANDBY, MavState::MAV_STATE_ACTIVE, MavState::MAV_STATE_STANDBY], "{log}");
+}
+
+/// Issue 52: a frame given up (frame 4's file missing: `frame_missing`)
+/// sends doubt under its pose's time, before the STATUSTEXT that says why,
+/// and so does frame 5, which restarts the keyframe: every autopilot's
+/// reader holds back through both (check_against), where before frame 4
+/// sent no OBSTACLE_DISTANCE at all and frame 5 an all-unknown one.
+#[test]
+fn a_frame_given_up_sends_doubt() {
+    let copy = common::TempRecording::copy_of("flat_marks", "mavlink-frame-missing");
+    std::fs::remove_file(copy.frame(4)).unwrap();
+    let recording = Recording::open(&copy.dir).unwrap();
+    let (decoded, log) = run(&copy.dir, qemu::mavlink_script(&recording, PoseMessages::Odometry).unwrap());
+    let compared = check_against("frame_missing", &recording, &decoded);
+    assert_eq!(compared, recording.poses.len() - 3, "frames 0, 4 and 5 compare nothing:\n{log}");
+    let frame_4 = flatland_core::mavlink::time_usec(recording.poses.iter().find(|row| row.frame == 4).unwrap().t_s);
+    let order: Vec<String> = decoded
+        .messages
+        .iter()
+        .filter_map(|(_, m)| match m {
+            MavMessage::OBSTACLE_DISTANCE(o) if o.time_usec == frame_4 => Some("doubt".to_string()),
+            MavMessage::STATUSTEXT(t) if t.severity == MavSeverity::MAV_SEVERITY_ERROR => t.text.to_str().ok().map(str::to_string),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(order, ["doubt", "frame 4: frame_missing"], "{log}");
 }

@@ -168,23 +168,47 @@ fn cli_prints_the_scan() {
     }
 }
 
-/// The scan as OBSTACLE_DISTANCE, read by ArduPilot and both PX4 readers
-/// (modelled from their sources in `flatland_host::link::autopilot`): each gets
-/// every hazard of every judged frame, at its distance or nearer, and no
-/// element sits at max_distance. The firmware's stream is this message
-/// (firmware_mavlink.rs compares it field for field and checks it alike).
+/// Each recording's stream as the MAVLink build sends it (the scan of every
+/// judged frame, doubt for the others), read in order by ArduPilot and both
+/// PX4 readers, which keep state between messages as their code does
+/// (`flatland_host::link::autopilot`): after each judged frame every reader holds
+/// every hazard at its distance or nearer and no element sits at
+/// max_distance; after each other frame every reader holds an obstacle at
+/// the nearest range wherever the camera looks. The firmware's stream is
+/// these messages (firmware_mavlink.rs compares them field for field).
 #[test]
 fn every_autopilot_reads_every_hazard() {
-    use flatland_core::mavlink::obstacle_distance;
-    use flatland_host::link::autopilot::{hazards, lost_hazards};
-    let mut checked = 0;
+    use flatland_core::mavlink::{obstacle_distance, obstacle_distance_in_doubt};
+    use flatland_host::link::autopilot::{hazards, Readers};
+    let (mut checked, mut doubts) = (0, 0);
     for name in bundled() {
-        for (report, scan) in scans(&name).0 {
-            let problems = lost_hazards(&obstacle_distance(&scan, 0), &scan);
-            assert!(problems.is_empty(), "{name} frame {}: {problems:?}", report.frame);
-            checked += hazards(&scan);
-        }
+        let recording = Recording::open(data(&name)).unwrap();
+        let mut detector = Detector::new(&recording.rig, &DetectConfig::default()).unwrap();
+        let mut readers = Readers::default();
+        detector
+            .run(&recording, |outcome, pipeline| {
+                let scan = pipeline.gpa().scan();
+                match outcome {
+                    FrameOutcome::Report { report, .. } if report.is_judged() => {
+                        let message = obstacle_distance(scan, 0);
+                        readers.read(&message);
+                        let problems = readers.lost_hazards(&message, scan);
+                        assert!(problems.is_empty(), "{name} frame {}: {problems:?}", report.frame);
+                        checked += hazards(scan);
+                    }
+                    FrameOutcome::Report { .. } | FrameOutcome::Keyframe { .. } => {
+                        let message = obstacle_distance_in_doubt(&scan.layout(), 0);
+                        readers.read(&message);
+                        let released = readers.released(&scan.layout(), message.min_distance);
+                        assert!(released.is_empty(), "{name}: a frame not judged releases {released:?}");
+                        doubts += 1;
+                    }
+                    FrameOutcome::Skipped { .. } => {}
+                }
+            })
+            .unwrap();
     }
-    println!("{checked} hazard sectors read whole by every autopilot");
+    println!("{checked} hazard sectors read whole by every autopilot; {doubts} frames of doubt held every reader back");
     assert!(checked > 100, "the recordings hold hazards: {checked}");
+    assert!(doubts >= bundled().len(), "every run starts with a keyframe: {doubts}");
 }

@@ -75,7 +75,7 @@ impl<S: Read + ReadReady + Write> Protocol for Lines<S> {
         }
     }
 
-    fn frame_failed(&mut self, frame: u32, code: FaultCode) {
+    fn frame_failed(&mut self, frame: u32, _t_s: f64, code: FaultCode, _scan: &Scan) {
         self.fault(code, frame);
     }
 

@@ -3,11 +3,13 @@
 //! - Out: `HEARTBEAT` (component `MAV_COMP_ID_OBSTACLE_AVOIDANCE`) at
 //!   start, on every change of its status (the fail-safe's health), and at
 //!   most once a second between frames; `OBSTACLE_DISTANCE` per frame (the
-//!   scan, `core::mavlink::obstacle_distance`; every element unknown for a
-//!   frame that only (re)started the keyframe or was not judged, since
-//!   nothing was compared); `STATUSTEXT` on the rig, on every fault and on
-//!   every frame not judged (`frame N not judged: REASON`, a warning), and
-//!   the counters at the end.
+//!   scan, `core::mavlink::obstacle_distance`), and for a frame that only
+//!   (re)started the keyframe, was not judged or was given up (late camera,
+//!   lost frame), and when odometry stops, doubt: a hazard at the nearest
+//!   range wherever the camera looks (`obstacle_distance_in_doubt`), which
+//!   holds ArduPilot and PX4 back where all-unknown would release them;
+//!   `STATUSTEXT` on the rig, on every fault and on every frame not judged
+//!   (`frame N not judged: REASON`, a warning), and the counters at the end.
 //! - In: `ODOMETRY`, or `LOCAL_POSITION_NED` with the latest `ATTITUDE`
 //!   (when no `ODOMETRY` has come), each one starting the next camera frame
 //!   with that pose sample (poses before the rig are dropped: an autopilot
@@ -26,12 +28,12 @@ use embedded_io::{Read, ReadReady, Write};
 use flatland_core::health::Health;
 use flatland_core::mavlink::common::{MavSeverity, ATTITUDE_DATA};
 use flatland_core::mavlink::{
-    heartbeat, obstacle_distance, sample_from_local_position, sample_from_odometry, status_text, FrameDecoder, Inbound, MessageData,
+    heartbeat, obstacle_distance, obstacle_distance_in_doubt, sample_from_local_position, sample_from_odometry, status_text, FrameDecoder, Inbound, MessageData,
     PoseError, Sender, Status,
 };
 use flatland_core::pipeline::Outcome;
 use flatland_core::protocol::{Decoder, DecoderStats, FaultCode, LinkStats, RigRecord};
-use flatland_core::scan::Scan;
+use flatland_core::scan::{Scan, ScanLayout};
 
 use super::{line_input, Input, Protocol, SerialPort};
 use crate::frame_loop::SetupError;
@@ -53,6 +55,9 @@ pub struct Mavlink<S> {
     attitude: Option<ATTITUDE_DATA>,
     /// An `ODOMETRY` came: `LOCAL_POSITION_NED` is ignored from then on.
     odometry_seen: bool,
+    /// The last frame's scan layout and time (us), for the doubt sent when
+    /// odometry stops.
+    last_frame: Option<(ScanLayout, u64)>,
 }
 
 /// The serial port's two kinds of input, told apart.
@@ -103,10 +108,17 @@ impl<S: Read + ReadReady + Write> Mavlink<S> {
         self.send(&status_text(severity, text));
     }
 
-    /// `OBSTACLE_DISTANCE` with every element unknown (no stale clear).
-    fn unknown_scan(&mut self, scan: &Scan, time_usec: u64) {
-        self.send(&obstacle_distance(&Scan::new(scan.layout()), time_usec));
+    /// `OBSTACLE_DISTANCE` saying doubt wherever the camera looks (never
+    /// a stale clear, never unknown, which the autopilots read as free).
+    fn doubt(&mut self, layout: ScanLayout, time_usec: u64) {
+        self.last_frame = Some((layout, time_usec));
+        self.send(&obstacle_distance_in_doubt(&layout, time_usec));
     }
+}
+
+/// A pose's time `t_s` as `time_usec` (negative times as 0).
+fn time_usec(t_s: f64) -> u64 {
+    libm::round(t_s * 1e6).max(0.0) as u64
 }
 
 /// A short text (fits a `STATUSTEXT`).
@@ -132,6 +144,7 @@ impl<S: Read + ReadReady + Write> Protocol for Mavlink<S> {
             last_heartbeat_us: 0,
             attitude: None,
             odometry_seen: false,
+            last_frame: None,
         }
     }
 
@@ -174,22 +187,33 @@ impl<S: Read + ReadReady + Write> Protocol for Mavlink<S> {
     }
 
     fn frame_done(&mut self, frame: u32, t_s: f64, outcome: &Outcome, scan: &Scan) {
-        let time_usec = libm::round(t_s * 1e6).max(0.0) as u64;
+        let time_usec = time_usec(t_s);
         match outcome {
-            Outcome::Compared(_) => self.send(&obstacle_distance(scan, time_usec)),
+            Outcome::Compared(_) => {
+                self.last_frame = Some((scan.layout(), time_usec));
+                self.send(&obstacle_distance(scan, time_usec));
+            }
             Outcome::NotJudged(report) => {
-                self.unknown_scan(scan, time_usec);
+                self.doubt(scan.layout(), time_usec);
                 self.text(MavSeverity::MAV_SEVERITY_WARNING, &short(format_args!("frame {} not judged: {}", frame, report.status)));
             }
-            Outcome::Keyframe { .. } => self.unknown_scan(scan, time_usec),
+            Outcome::Keyframe { .. } => self.doubt(scan.layout(), time_usec),
         }
     }
 
-    fn frame_failed(&mut self, frame: u32, code: FaultCode) {
+    /// Doubt first, so the autopilot holds back before it reads why.
+    fn frame_failed(&mut self, frame: u32, t_s: f64, code: FaultCode, scan: &Scan) {
+        self.doubt(scan.layout(), time_usec(t_s));
         self.text(MavSeverity::MAV_SEVERITY_ERROR, &short(format_args!("frame {}: {}", frame, code.as_str())));
     }
 
+    /// Doubt again, under the last frame's time (no new pose has come):
+    /// without a message for 500 ms ArduPilot marks the sensor as having
+    /// no data, and its avoidance then ignores it.
     fn odometry_lost(&mut self, frame: u32) {
+        if let Some((layout, time_usec)) = self.last_frame {
+            self.doubt(layout, time_usec);
+        }
         self.text(MavSeverity::MAV_SEVERITY_ERROR, &short(format_args!("odometry_lost after frame {}", frame)));
     }
 

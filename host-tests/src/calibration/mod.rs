@@ -116,6 +116,11 @@ pub enum CalibrationError {
     /// The estimate left the possible mounts (a tilt outside (0, 90) degrees,
     /// a roll or yaw beyond 30): the images fit no mount near the start.
     Diverged(RigError),
+    /// Solves from starts near rig.toml's mount ([`OTHER_STARTS_DEG`]) came
+    /// to different mounts, or failed: the images do not pin the mount
+    /// down, and which answer came out would depend on rig.toml. Each
+    /// start with what its solve came to.
+    StartDependent { solves: Vec<(Mount, Result<Mount, String>)> },
 }
 
 impl fmt::Display for CalibrationError {
@@ -132,6 +137,17 @@ impl fmt::Display for CalibrationError {
                 f,
                 "the estimate left the possible mounts ({e}): the images fit no mount near rig.toml's (is the drive over flat ground, is [camera] right?)"
             ),
+            CalibrationError::StartDependent { solves } => {
+                f.write_str("the mount depends on where the solve starts:")?;
+                for (start, result) in solves {
+                    write!(f, " from tilt {:.2} roll {:.2}: ", start.tilt_deg, start.roll_deg)?;
+                    match result {
+                        Ok(m) => write!(f, "tilt {:.2} roll {:.2} yaw {:.2} height {:.1};", m.tilt_deg, m.roll_deg, m.yaw_deg, m.height_mm)?,
+                        Err(e) => write!(f, "{e};")?,
+                    }
+                }
+                f.write_str(" the images do not determine it (a longer drive over flat, textured ground, with odometry, may)")
+            }
         }
     }
 }
@@ -713,7 +729,8 @@ pub enum Body {
 /// they fit noise and what is not flat ground (a drop's lower level).
 pub const ROCKING_RESIDUAL_FRACTION: f64 = 0.9;
 
-/// Calibrates the mount of `recording` (its rig is the starting point):
+/// Calibrates the mount of `recording` (its rig is the starting point;
+/// [`calibrate_checked`] also tries others):
 /// with a rigid body, and with a rocking one, which is taken when it fits
 /// clearly better ([`ROCKING_RESIDUAL_FRACTION`]).
 pub fn calibrate(recording: &Recording, config: &CalibrationConfig) -> Result<MountEstimate, CalibrationError> {
@@ -724,8 +741,52 @@ pub fn calibrate(recording: &Recording, config: &CalibrationConfig) -> Result<Mo
     }
 }
 
+/// Offsets (tilt, roll; degrees) from rig.toml's mount of the other starts
+/// [`calibrate_checked`] solves from: a mount measured by hand is rarely
+/// further off.
+pub const OTHER_STARTS_DEG: [[f64; 2]; 2] = [[2.0, 2.0], [-2.0, -2.0]];
+/// Solves that differ by no more than this in tilt, roll and yaw (degrees)
+/// and [`START_AGREEMENT_HEIGHT`] in height are the same answer. Solves
+/// that converge agree to a few thousandths of a degree; real_duckie_a's
+/// spread over starts 1.6 degrees in tilt.
+pub const START_AGREEMENT_DEG: f64 = 0.2;
+/// Height agreement, as a fraction of the height.
+pub const START_AGREEMENT_HEIGHT: f64 = 0.01;
+
+/// Whether two solves are the same answer ([`START_AGREEMENT_DEG`]).
+fn same_mount(a: &Mount, b: &Mount) -> bool {
+    [a.tilt_deg - b.tilt_deg, a.roll_deg - b.roll_deg, a.yaw_deg - b.yaw_deg].iter().all(|d| d.abs() <= START_AGREEMENT_DEG)
+        && (a.height_mm - b.height_mm).abs() <= START_AGREEMENT_HEIGHT * a.height_mm.abs()
+}
+
+/// [`calibrate`], then the same body model solved again from the starts
+/// [`OTHER_STARTS_DEG`] away from rig.toml's mount: an estimate that only
+/// one start reaches is refused ([`CalibrationError::StartDependent`])
+/// rather than returned as if the images had determined it.
+pub fn calibrate_checked(recording: &Recording, config: &CalibrationConfig) -> Result<MountEstimate, CalibrationError> {
+    let estimate = calibrate(recording, config)?;
+    let given = *recording.rig.mount();
+    let mut solves = vec![(given, Ok(estimate.mount))];
+    for [tilt, roll] in OTHER_STARTS_DEG {
+        let start = Mount { tilt_deg: given.tilt_deg + tilt, roll_deg: given.roll_deg + roll, ..given };
+        let solve = solve_from(recording, config, estimate.body, start).map(|other| other.mount).map_err(|e| e.to_string());
+        solves.push((start, solve));
+    }
+    if solves.iter().all(|(_, solve)| solve.as_ref().is_ok_and(|mount| same_mount(mount, &estimate.mount))) {
+        Ok(estimate)
+    } else {
+        Err(CalibrationError::StartDependent { solves })
+    }
+}
+
 /// [`calibrate`] with the body model given.
 pub fn calibrate_with(recording: &Recording, config: &CalibrationConfig, body: Body) -> Result<MountEstimate, CalibrationError> {
+    solve_from(recording, config, body, *recording.rig.mount())
+}
+
+/// [`calibrate_with`] from the mount `start` instead of rig.toml's (the
+/// residual before is the start's).
+fn solve_from(recording: &Recording, config: &CalibrationConfig, body: Body, start_mount: Mount) -> Result<MountEstimate, CalibrationError> {
     let rig = recording.rig;
     let frames: Vec<u32> = recording.frames.clone();
     if frames.len() < 2 {
@@ -793,7 +854,7 @@ pub fn calibrate_with(recording: &Recording, config: &CalibrationConfig, body: B
             used: true,
         })
         .collect();
-    let initial = rig.mount();
+    let initial = start_mount;
     let mut state = State {
         mount: [initial.tilt_deg, if odometry { initial.height_mm } else { given_height }, initial.roll_deg, initial.yaw_deg],
         steps: pairs.iter().map(|p| [1.0, p.odometry.map_or(0.0, |m| m.dyaw_deg)]).collect(),
@@ -1050,6 +1111,23 @@ pub fn report(estimate: &MountEstimate) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Solves agree within 0.2 degrees and 1 % of the height; the refusal
+    /// names every start and what it came to.
+    #[test]
+    fn solves_from_other_starts_must_agree() {
+        let a = Mount { height_mm: 100.0, tilt_deg: 19.0, roll_deg: -2.5, yaw_deg: 0.0 };
+        assert!(same_mount(&a, &Mount { tilt_deg: 19.19, height_mm: 100.9, ..a }));
+        assert!(!same_mount(&a, &Mount { tilt_deg: 19.25, ..a }));
+        assert!(!same_mount(&a, &Mount { roll_deg: -2.9, ..a }));
+        assert!(!same_mount(&a, &Mount { height_mm: 101.5, ..a }));
+        let error = CalibrationError::StartDependent {
+            solves: vec![(a, Ok(a)), (Mount { tilt_deg: 21.0, ..a }, Ok(Mount { tilt_deg: 19.9, ..a })), (a, Err("no motion".into()))],
+        };
+        let text = error.to_string();
+        assert!(text.starts_with("the mount depends on where the solve starts: from tilt 19.00 roll -2.50: tilt 19.00"), "{text}");
+        assert!(text.contains("from tilt 21.00 roll -2.50: tilt 19.90") && text.contains("no motion;"), "{text}");
+    }
 
     /// A constant velocity gives the motion back over its whole duration,
     /// and two halves make the whole (a turning arc with some sideways drift).

@@ -454,7 +454,7 @@ fn main() -> ExitCode {
 
 fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Source, camera_info: Option<&Path>) -> ExitCode {
     use flatland_host::calibration::{
-        calibrate, camera_values, mount_values, parse_camera_info, report, with_section_values, CalibrationConfig,
+        calibrate_checked, camera_values, mount_values, parse_camera_info, report, with_section_values, CalibrationConfig,
     };
     let mut recording = match Recording::open_for_calibration(path) {
         Ok(r) => r,
@@ -490,7 +490,8 @@ fn run_calibrate(path: &Path, write: bool, height_mm: Option<f64>, odometry: Sou
         };
     }
     let config = CalibrationConfig { height_mm, ignore_odometry: odometry == Source::None };
-    let estimate = match calibrate(&recording, &config) {
+    // Refused when solves from other starts near rig.toml's disagree.
+    let estimate = match calibrate_checked(&recording, &config) {
         Ok(estimate) => estimate,
         Err(e) => return fatal(format!("calibrate {}: {e}", path.display())),
     };

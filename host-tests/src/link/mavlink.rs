@@ -7,7 +7,7 @@ use std::fmt;
 use std::io::Write;
 
 use crate::recording::Recording;
-use mavlink::dialects::common::MavMessage;
+use mavlink::dialects::common::{MavMessage, OBSTACLE_DISTANCE_DATA};
 use mavlink::error::MessageReadError;
 use mavlink::{MavHeader, MavlinkReader};
 
@@ -49,7 +49,7 @@ pub fn describe(message: &MavMessage) -> String {
                 d if d > o.max_distance => "free".to_string(),
                 d => format!("{d} cm"),
             };
-            let ahead = [o.distances[71], o.distances[0], o.distances[1]].map(reading).join(", ");
+            let ahead = [-5.0, 0.0, 5.0].map(|deg| element_at(o, deg).map_or("none".to_string(), reading)).join(", ");
             let nearest = o.distances.iter().filter(|&&d| d <= o.max_distance).min();
             format!(
                 "OBSTACLE_DISTANCE t {} us: -5/0/+5 deg [{ahead}], nearest {} (min {} max {} cm)",
@@ -65,6 +65,22 @@ pub fn describe(message: &MavMessage) -> String {
 
 /// Elements of `OBSTACLE_DISTANCE`.
 const ELEMENTS: usize = 72;
+
+/// The element width: `increment_f`, else `increment`.
+fn increment_deg(o: &OBSTACLE_DISTANCE_DATA) -> f64 {
+    if o.increment_f > 0.0 {
+        f64::from(o.increment_f)
+    } else {
+        f64::from(o.increment)
+    }
+}
+
+/// The element centred on `deg` (clockwise from the front), if one is.
+fn element_at(o: &OBSTACLE_DISTANCE_DATA, deg: f64) -> Option<u16> {
+    let increment = increment_deg(o);
+    let index = ((deg - f64::from(o.angle_offset)).rem_euclid(360.0) / increment).round() as usize;
+    (increment > 0.0).then(|| o.distances.get(index).copied()).flatten()
+}
 
 /// How `flatland serial decode --mavlink` names a row: by the frame whose
 /// poses.csv time is the message's `time_usec` (`--recording`), else by the
@@ -117,8 +133,8 @@ impl From<std::io::Error> for ScanCsvError {
 /// `frame,angle_start_deg,increment_deg,d0_mm,...` (`time_usec` first
 /// instead of `frame` without a recording). The elements are in the
 /// message's own bins (5 degrees for our firmware, where `flatland scan` has
-/// 2.5), turned to start half a circle before `angle_offset` when they go
-/// once round (-180 degrees for ours, so left comes first as in the scan).
+/// 2.5), turned to start at -180 degrees when they go once round (ours
+/// start there: `angle_offset` -180), so left comes first as in the scan.
 /// An element in `min_distance..=max_distance` is a hazard in mm (the cm
 /// times 10), `max_distance + 1` is `inf` (seen and clear), anything else
 /// (`UINT16_MAX`) empty (unknown). Frames that only (re)started a keyframe
@@ -137,9 +153,10 @@ pub fn write_scan_csv(decoded: &Decoded, key: RowKey, out: &mut dyn Write) -> Re
             RowKey::Frame(frames) => write!(out, "{}", frames.get(&o.time_usec).ok_or(ScanCsvError::UnknownTime(o.time_usec))?)?,
             RowKey::TimeUsec => write!(out, "{}", o.time_usec)?,
         }
-        let increment = if o.increment_f > 0.0 { f64::from(o.increment_f) } else { f64::from(o.increment) };
+        let increment = increment_deg(o);
         let once_round = (increment * ELEMENTS as f64 - 360.0).abs() < 1e-3;
-        let turn = if once_round { ELEMENTS / 2 } else { 0 };
+        // The element at -180 degrees first.
+        let turn = if once_round { ((f64::from(o.angle_offset) + 180.0).rem_euclid(360.0) / increment).round() as usize % ELEMENTS } else { 0 };
         let start = f64::from(o.angle_offset) - turn as f64 * increment;
         write!(out, ",{start:.3},{increment:.3}")?;
         for k in 0..ELEMENTS {
@@ -162,7 +179,7 @@ mod tests {
 
     #[test]
     fn a_reading_says_free_and_unknown_in_words() {
-        let mut data = OBSTACLE_DISTANCE_DATA { time_usec: 5, min_distance: 10, max_distance: 142, ..OBSTACLE_DISTANCE_DATA::default() };
+        let mut data = OBSTACLE_DISTANCE_DATA { time_usec: 5, min_distance: 10, max_distance: 142, increment_f: 5.0, ..OBSTACLE_DISTANCE_DATA::default() };
         data.distances = [143; 72];
         (data.distances[71], data.distances[1], data.distances[30]) = (u16::MAX, 57, 40);
         let line = describe(&MavMessage::OBSTACLE_DISTANCE(data));

@@ -25,7 +25,7 @@ use flatland_core::protocol::{encode_line, Decoder, LinkStats, Message, Odometry
 use crate::recording::Recording;
 
 pub const TARGET: &str = "thumbv7em-none-eabihf";
-pub const DEFAULT_RECORDING: &str = "host-tests/data/flat_marks";
+pub const DEFAULT_RECORDING: &str = "host-tests/data/approach_box";
 
 pub type Result<T> = std::result::Result<T, String>;
 
