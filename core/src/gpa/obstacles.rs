@@ -262,10 +262,13 @@ fn parallax_group(
         Side::Above => i32::from(height) >= min_height,
         Side::Below => i32::from(height) <= -min_height,
     };
-    let member = |cell: usize| cell >= first_row * w && on_side(heights.get(cell));
+    // Below, a cell that lags past the deepest drop looked for may be the
+    // lower level of a deeper one: it counts, at that depth.
+    let deeper = |cell: usize| side == Side::Below && heights.is_moving(cell);
+    let member = |cell: usize| cell >= first_row * w && (on_side(heights.get(cell)) || deeper(cell));
     // Hysteresis, as for edges: a weak height does not count, but it joins
     // measured cells across it, a surface whose contrast is low in places.
-    let reaches = |cell: usize| cell >= first_row * w && on_side(heights.any(cell));
+    let reaches = |cell: usize| cell >= first_row * w && (on_side(heights.any(cell)) || deeper(cell));
     // A drop must show over an area: its parallax is at most T*d/(H+d),
     // so an odometry or heading error fakes a small shallow patch more
     // easily, and a hole a wheel can fall into shows its lower level over
@@ -348,7 +351,8 @@ fn parallax_group(
             match side {
                 Side::Above => tallest = tallest.max(height),
                 Side::Below => {
-                    let _ = depths.push(heights.get(cell));
+                    let depth = if deeper(cell) { -(libm::round(config.max_drop_mm) as i16) } else { heights.get(cell) };
+                    let _ = depths.push(depth);
                 }
             }
         });
