@@ -97,17 +97,17 @@ pub(super) struct Alarm {
     /// An obstacle the frame being decided sees just beyond the AOI
     /// ([`Self::sees_beyond_the_aoi`]).
     beyond: Option<Footprint>,
-    /// The AOI of the frame being decided ([`Self::sees_the_aoi`]).
+    /// The AOI, where one is given ([`Self::within`]): a held hazard that
+    /// the robot's motion (a turn in place) took out of it is not held.
     aoi: Option<AoiMm>,
 }
 
 impl Alarm {
     pub(super) const NONE: Alarm = Alarm { source: AlarmSource::None, previous: None, shallowest_drop_mm: 0.0, beyond: None, aoi: None };
 
-    /// The frame being decided has this AOI: a held hazard that the
-    /// robot's motion (a turn in place) took out of it is not held.
-    pub(super) fn sees_the_aoi(&mut self, aoi: AoiMm) {
-        self.aoi = Some(aoi);
+    /// No alarm yet, for a detector whose AOI is `aoi`.
+    pub(super) const fn within(aoi: AoiMm) -> Alarm {
+        Alarm { aoi: Some(aoi), ..Alarm::NONE }
     }
 
     /// The next frame to decide tells drops from `shallowest_mm` deep on
@@ -331,8 +331,7 @@ mod tests {
     #[test]
     fn a_turn_in_place_carries_the_held_obstacle_out_of_the_aoi() {
         let config = GpaConfig::default();
-        let mut alarm = Alarm::NONE;
-        alarm.sees_the_aoi(AoiMm { near: 300.0, far: 1000.0, half_width: 200.0 });
+        let mut alarm = Alarm::within(AoiMm { near: 300.0, far: 1000.0, half_width: 200.0 });
         let ahead = Footprint { near_mm: 800, left_mm: 100, right_mm: 180 };
         alarm.decide(Some((ahead, 80)), None, 100.0, true, &config, &STEP);
         let turn = Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 5.0 };

@@ -80,6 +80,12 @@ impl Layout {
         j < (self.aoi.top + self.aoi.bottom) / 2
     }
 
+    /// Ground distance (mm) of cell row `row`'s near side: the bottom of
+    /// its last pixel row.
+    pub(super) fn near_side_mm(&self, row: usize) -> f64 {
+        self.grid.pixel_to_ground(0.0, ((row + 1) * self.cells.px) as f64 - 0.5).1
+    }
+
     /// The AOI in mm (robot frame).
     pub(super) fn aoi_mm(&self) -> AoiMm {
         let (left, far) = self.grid.pixel_to_ground(self.aoi.left as f64, self.aoi.top as f64);

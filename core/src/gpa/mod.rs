@@ -288,7 +288,7 @@ impl<'b> Gpa<'b> {
         self.typical_misregistration = TypicalMisregistration::default();
         self.hazard_mask.forget();
         self.ground_attitude = GroundAttitude::NOMINAL;
-        self.alarm = Alarm::NONE;
+        self.alarm = Alarm::within(self.layout.aoi_mm());
         self.blobs = heapless::Vec::new();
         self.scan = Scan::new(scan_layout(&self.layout));
         self.frame = 0;
@@ -651,7 +651,6 @@ impl<'b> Gpa<'b> {
             (parallax, _) => (parallax, residue),
         };
         self.alarm.sees_drops_from(self.parallax.hypotheses.shallowest_drop_mm);
-        self.alarm.sees_the_aoi(layout.aoi_mm());
         let hazard = self.alarm.decide(parallax, residue, baseline_mm, drops_looked_for, config, &self.prediction.step);
         self.hazard_mask.record(self.frame, layout.cells, &self.parallax.height, &rows.residue, config);
         let obstacle = hazard.map(|(footprint, _)| footprint);

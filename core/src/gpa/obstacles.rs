@@ -364,8 +364,8 @@ fn parallax_group(
         // A short baseline measures heights coarsely, so its footprints
         // wander: there a blob must be large to raise an alarm by itself.
         let large = group >= LARGE_GROUP_CELLS;
-        // The near side of the group's nearest cell row, as seen on the ground.
-        let nearest_seen = grid.pixel_to_ground(0.0, ((nearest_row + 1) * cells.px) as f64 - 0.5).1;
+        // Where the group is seen to start on the ground.
+        let nearest_seen = layout.near_side_mm(nearest_row);
         if group < 3 || (!with_residue && group < 4) || (short_baseline && !large) {
             continue;
         }
@@ -373,9 +373,7 @@ fn parallax_group(
         let height = match side {
             Side::Above => tallest,
             Side::Below => {
-                // A cell's near side: the bottom of its last pixel row.
-                let near_side = |rows: u8| (usize::from(rows) * cells.px) as f64 - 0.5;
-                let edges = nearest_rows.iter().filter(|&&rows| rows > 0).map(|&rows| grid.pixel_to_ground(0.0, near_side(rows)).1);
+                let edges = nearest_rows.iter().filter(|&&rows| rows > 0).map(|&rows| layout.near_side_mm(usize::from(rows) - 1));
                 footprints.extend(edges);
                 let middle = depths.len() / 2;
                 f64::from(*depths.select_nth_unstable(middle).1)
@@ -457,8 +455,7 @@ pub(super) fn moving_obstacle(layout: &Layout, heights: &CellHeights) -> Option<
         if group < 3 {
             continue;
         }
-        // The nearest cell row's near side: the bottom of its last pixel row.
-        let (_, near) = grid.pixel_to_ground(0.0, ((nearest_row + 1) * cells.px) as f64 - 0.5);
+        let near = layout.near_side_mm(nearest_row);
         let (left, _) = grid.pixel_to_ground((left_column * cells.px) as f64, 0.0);
         let (right, _) = grid.pixel_to_ground(((right_column + 1) * cells.px) as f64 - 1.0, 0.0);
         let mm = |v: f64| libm::round(v) as i32;

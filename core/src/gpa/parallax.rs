@@ -163,9 +163,8 @@ impl Hypotheses {
     /// at, and whether it beats the ground by the absolute gain too (else
     /// it is [`CellHeights`]' weak kind); None if the ground explains the
     /// cell as well. `noise_floor` is the median plain |diff| per pixel.
-    /// A cell best matched by a lag hypothesis gives `-inf`: it moves with
-    /// the robot, its height unknown.
-    fn height_fraction(&self, sads: &[u32; HYPOTHESES], pixels: u16, min_gain: f64, noise_floor: u8, gain_percent: u32) -> Option<(f64, bool)> {
+    /// A cell best matched by a lag hypothesis is [`CellMatch::Moving`].
+    fn height_fraction(&self, sads: &[u32; HYPOTHESES], pixels: u16, min_gain: f64, noise_floor: u8, gain_percent: u32) -> Option<(CellMatch, bool)> {
         // Ordered by displacement, so neighbours are neighbouring heights.
         let sad = |rank: usize| sads[by_rank(rank)];
         let g = |rank: usize| self.displacement[by_rank(rank)];
@@ -202,7 +201,7 @@ impl Hypotheses {
             return None;
         }
         if by_rank(best) >= FIRST_LAG {
-            return Some((f64::NEG_INFINITY, absolute));
+            return Some((CellMatch::Moving, absolute));
         }
         // Parabola through the neighbouring hypotheses, in the displacement
         // they stand for (f / (1 - f)), not in index.
@@ -216,8 +215,16 @@ impl Hypotheses {
                 g(best) + offset * (g(best + 1) - g(best))
             }
         };
-        Some((displacement / (1.0 + displacement), absolute))
+        Some((CellMatch::Fraction(displacement / (1.0 + displacement)), absolute))
     }
+}
+
+/// What a cell's best hypothesis says of it.
+enum CellMatch {
+    /// Its height as a fraction of the camera's (negative below the ground).
+    Fraction(f64),
+    /// It lags the ground past the deepest drop: it moves with the robot.
+    Moving,
 }
 
 /// The hypothesis index at `rank` in displacement order: the lags and the
@@ -231,7 +238,7 @@ fn by_rank(rank: usize) -> usize {
 
 /// Parallax height per cell (mm, 0 = ground or undecided, negative below
 /// the ground): one byte and three bits a cell, for the M4's RAM. The byte
-/// counts [`Self::unit_mm`], which scales with the camera's height, so
+/// counts `unit_mm`, which scales with the camera's height, so
 /// the highest hypothesis (half the camera's height: a car's roof from a
 /// car's camera) fits whatever the rig. A weak height beat the ground
 /// clearly but by less than the absolute gain (low contrast: vignetting
@@ -547,8 +554,8 @@ impl Parallax {
             let fraction = self.hypotheses.height_fraction(&sads, pixels, min_gain, noise.floor(), config.parallax_gain_percent);
             let cell = cell_row * cells.wide + column;
             match fraction {
-                Some((fraction, strong)) if fraction == f64::NEG_INFINITY => self.height.set_moving(cell, !strong),
-                Some((fraction, strong)) => {
+                Some((CellMatch::Moving, strong)) => self.height.set_moving(cell, !strong),
+                Some((CellMatch::Fraction(fraction), strong)) => {
                     let height = libm::round(fraction * camera_height_mm);
                     let magnitude = libm::fabs(height).clamp(1.0, f64::from(i16::MAX)) as i16;
                     self.height.set(cell, if height > 0.0 { magnitude } else { -magnitude }, !strong);
