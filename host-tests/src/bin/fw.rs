@@ -20,7 +20,8 @@
 //!
 //! - `--odometry none`, `--imu none`: the poses go without the wheels' pose
 //!   / the IMU's attitude (`$FLODO`'s optional fields), as `flatland detect`
-//!   ignores them with the same options.
+//!   ignores them with the same options; with `--bench`, the cost the
+//!   firmware has without them.
 //! - `--protocol mavlink`: the `mavlink` firmware build, the poses sent as
 //!   MAVLink `ODOMETRY` (`--poses local-position`: `LOCAL_POSITION_NED` +
 //!   `ATTITUDE`); prints the stream as the `mavlink` crate decodes it, or
@@ -159,7 +160,7 @@ fn parse_args() -> Result<Args> {
                 mm_per_px = Some(args.next().and_then(|s| s.parse().ok()).ok_or("--mm-per-px needs a number")?);
             }
             "-h" | "--help" => {
-                println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--mm-per-px X] [--full-frame] [--profile [FIRST]] [--frames]");
+                println!("usage: cargo fw [RECORDING] [--csv] [--odometry none] [--imu none] [--timeout SECS] | cargo fw-test | cargo fw-bench [RECORDING] [--odometry none] [--imu none] [--mm-per-px X] [--full-frame] [--profile [FIRST]] [--frames]");
                 println!("       --profile [FIRST]: instructions per function on {PROFILE_FRAMES} frames from FIRST (default 0); --frames: each frame's figures too");
                 println!("       --odometry none / --imu none: $FLODO leaves the wheels' pose / the IMU's attitude out");
                 println!("       --protocol lines|mavlink: the serial protocol (default lines); mavlink runs the mavlink build, poses sent as MAVLink;");
