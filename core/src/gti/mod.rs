@@ -356,6 +356,7 @@ impl Gti {
             edges.find(l, self.lines.samples(l), &self.config);
             self.associate_line(l, &edges, &found);
         }
+        self.refit_stalest();
         self.end_lost_tracks();
         // Next frame's lines follow this frame's translation (the best guess
         // of the next one); without translation they keep their direction.

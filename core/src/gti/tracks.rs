@@ -17,6 +17,13 @@ use libm::{fabsf, roundf};
 /// Observation storage unit: 1/4 mm in i16 (tracks span at most +-8 m).
 const OBS_UNITS_PER_MM: f32 = 4.0;
 const OBS_LIMIT_MM: f32 = (i16::MAX as f32 - 1.0) / OBS_UNITS_PER_MM;
+/// Most tracks refitted in a frame: what bounds GTI's work on the M4,
+/// whatever the frame shows (each Theil-Sen refit of 16 observations is
+/// ~7 k instructions there, so ~0.3 M; a fit refitted every frame for up
+/// to [`MAX_TRACKS`] tracks was up to ~1 M). A frame matches up to ~110
+/// tracks, so a track's fit lags it by a frame or two: the locus moves
+/// by one observation in 16, and the gate already allows for it.
+pub(super) const REFITS_PER_FRAME: usize = 48;
 /// Matched KG row storage unit: 1/64 row in u16.
 pub(super) const ROW_UNITS: f32 = 64.0;
 
@@ -126,10 +133,12 @@ impl Track {
 }
 
 /// A track's latest [`MAX_OBSERVATIONS`] observations `(c, y)` (1/4 mm,
-/// oldest first) and their robust fit. The fit is refitted only when an
-/// observation arrives: a track is asked for it several times a frame (its
-/// gate, the travel correction, the end test, every query of the points),
-/// and the Theil-Sen medians are most of GTI's work on the M4.
+/// oldest first) and their robust fit. The fit is kept, not computed on
+/// demand: a track is asked for it several times a frame (its gate, the
+/// travel correction, the end test, every query of the points), and the
+/// Theil-Sen medians are most of GTI's work on the M4. It is refitted at
+/// the frame's end within [`REFITS_PER_FRAME`], so until then it may miss
+/// the newest observations ([`Observations::unfitted`]).
 #[derive(Clone, Debug)]
 pub(super) struct Observations {
     values: [[i16; 2]; MAX_OBSERVATIONS],
@@ -139,10 +148,12 @@ pub(super) struct Observations {
     /// `Option<LineFit>` (its `usize` and tag) to stay in GTI's RAM budget.
     fit: [f32; 4],
     fit_inliers: u8,
+    /// Observations that arrived since the fit was made.
+    unfitted: u8,
 }
 
 impl Observations {
-    const EMPTY: Observations = Observations { values: [[0; 2]; MAX_OBSERVATIONS], len: 0, fit: [0.0; 4], fit_inliers: 0 };
+    const EMPTY: Observations = Observations { values: [[0; 2]; MAX_OBSERVATIONS], len: 0, fit: [0.0; 4], fit_inliers: 0, unfitted: 0 };
 
     pub(super) fn len(&self) -> usize {
         usize::from(self.len)
@@ -156,7 +167,8 @@ impl Observations {
         self.as_slice().last().copied()
     }
 
-    /// Appends an observation (dropping the oldest when full) and refits.
+    /// Appends an observation (dropping the oldest when full); the fit
+    /// waits for [`Self::refit`].
     fn push(&mut self, observation: [i16; 2]) {
         let len = self.len();
         if len == MAX_OBSERVATIONS {
@@ -168,10 +180,28 @@ impl Observations {
             *slot = observation;
             self.len += 1;
         }
-        let fit = self.refit();
+        self.unfitted = self.unfitted.saturating_add(1);
+    }
+
+    /// How far the fit is behind: [`u8::MAX`] when it has none though two
+    /// observations could make one (a new track: its gate is widest without
+    /// it), else the observations it lacks; 0 when nothing can be refitted.
+    fn staleness(&self) -> u8 {
+        match (self.unfitted, self.fit_inliers) {
+            (0, _) => 0,
+            _ if self.len < 2 => 0,
+            (_, 0) => u8::MAX,
+            (unfitted, _) => unfitted,
+        }
+    }
+
+    /// Fits the observations again.
+    fn refit(&mut self) {
+        let fit = self.fitted();
         self.fit = fit.map_or([0.0; 4], |f| [f.slope, f.intercept, f.residual, f.sxx]);
         // A fit has at least 2 inliers (and at most MAX_OBSERVATIONS).
         self.fit_inliers = fit.map_or(0, |f| f.inliers as u8);
+        self.unfitted = 0;
     }
 
     fn fit(&self) -> Option<LineFit> {
@@ -180,7 +210,7 @@ impl Observations {
     }
 
     /// Robust line fit of the observations, in mm.
-    fn refit(&self) -> Option<LineFit> {
+    fn fitted(&self) -> Option<LineFit> {
         let mut c: Vec<f32, MAX_OBSERVATIONS> = Vec::new();
         let mut y: Vec<f32, MAX_OBSERVATIONS> = Vec::new();
         for &[ci, yi] in self.as_slice() {
@@ -189,6 +219,24 @@ impl Observations {
         }
         robust_line_fit(&c, &y)
     }
+}
+
+/// [`Observations::staleness`]'s values: 0..=u8::MAX.
+const STALENESS_LEVELS: usize = u8::MAX as usize + 1;
+
+/// Given how many tracks are at each staleness (`behind`), the least
+/// staleness a budget of `budget` refits reaches, and how many tracks of
+/// that staleness it refits (all of every staleness above it).
+fn refit_floor(behind: &[usize; STALENESS_LEVELS], budget: usize) -> (usize, usize) {
+    let (mut floor, mut at_floor, mut taken) = (1, 0, 0);
+    for staleness in (1..STALENESS_LEVELS).rev() {
+        if taken + behind[staleness] >= budget {
+            return (staleness, budget - taken);
+        }
+        taken += behind[staleness];
+        (floor, at_floor) = (staleness, behind[staleness]);
+    }
+    (floor, at_floor)
 }
 
 fn encode_row(row: f32) -> Option<u16> {
@@ -401,6 +449,28 @@ impl Gti {
         }
     }
 
+    /// Refits the tracks whose fit is furthest behind, at most
+    /// [`REFITS_PER_FRAME`]: new tracks first, then by the observations
+    /// their fit lacks (a track passed over falls further behind and comes
+    /// first next frame), ties in slot order. Two passes: the staleness the
+    /// budget reaches down to, then the refits.
+    pub(super) fn refit_stalest(&mut self) {
+        let mut behind = [0usize; STALENESS_LEVELS];
+        for track in self.tracks.iter().flatten() {
+            behind[usize::from(track.observations.staleness())] += 1;
+        }
+        let (floor, mut at_floor) = refit_floor(&behind, REFITS_PER_FRAME);
+        for track in self.tracks.iter_mut().flatten() {
+            let staleness = usize::from(track.observations.staleness());
+            if staleness > floor || (staleness == floor && at_floor > 0) {
+                if staleness == floor {
+                    at_floor -= 1;
+                }
+                track.observations.refit();
+            }
+        }
+    }
+
     /// Ends tracks missed too often or with an implausible locus; good ones
     /// become map points.
     pub(super) fn end_lost_tracks(&mut self) {
@@ -457,5 +527,46 @@ impl Gti {
             quality: height.quality,
             h_sigma_mm: height.h_sigma_mm,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_refit_budget_takes_the_stalest_first() {
+        let mut behind = [0usize; STALENESS_LEVELS];
+        behind[usize::from(u8::MAX)] = 3; // new tracks, no fit yet
+        behind[4] = 10;
+        behind[2] = 50;
+        behind[1] = 20;
+        // All of staleness 255 and 4, then 7 of the 50 at 2.
+        assert_eq!(refit_floor(&behind, 20), (2, 7));
+        // The budget ends exactly with a staleness: all of it, none below.
+        assert_eq!(refit_floor(&behind, 13), (4, 10));
+        // Fewer stale tracks than the budget: every one of them.
+        assert_eq!(refit_floor(&behind, 1000), (1, 20));
+        assert_eq!(refit_floor(&[0; STALENESS_LEVELS], 48), (1, 0));
+    }
+
+    #[test]
+    fn a_fit_waits_for_its_refit_and_a_new_track_comes_first() {
+        let mut observations = Observations::EMPTY;
+        observations.push([0, 0]);
+        // One observation: nothing to fit.
+        assert_eq!(observations.staleness(), 0);
+        observations.push([40, 44]);
+        assert!(observations.fit().is_none());
+        assert_eq!(observations.staleness(), u8::MAX);
+        observations.refit();
+        let slope = observations.fit().map(|fit| fit.slope);
+        assert!(slope.is_some_and(|slope| (slope - 1.1).abs() < 1e-3), "{slope:?}");
+        assert_eq!(observations.staleness(), 0);
+        observations.push([80, 96]);
+        observations.push([120, 150]);
+        // The fit is the old one until refitted, two observations behind.
+        assert_eq!(observations.staleness(), 2);
+        assert_eq!(observations.fit().map(|fit| fit.slope), slope);
     }
 }
