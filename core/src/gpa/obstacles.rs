@@ -68,31 +68,39 @@ impl Footprint {
 /// row, column). With `linked`, a member cell further along its columns
 /// (any row, columns within `radius`) also joins when `linked(cell, it)`.
 /// The work stack is bounded: a full one truncates the growth.
-/// `linked` comes with [`member_rows`] of `member`: the rows it looks along.
+/// `linked` comes with [`member_rows`] of `member` less the cells already
+/// in `seen`: the rows it looks along, which the flood keeps up to date
+/// (a row whose members are all seen is not looked at again: a large
+/// face would otherwise look along every row of its columns per cell).
 fn flood_cells(
     size: (usize, usize),
     radius: i32,
     start: usize,
     seen: &mut CellSet,
     member: impl Fn(usize) -> bool,
-    linked: Option<Linked>,
+    mut linked: Option<Linked>,
     mut visit: impl FnMut(usize, usize, usize),
 ) {
     let (w, h) = size;
     let mut stack: heapless::Vec<u16, MAX_FLOOD_CELLS> = heapless::Vec::new();
-    seen.insert(start);
+    let mark_seen = |seen: &mut CellSet, linked: &mut Option<Linked>, cell: usize| {
+        seen.insert(cell);
+        if let Some((_, unseen_rows)) = linked {
+            unseen_rows[cell % w] &= !(1u64 << (cell / w));
+        }
+    };
+    mark_seen(seen, &mut linked, start);
     let _ = stack.push(start as u16);
-    let linked_only = linked.map(|(linked, _)| linked);
     while let Some(cell) = stack.pop() {
         let cell = usize::from(cell);
         let (r, c) = (cell / w, cell % w);
         visit(cell, r, c);
-        // Linked: every row that has a member within the columns, in order
-        // (the others have none to add); else the rows within the radius.
-        let mut rows = match linked {
-            Some((_, member_rows)) => {
+        // Linked: every row that has an unseen member within the columns,
+        // in order (the others have none to add); else the rows within the radius.
+        let mut rows = match &linked {
+            Some((_, unseen_rows)) => {
                 let columns = c.saturating_sub(radius as usize)..=(c + radius as usize).min(w - 1);
-                member_rows[columns].iter().fold(0u64, |rows, &column| rows | column)
+                unseen_rows[columns].iter().fold(0u64, |rows, &column| rows | column)
             }
             None => {
                 let (first, last) = (r.saturating_sub(radius as usize), (r + radius as usize).min(h - 1));
@@ -111,8 +119,8 @@ fn flood_cells(
                 if seen.contains(neighbour) || !member(neighbour) {
                     continue;
                 }
-                if dr.abs() <= radius || linked_only.is_some_and(|linked| linked(cell, neighbour)) {
-                    seen.insert(neighbour);
+                if dr.abs() <= radius || linked.as_ref().is_some_and(|(linked, _)| linked(cell, neighbour)) {
+                    mark_seen(seen, &mut linked, neighbour);
                     let _ = stack.push(neighbour as u16);
                 }
             }
@@ -123,8 +131,8 @@ fn flood_cells(
 /// Per cell column, the cell rows (bit r) where a predicate holds.
 type MemberRows = [u64; MAX_CELLS_SIDE];
 
-/// A flood's link along the columns, and the rows of its members.
-type Linked<'a> = (&'a dyn Fn(usize, usize) -> bool, &'a MemberRows);
+/// A flood's link along the columns, and the rows of its members not yet seen.
+type Linked<'a> = (&'a dyn Fn(usize, usize) -> bool, &'a mut MemberRows);
 const _: () = assert!(MAX_CELLS_SIDE <= 64, "a cell column's rows fit a u64");
 
 /// [`MemberRows`] of `member` over a grid of `size` = (columns, rows) cells.
@@ -299,11 +307,8 @@ fn parallax_group(
         last.get().1
     };
     let same_face = |a: usize, b: usize| measured(a) && measured(b) && libm::fabs(footprint_of_a(a) - footprint(b)) <= cell_mm;
-    let reaching_rows = member_rows((w, h), reaches);
-    let linked: Option<Linked> = match side {
-        Side::Above => Some((&same_face, &reaching_rows)),
-        Side::Below => None,
-    };
+    // The reaching cells not yet in a group, by column.
+    let mut unseen_rows = member_rows((w, h), reaches);
     let aoi = layout.aoi_mm();
     let mut seen = CellSet::EMPTY;
     let mut best: Option<(f64, f64, f64, f64)> = None;
@@ -322,6 +327,10 @@ fn parallax_group(
         let mut spans: heapless::Vec<CellSpan, MAX_BLOB_CELLS> = heapless::Vec::new();
         let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
         let (mut group, mut nearest_row) = (0usize, 0usize);
+        let linked: Option<Linked> = match side {
+            Side::Above => Some((&same_face, &mut unseen_rows)),
+            Side::Below => None,
+        };
         flood_cells((w, h), side.bridge(), start, &mut seen, reaches, linked, |cell, r, c| {
             if heights.is_weak(cell) {
                 return;

@@ -183,15 +183,16 @@ impl Observations {
         self.unfitted = self.unfitted.saturating_add(1);
     }
 
-    /// How far the fit is behind: [`u8::MAX`] when it has none though two
-    /// observations could make one (a new track: its gate is widest without
-    /// it), else the observations it lacks; 0 when nothing can be refitted.
-    fn staleness(&self) -> u8 {
+    /// How far the fit is behind: [`NEW_TRACK`] when it has none though
+    /// two observations could make one (a new track: its gate is widest
+    /// without it), else the observations it lacks (all of them at most);
+    /// 0 when nothing can be refitted.
+    fn staleness(&self) -> usize {
         match (self.unfitted, self.fit_inliers) {
             (0, _) => 0,
             _ if self.len < 2 => 0,
-            (_, 0) => u8::MAX,
-            (unfitted, _) => unfitted,
+            (_, 0) => NEW_TRACK,
+            (unfitted, _) => usize::from(unfitted).min(MAX_OBSERVATIONS),
         }
     }
 
@@ -221,8 +222,10 @@ impl Observations {
     }
 }
 
-/// [`Observations::staleness`]'s values: 0..=u8::MAX.
-const STALENESS_LEVELS: usize = u8::MAX as usize + 1;
+/// [`Observations::staleness`] of a track without a fit yet: the highest.
+const NEW_TRACK: usize = MAX_OBSERVATIONS + 1;
+/// [`Observations::staleness`]'s values: 0..=NEW_TRACK.
+const STALENESS_LEVELS: usize = NEW_TRACK + 1;
 
 /// Given how many tracks are at each staleness (`behind`), the least
 /// staleness a budget of `budget` refits reaches, and how many tracks of
@@ -457,11 +460,11 @@ impl Gti {
     pub(super) fn refit_stalest(&mut self) {
         let mut behind = [0usize; STALENESS_LEVELS];
         for track in self.tracks.iter().flatten() {
-            behind[usize::from(track.observations.staleness())] += 1;
+            behind[track.observations.staleness()] += 1;
         }
         let (floor, mut at_floor) = refit_floor(&behind, REFITS_PER_FRAME);
         for track in self.tracks.iter_mut().flatten() {
-            let staleness = usize::from(track.observations.staleness());
+            let staleness = track.observations.staleness();
             if staleness > floor || (staleness == floor && at_floor > 0) {
                 if staleness == floor {
                     at_floor -= 1;
@@ -537,11 +540,11 @@ mod tests {
     #[test]
     fn the_refit_budget_takes_the_stalest_first() {
         let mut behind = [0usize; STALENESS_LEVELS];
-        behind[usize::from(u8::MAX)] = 3; // new tracks, no fit yet
+        behind[NEW_TRACK] = 3; // no fit yet
         behind[4] = 10;
         behind[2] = 50;
         behind[1] = 20;
-        // All of staleness 255 and 4, then 7 of the 50 at 2.
+        // All of the new tracks and staleness 4, then 7 of the 50 at 2.
         assert_eq!(refit_floor(&behind, 20), (2, 7));
         // The budget ends exactly with a staleness: all of it, none below.
         assert_eq!(refit_floor(&behind, 13), (4, 10));
@@ -558,7 +561,7 @@ mod tests {
         assert_eq!(observations.staleness(), 0);
         observations.push([40, 44]);
         assert!(observations.fit().is_none());
-        assert_eq!(observations.staleness(), u8::MAX);
+        assert_eq!(observations.staleness(), NEW_TRACK);
         observations.refit();
         let slope = observations.fit().map(|fit| fit.slope);
         assert!(slope.is_some_and(|slope| (slope - 1.1).abs() < 1e-3), "{slope:?}");
