@@ -13,6 +13,7 @@ use core::ops::Range;
 const PAD: usize = MAX_SEARCH_RADIUS;
 
 mod offsets;
+#[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
 mod stack;
 pub(in crate::gpa) use offsets::LinePositions;
 
@@ -238,20 +239,21 @@ impl Keyframe<'_> {
         if span.is_empty() {
             return;
         }
-        let image: &[u8] = &self.images[self.key_half][..self.height * self.width];
-        let width = self.width;
         #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
         if crate::kernels::avx2() {
+            let image: &[u8] = &self.images[self.key_half][..self.height * self.width];
             // A stack of one line: its sample is `blend`'s.
             // SAFETY: the CPU has AVX2; every position of the span lies
             // inside the grid (see below), and `out` holds its columns.
-            unsafe { stack::avx2::sample_columns::<1>(image, width, line, span.start, span.len(), out[span.clone()].as_mut_ptr()) };
+            unsafe { stack::avx2::sample_columns::<1>(image, self.width, line, span.start, span.len(), out[span.clone()].as_mut_ptr()) };
             return;
         }
         if !line.is_bent() {
             self.sample_straight_span(line, span, out);
             return;
         }
+        let image: &[u8] = &self.images[self.key_half][..self.height * self.width];
+        let width = self.width;
         let out = &mut out[span.clone()];
         Self::for_positions(line, span, |t, (i, j)| {
             let ((i0, wx), (j0, wy)) = (i.pixel_and_weight(), j.pixel_and_weight());
@@ -305,9 +307,8 @@ impl Keyframe<'_> {
 
     /// [`Self::sample_span`] of the `N` lines `line`, `line` one row down,
     /// ... at once over `span`, where all of them lie inside the grid, into
-    /// the band rows `rows` (N of them, `PAD + span.end <= BAND_WIDTH`):
-    /// [`stack::sample_column`] at each column, eight at a time on an
-    /// x86_64 with AVX2.
+    /// the band rows `rows` (N of them, `PAD + span.end <= BAND_WIDTH`);
+    /// eight columns at a time on an x86_64 with AVX2 (`stack`).
     #[inline(always)]
     fn sample_stack<const N: usize>(&self, line: RowWarp, span: Range<usize>, rows: &mut [[u8; BAND_WIDTH]]) {
         assert!(rows.len() == N && PAD + span.end <= BAND_WIDTH);
@@ -323,11 +324,32 @@ impl Keyframe<'_> {
             unsafe { stack::avx2::sample_columns::<N>(image, width, line, span.start, span.len(), out) };
             return;
         }
+        // The column as `stack::sample_column` (x86_64) makes it, written
+        // out: called from there, the M4's loop took ~2,300 more
+        // instructions a frame.
         Self::for_positions(line, span, #[inline(always)] |t, (i, j)| {
+            let ((i0, wx), (j0, wy)) = (i.pixel_and_weight(), j.pixel_and_weight());
+            let index = j0 * width + i0;
             // SAFETY: line N - 1 at this column lies inside the grid (see
-            // `sample_span`), and band row k's column span.start + t
-            // (t < span.len()) is within it, a fixed stride from the first.
-            unsafe { stack::sample_column::<N>(image, width, (i.q24(), j.q24()), out.add(t)) };
+            // `sample_span`): its row index j0 + N - 1 is at most height - 2,
+            // so index + N * width + 1 < image.len().
+            // One pointer walks down the rows (the M4 then loads at an
+            // offset from it, with no index to rebuild per row).
+            let across = |pixel: *const u8| {
+                let (left, right) = unsafe { (*pixel, *pixel.add(1)) };
+                (i32::from(left) << 8) + (i32::from(right) - i32::from(left)) * wx
+            };
+            let mut pixel = unsafe { image.as_ptr().add(index) };
+            let mut top = across(pixel);
+            for k in 0..N {
+                pixel = unsafe { pixel.add(width) };
+                let bottom = across(pixel);
+                // SAFETY: band row k's column span.start + t (t < span.len()),
+                // a fixed stride from the first: one pointer, offsets known
+                // when compiled.
+                unsafe { *out.add(k * BAND_WIDTH + t) = between(top, bottom, wy) };
+                top = bottom;
+            }
         });
     }
 

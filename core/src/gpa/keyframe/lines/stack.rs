@@ -1,23 +1,24 @@
-//! A stack of lines a keyframe row apart (a search band), sampled column
-//! by column ([`Keyframe::sample_lines`](super::Keyframe::sample_lines)):
-//! one position and one blend across per keyframe row serve every line.
-//! The plain column here is the definition; on an x86_64 with AVX2
-//! (`crate::kernels::avx2()`) eight columns go at once.
+//! The search band's stacks of lines a keyframe row apart
+//! ([`Keyframe::sample_lines`](super::Keyframe::sample_lines)) on an
+//! x86_64 with AVX2 (`crate::kernels::avx2()`): eight columns at a time.
+//! [`sample_column`] is one column as `Keyframe::sample_stack`'s plain loop
+//! makes it (written out there, so that the M4's loop compiles as before):
+//! the AVX2 path's fallback and its tests' reference.
 
 use super::between;
 use crate::gpa::band::BAND_WIDTH;
 use crate::gpa::warp::pixel_and_weight;
 
 /// The column at Q8.24 position (`i`, `j`) of `N` lines a keyframe row
-/// apart, into `out`, `out + BAND_WIDTH`, ... (band row k's sample).
+/// apart, into `out + t`, `out + BAND_WIDTH + t`, ... (band row k's sample).
 ///
 /// # Safety
 /// Line N - 1 at (i, j + N - 1 px) lies inside the grid of `image`
 /// (`width` wide): its row index is at most height - 2 and its column at
 /// most width - 2, so every pixel read (index + N width + 1 at most) is
-/// inside `image`. `out + k BAND_WIDTH` is writable for every k < N.
+/// inside `image`. `out + k BAND_WIDTH + t` is writable for every k < N.
 #[inline(always)]
-pub(super) unsafe fn sample_column<const N: usize>(image: &[u8], width: usize, (i, j): (u32, u32), out: *mut u8) {
+pub(super) unsafe fn sample_column<const N: usize>(image: &[u8], width: usize, (i, j): (u32, u32), out: *mut u8, t: usize) {
     let ((i0, wx), (j0, wy)) = (pixel_and_weight(i), pixel_and_weight(j));
     // One pointer walks down the rows (the M4 then loads at an offset
     // from it, with no index to rebuild per row).
@@ -34,7 +35,7 @@ pub(super) unsafe fn sample_column<const N: usize>(image: &[u8], width: usize, (
         unsafe {
             pixel = pixel.add(width);
             let bottom = across(pixel);
-            *out.add(k * BAND_WIDTH) = between(top, bottom, wy);
+            *out.add(k * BAND_WIDTH + t) = between(top, bottom, wy);
             top = bottom;
         }
     }
@@ -114,7 +115,7 @@ pub(super) mod avx2 {
                 }
                 for k in 0..8 {
                     // SAFETY: the caller's, at column first + t + k.
-                    unsafe { sample_column::<N>(image, width, (i[k], j[k]), out.add(t + k)) };
+                    unsafe { sample_column::<N>(image, width, (i[k], j[k]), out, t + k) };
                 }
                 t += 8;
                 continue;
@@ -147,7 +148,7 @@ pub(super) mod avx2 {
         for t in t..count {
             let (i, j) = positions.take::<true>();
             // SAFETY: the caller's, at column first + t.
-            unsafe { sample_column::<N>(image, width, (i.q24(), j.q24()), out.add(t)) };
+            unsafe { sample_column::<N>(image, width, (i.q24(), j.q24()), out, t) };
         }
     }
 }
@@ -159,7 +160,7 @@ mod tests {
 
     /// The AVX2 stacks equal the plain columns, byte for byte: straight,
     /// yawed and bent lines at random places in the grid, down to its last
-    /// rows and columns (where the gathers give way to the plain column),
+    /// rows and columns (where the 16-byte loads give way to the plain column),
     /// 1 to 7 lines, every length from 0 to 40 columns, from the line's
     /// column 0 to 19.
     #[test]
@@ -203,12 +204,12 @@ mod tests {
                 // SAFETY: every position lies inside with the lines below it
                 // (the room left above); t < BAND_WIDTH.
                 unsafe {
-                    let out = plain.as_mut_ptr().cast::<u8>().add(t);
+                    let out = plain.as_mut_ptr().cast::<u8>();
                     match lines {
-                        1 => sample_column::<1>(&image, width, (i.q24(), j.q24()), out),
-                        3 => sample_column::<3>(&image, width, (i.q24(), j.q24()), out),
-                        5 => sample_column::<5>(&image, width, (i.q24(), j.q24()), out),
-                        _ => sample_column::<7>(&image, width, (i.q24(), j.q24()), out),
+                        1 => sample_column::<1>(&image, width, (i.q24(), j.q24()), out, t),
+                        3 => sample_column::<3>(&image, width, (i.q24(), j.q24()), out, t),
+                        5 => sample_column::<5>(&image, width, (i.q24(), j.q24()), out, t),
+                        _ => sample_column::<7>(&image, width, (i.q24(), j.q24()), out, t),
                     }
                 }
             }
