@@ -321,6 +321,14 @@ impl Coordinate {
         self.sum
     }
 
+    /// The position and its first and second differences (Q8.24 modulo
+    /// 2^32), from which a vector of columns steps on.
+    #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
+    #[inline(always)]
+    pub(super) fn differences(&self) -> (u32, u32, u32) {
+        (self.sum, self.difference, self.second)
+    }
+
     /// On to the next column: a bent row's difference changes too.
     #[inline(always)]
     fn advance<const BENT: bool>(&mut self) {

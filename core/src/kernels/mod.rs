@@ -9,12 +9,14 @@
 //!   set by build.rs for `thumbv7em`).
 //!
 //! `selected` below is the backend the entry points of this module call.
-//! Apart from it, the parallax hypotheses' sampling loop
-//! (`gpa::keyframe::lines::offsets`) has its own: `asm!` on the M4, AVX2
-//! on an x86_64 that has it (`avx2()`, found at run time). All give
-//! identical results; `checks` compares them with the portable ones and
-//! with per-pixel loops, on the host and on the emulated M4
-//! (`cargo fw-test`).
+//! Apart from it, two keyframe sampling loops have their own: the
+//! parallax hypotheses' (`gpa::keyframe::lines::offsets`), `asm!` on the
+//! M4, and the search band's stacks and spans of lines
+//! (`gpa::keyframe::lines::stack`); each has an AVX2 version on an x86_64
+//! that has it (`avx2()`, found at run time). All give identical results;
+//! `checks` compares them with the portable ones and with per-pixel loops,
+//! on the host and on the emulated M4 (`cargo fw-test`), and the AVX2
+//! loops' own tests with their plain versions.
 
 // Where a SIMD backend is selected, only its tails and the checks call the
 // portable one, each a part of it.
@@ -42,7 +44,8 @@ pub(crate) mod pinhole;
 cpufeatures::new!(cpu_avx2, "avx2");
 
 /// Whether the AVX2 kernels run: the parallax hypotheses' gathered samples
-/// (`gpa::keyframe::lines::offsets`), beside the baseline SSE2 ones. Their
+/// (`gpa::keyframe::lines::offsets`) and the band's lines
+/// (`gpa::keyframe::lines::stack`), beside the baseline SSE2 ones. Their
 /// tests compare them with the plain versions where the CPU has AVX2.
 #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
 #[inline(always)]
