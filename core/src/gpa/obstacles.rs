@@ -158,8 +158,8 @@ struct CellSpan {
 }
 
 impl CellSpan {
-    fn new(z: f64, left: f64, right: f64) -> CellSpan {
-        let mm = |v: f64| libm::round(v).clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
+    fn new(z: f32, left: f32, right: f32) -> CellSpan {
+        let mm = |v: f32| libm::roundf(v).clamp(f32::from(i16::MIN), f32::from(i16::MAX)) as i16;
         CellSpan { z: mm(z), left: mm(left), right: mm(right) }
     }
 }
@@ -285,18 +285,33 @@ fn parallax_group(
     if side == Side::Below && (0..h * w).filter(|&cell| member(cell)).count() < LARGE_GROUP_CELLS {
         return (None, None);
     }
-    // Above: where a cell stands (mm ahead), from its height at its centre
-    // (each cell row's centre once: software f64 on the M4).
-    let mut row_centre_z = [0.0f64; MAX_CELLS_SIDE];
+    // A cell's geometry is worked out per cell, so in f32 (the M4's FPU;
+    // f64 is software there) from each cell row's centre (mm ahead) and
+    // each cell column's sides (mm across) at the ground, once a call:
+    // millimetres to well under a millimetre, what the report rounds to.
+    let mut row_centre_z = [0.0f32; MAX_CELLS_SIDE];
     for (r, z) in row_centre_z.iter_mut().enumerate().take(h) {
-        *z = grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1;
+        *z = grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1 as f32;
     }
-    let footprint = |cell: usize| row_centre_z[cell / w] * (camera_height_mm - f64::from(heights.get(cell))) / camera_height_mm;
+    // The columns' sides step by a cell from the first's (pixel_to_ground
+    // is affine along a row): two software f64 calls, not two a column.
+    let (first_left, _) = grid.pixel_to_ground(0.0, 0.0);
+    let (first_right, _) = grid.pixel_to_ground(cells.px as f64 - 1.0, 0.0);
+    let cell_step = (cells.px as f64 * grid.mm_per_px) as f32;
+    let mut column_sides = [[0.0f32; 2]; MAX_CELLS_SIDE];
+    for (c, sides) in column_sides.iter_mut().enumerate().take(w) {
+        let offset = c as f32 * cell_step;
+        *sides = [first_left as f32 + offset, first_right as f32 + offset];
+    }
+    let camera_height = camera_height_mm as f32;
+    // Above: where a cell stands (mm ahead), from its height at its centre.
+    let footprint = |cell: usize| row_centre_z[cell / w] * (camera_height - f32::from(heights.get(cell))) / camera_height;
     // Every cell of a vertical face points at the face's footprint, but a
     // plain face shows parallax only where it has texture (its top edge, a
     // feature or two), possibly many rows apart: above the ground, cells in
     // neighbouring columns whose footprints agree to a cell are one face.
     let cell_mm = cells.px as f64 * grid.mm_per_px;
+    let cell_mm_f32 = cell_mm as f32;
     let measured = |cell: usize| !heights.is_weak(cell);
     // The flood asks of one cell's neighbours in turn: its footprint is kept.
     let last = core::cell::Cell::new((usize::MAX, 0.0));
@@ -306,7 +321,7 @@ fn parallax_group(
         }
         last.get().1
     };
-    let same_face = |a: usize, b: usize| measured(a) && measured(b) && libm::fabs(footprint_of_a(a) - footprint(b)) <= cell_mm;
+    let same_face = |a: usize, b: usize| measured(a) && measured(b) && libm::fabsf(footprint_of_a(a) - footprint(b)) <= cell_mm_f32;
     // The reaching cells not yet in a group, by column.
     let mut unseen_rows = member_rows((w, h), reaches);
     let aoi = layout.aoi_mm();
@@ -318,14 +333,14 @@ fn parallax_group(
             continue;
         }
         let mut with_residue = false;
-        let mut footprints: heapless::Vec<f64, MAX_BLOB_CELLS> = heapless::Vec::new();
+        let mut footprints: heapless::Vec<f32, MAX_BLOB_CELLS> = heapless::Vec::new();
         // Below: per cell column, 1 + the nearest cell row (0: none).
         let mut nearest_rows = [0u8; MAX_CELLS_SIDE];
         // Above: the tallest cell; below: the cells' depths, for their median
         // (past an edge every cell sees the same lower level).
         let mut depths: heapless::Vec<i16, MAX_BLOB_CELLS> = heapless::Vec::new();
         let mut spans: heapless::Vec<CellSpan, MAX_BLOB_CELLS> = heapless::Vec::new();
-        let (mut left, mut right, mut tallest) = (f64::MAX, f64::MIN, 0.0f64);
+        let (mut left, mut right, mut tallest) = (f32::MAX, f32::MIN, 0.0f32);
         let (mut group, mut nearest_row) = (0usize, 0usize);
         let linked: Option<Linked> = match side {
             Side::Above => Some((&same_face, &mut unseen_rows)),
@@ -338,12 +353,12 @@ fn parallax_group(
             group += 1;
             nearest_row = nearest_row.max(r);
             with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
-            let height = f64::from(heights.get(cell));
+            let height = f32::from(heights.get(cell));
             // The cell's measured height belongs to its centre.
             let z_centre = row_centre_z[r];
             let scale = match side {
                 Side::Above => {
-                    let scale = (camera_height_mm - height) / camera_height_mm;
+                    let scale = (camera_height - height) / camera_height;
                     let _ = footprints.push(z_centre * scale);
                     scale
                 }
@@ -352,8 +367,7 @@ fn parallax_group(
                     1.0
                 }
             };
-            let (x_left, _) = grid.pixel_to_ground((c * cells.px) as f64, 0.0);
-            let (x_right, _) = grid.pixel_to_ground(((c + 1) * cells.px) as f64 - 1.0, 0.0);
+            let [x_left, x_right] = column_sides[c];
             let _ = spans.push(CellSpan::new(z_centre * scale, x_left * scale, x_right * scale));
             left = left.min(x_left * scale);
             right = right.max(x_right * scale);
@@ -380,9 +394,9 @@ fn parallax_group(
         }
 
         let height = match side {
-            Side::Above => tallest,
+            Side::Above => f64::from(tallest),
             Side::Below => {
-                let edges = nearest_rows.iter().filter(|&&rows| rows > 0).map(|&rows| layout.near_side_mm(usize::from(rows) - 1));
+                let edges = nearest_rows.iter().filter(|&&rows| rows > 0).map(|&rows| layout.near_side_mm(usize::from(rows) - 1) as f32);
                 footprints.extend(edges);
                 let middle = depths.len() / 2;
                 f64::from(*depths.select_nth_unstable(middle).1)
@@ -401,7 +415,8 @@ fn parallax_group(
             Side::Above => ((footprints.len() - 1) / 4).max(1).min(footprints.len() - 1),
             Side::Below => 0,
         };
-        let nearest = *footprints.select_nth_unstable_by(rank, |a, b| a.total_cmp(b)).1;
+        let nearest = f64::from(*footprints.select_nth_unstable_by(rank, |a, b| a.total_cmp(b)).1);
+        let (left, right) = (f64::from(left), f64::from(right));
         // Nor beyond where the group is seen to start: a thing standing on
         // the ground is seen from its footprint on (its base), so a group
         // whose heights place it farther (a car ahead moving away from the
