@@ -400,10 +400,18 @@ pub(super) struct CoarseSearch {
     keyframe: Coarse,
     current: Coarse,
     turned: Turned,
+    /// The cell side (px) both coarse images were built at for this
+    /// scene: the searches around the best and the runner-up share them.
+    built_side: Option<usize>,
 }
 
 impl CoarseSearch {
-    pub(super) const EMPTY: CoarseSearch = CoarseSearch { keyframe: Coarse::EMPTY, current: Coarse::EMPTY, turned: Turned::EMPTY };
+    pub(super) const EMPTY: CoarseSearch = CoarseSearch { keyframe: Coarse::EMPTY, current: Coarse::EMPTY, turned: Turned::EMPTY, built_side: None };
+
+    /// A new scene: the coarse images built for the last one are stale.
+    pub(super) fn new_scene(&mut self) {
+        self.built_side = None;
+    }
 
     /// The planar motion (tx, tz, yaw) on images of `cell_mm` cells,
     /// searched over 3 `sigma` around `start`; no runner-up.
@@ -422,8 +430,11 @@ impl CoarseSearch {
         let grid = scene.grid;
         let mm_per_px = grid.mm_per_px as f32;
         let side = ((cell_mm / mm_per_px) as usize).max(2);
-        self.keyframe.build(scene.keyframe, scene, side);
-        self.current.build(scene.current, scene, side);
+        if self.built_side != Some(side) {
+            self.keyframe.build(scene.keyframe, scene, side);
+            self.current.build(scene.current, scene, side);
+            self.built_side = Some(side);
+        }
         let (key_mean, cur_mean) = (self.keyframe.mean(), self.current.mean());
         if key_mean < 1.0 || cur_mean < 1.0 {
             return unmeasured;

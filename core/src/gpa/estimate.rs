@@ -434,6 +434,7 @@ impl Estimator {
     /// search's reach (3 sigma); a reach of more than a few cells is
     /// searched on cells twice as large first.
     pub(super) fn coarse_start(coarse: &mut CoarseSearch, scene: &Scene, prior: &Prior) -> Params {
+        coarse.new_scene();
         let prior = Start::of(prior);
         if within_alignment_reach(scene.grid, &prior.sigma) {
             return prior.p;
