@@ -21,8 +21,9 @@ const OBS_LIMIT_MM: f32 = (i16::MAX as f32 - 1.0) / OBS_UNITS_PER_MM;
 /// whatever the frame shows (each Theil-Sen refit of 16 observations is
 /// ~7 k instructions there, so ~0.3 M; a fit refitted every frame for up
 /// to [`MAX_TRACKS`] tracks was up to ~1 M). A frame matches up to ~110
-/// tracks, so a track's fit lags it by a frame or two: the locus moves
-/// by one observation in 16, and the gate already allows for it.
+/// tracks, so a fit can be a frame or two behind its track; a fit of up
+/// to 16 observations moves little with one more. 48, not fewer: at 40,
+/// noisy_approach's GTI height dropped to GPA's on one frame.
 pub(super) const REFITS_PER_FRAME: usize = 48;
 /// Matched KG row storage unit: 1/64 row in u16.
 pub(super) const ROW_UNITS: f32 = 64.0;
@@ -138,7 +139,7 @@ impl Track {
 /// travel correction, the end test, every query of the points), and the
 /// Theil-Sen medians are most of GTI's work on the M4. It is refitted at
 /// the frame's end within [`REFITS_PER_FRAME`], so until then it may miss
-/// the newest observations ([`Observations::unfitted`]).
+/// the newest observations (`unfitted`).
 #[derive(Clone, Debug)]
 pub(super) struct Observations {
     values: [[i16; 2]; MAX_OBSERVATIONS],
