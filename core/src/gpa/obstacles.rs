@@ -297,10 +297,11 @@ fn parallax_group(
     // is affine along a row): two software f64 calls, not two a column.
     let (first_left, _) = grid.pixel_to_ground(0.0, 0.0);
     let (first_right, _) = grid.pixel_to_ground(cells.px as f64 - 1.0, 0.0);
-    let cell_step = (cells.px as f64 * grid.mm_per_px) as f32;
+    let cell_mm = cells.px as f64 * grid.mm_per_px;
+    let cell_mm_f32 = cell_mm as f32;
     let mut column_sides = [[0.0f32; 2]; MAX_CELLS_SIDE];
     for (c, sides) in column_sides.iter_mut().enumerate().take(w) {
-        let offset = c as f32 * cell_step;
+        let offset = c as f32 * cell_mm_f32;
         *sides = [first_left as f32 + offset, first_right as f32 + offset];
     }
     let camera_height = camera_height_mm as f32;
@@ -310,8 +311,6 @@ fn parallax_group(
     // plain face shows parallax only where it has texture (its top edge, a
     // feature or two), possibly many rows apart: above the ground, cells in
     // neighbouring columns whose footprints agree to a cell are one face.
-    let cell_mm = cells.px as f64 * grid.mm_per_px;
-    let cell_mm_f32 = cell_mm as f32;
     let measured = |cell: usize| !heights.is_weak(cell);
     // The flood asks of one cell's neighbours in turn: its footprint is kept.
     let last = core::cell::Cell::new((usize::MAX, 0.0));
