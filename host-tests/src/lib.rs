@@ -6,7 +6,8 @@
 //! - `recording`: the recording layout (rig.toml, poses.csv, frames,
 //!   truth.toml);
 //! - `kg`, `detect`, `evaluate`, `perturb`, `trial`: detection on the host,
-//!   scored against truth, under perturbations;
+//!   scored against truth, under perturbations; `cells`: what a frame
+//!   measured per cell;
 //! - `calibration`: the mount from a drive over flat ground, camera_info,
 //!   rig.toml's rewrite;
 //! - `pictures`: what a person looks at (frame pictures, the run's
@@ -20,6 +21,7 @@
 
 pub mod bench;
 pub mod calibration;
+pub mod cells;
 pub mod detect;
 pub mod evaluate;
 pub mod heights;

@@ -2,7 +2,8 @@
 //! `--summary`, `--gif` and `flatland heights --png` write pictures that
 //! decode, at the size their layout says, with what they claim to show in
 //! them; the hazard drawn in the camera view lands on the obstacle's
-//! pixels; and no picture option changes the csv.
+//! pixels; `--cells` tables what each frame measured per cell; and no
+//! picture option changes the csv.
 
 use flatland_core::geometry::Point3;
 use flatland_host::detect::{DetectConfig, Detector};
@@ -93,9 +94,51 @@ fn picture_options_leave_the_csv_and_json_unchanged() {
     let (png, gif, summary) = (dir.join("png"), dir.join("run.gif"), dir.join("summary.png"));
     for format in ["csv", "json"] {
         let plain = flatland(&["detect", path(&recording), "--format", format]);
-        let with_pictures = flatland(&["detect", path(&recording), "--format", format, "--png", path(&png), "--gif", path(&gif), "--summary", path(&summary)]);
+        let cells = dir.join("cells.csv");
+        let with_pictures =
+            flatland(&["detect", path(&recording), "--format", format, "--png", path(&png), "--gif", path(&gif), "--summary", path(&summary), "--cells", path(&cells)]);
         assert_eq!(plain, with_pictures, "{format}");
     }
+}
+
+/// The cells table explains a frame: on approach_box, a parallax alarm's
+/// nearest distance is where a cell with a measured height stands (within
+/// a 30 mm cell and its neighbour, as the detector places a group by its
+/// cells) in at least 9 frames in 10 (the rest hold an obstacle found on an
+/// earlier frame through a short baseline); every row of a frame carries
+/// that frame's resolution.
+#[test]
+fn cells_table_shows_where_the_measured_cells_stand() {
+    let dir = out_dir("cells");
+    let recording = data("approach_box");
+    let table = dir.join("cells.csv");
+    let csv = flatland(&["detect", path(&recording), "--cells", path(&table)]);
+    let text = std::fs::read_to_string(&table).unwrap();
+    let mut lines = text.lines();
+    let header = flatland_host::cells::CELLS_HEADER;
+    assert_eq!(lines.next(), Some(header));
+    let cells: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let column = |name: &str| header.split(',').position(|c| c == name).unwrap();
+    let (frame, height, weak, stands, least) = (column("frame"), column("height_mm"), column("weak"), column("stands_at_mm"), column("least_height_mm"));
+    let (mut placed, mut alarms) = (0, 0);
+    for report in csv.lines().skip(1).map(|l| l.split(',').collect::<Vec<_>>()) {
+        let (n, alarm, nearest) = (report[0], report[2], report[3]);
+        let rows: Vec<&Vec<&str>> = cells.iter().filter(|c| c[frame] == n).collect();
+        assert!(rows.windows(2).all(|w| w[0][least] == w[1][least]), "frame {n}: one resolution a frame");
+        let standing: Vec<f64> = rows
+            .iter()
+            .filter(|c| c[weak] == "0" && c[height].parse::<i32>().unwrap() >= 20 && !c[stands].is_empty())
+            .map(|c| c[stands].parse().unwrap())
+            .collect();
+        if alarm != "1" || nearest.is_empty() || standing.is_empty() {
+            continue;
+        }
+        let nearest: f64 = nearest.parse().unwrap();
+        alarms += 1;
+        placed += usize::from(standing.iter().any(|z| (z - nearest).abs() <= 60.0));
+    }
+    assert!(alarms >= 20, "only {alarms} alarms with measured cells");
+    assert!(placed * 10 >= alarms * 9, "{placed} of {alarms} alarms stand where a measured cell does");
 }
 
 #[test]

@@ -105,6 +105,27 @@ impl core::fmt::Display for GpaError {
 
 impl core::error::Error for GpaError {}
 
+/// What the last frame measured in one cell ([`Gpa::cell_evidence`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CellEvidence {
+    /// Parallax height, mm (negative below the ground; 0: ground or undecided).
+    pub height_mm: i16,
+    /// The height beat the ground by less than the absolute gain: it shows
+    /// only that a surface goes on there.
+    pub weak: bool,
+    /// It moves with the robot (a lag hypothesis won): its height is unknown.
+    pub moving: bool,
+    /// Share of its pixels that are residue no motion explains, percent.
+    pub residue_percent: u32,
+}
+
+/// What a frame's baseline can tell from the ground ([`Gpa::resolution`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Resolution {
+    pub least_height_mm: f64,
+    pub shallowest_drop_mm: f64,
+}
+
 /// The streaming GPA detector. See the module docs.
 pub struct Gpa<'b> {
     config: GpaConfig,
@@ -766,6 +787,32 @@ impl<'b> Gpa<'b> {
         }
         self.parallax.height.get(row * cells.wide + column)
     }
+    /// What the last frame measured in a cell (row 0 the farthest), for
+    /// pictures and `flatland detect --cells`: nothing outside the cells.
+    pub fn cell_evidence(&self, row: usize, column: usize) -> CellEvidence {
+        let cells = &self.layout.cells;
+        if row >= cells.high || column >= cells.wide {
+            return CellEvidence::default();
+        }
+        let cell = row * cells.wide + column;
+        let height = &self.parallax.height;
+        CellEvidence {
+            height_mm: height.any(cell),
+            weak: height.is_weak(cell),
+            moving: height.moving(cell),
+            residue_percent: self.workspace.rows_ref().map_or(0, |rows| rows.residue.percent(cell, cells.px)),
+        }
+    }
+
+    /// How certain the last frame's heights are: the least height and the
+    /// shallowest drop its baseline tells from the ground (a cell's height
+    /// below them is noise, however textured the cell). Infinite when the
+    /// frame compared nothing.
+    pub fn resolution(&self) -> Resolution {
+        let hypotheses = &self.parallax.hypotheses;
+        Resolution { least_height_mm: hypotheses.least_height_mm, shallowest_drop_mm: hypotheses.shallowest_drop_mm }
+    }
+
     /// Coherence cells (rows, columns).
     pub fn cells(&self) -> (usize, usize) {
         (self.layout.cells.high, self.layout.cells.wide)

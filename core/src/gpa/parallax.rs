@@ -70,6 +70,9 @@ pub(super) struct Hypotheses {
     /// The shallowest drop (mm) whose lag this frame tells from the ground
     /// (infinite when none: too short a baseline).
     pub(super) shallowest_drop_mm: f64,
+    /// The least height (mm) whose displacement this frame tells from the
+    /// ground's, as `shallowest_drop_mm` for a lag (infinite when none).
+    pub(super) least_height_mm: f64,
     /// Rows above this one are far enough for a heading error to blur
     /// them sideways by more than half a pixel ([`Self::ground_tolerance`]).
     yaw_blurred_rows: usize,
@@ -84,6 +87,7 @@ impl Hypotheses {
         full_tolerance: (false, false),
         ground_like: GROUND_RANK..GROUND_RANK + 1,
         shallowest_drop_mm: f64::INFINITY,
+        least_height_mm: f64::INFINITY,
         yaw_blurred_rows: 0,
     };
 
@@ -123,6 +127,9 @@ impl Hypotheses {
         let hidden_lag_mm = tolerance_mm + half_px;
         let shallowest_drop_mm =
             if baseline > hidden_lag_mm { camera_height_mm * hidden_lag_mm / (baseline - hidden_lag_mm) } else { f64::INFINITY };
+        // A height h moves T*h/(H-h) past the ground: as far as a lag within
+        // the same reach, it is ground to this frame.
+        let least_height_mm = if baseline > 0.0 { camera_height_mm * hidden_lag_mm / (baseline + hidden_lag_mm) } else { f64::INFINITY };
         // The rows where a heading error blurs the ground sideways by more
         // than half a pixel: the far ones, so the first row that is not
         // blurred, found by bisection (the test falls with the row).
@@ -143,7 +150,7 @@ impl Hypotheses {
             }
         }
         let yaw_blurred_rows = sharp;
-        Hypotheses { offset, displacement, usable: HEIGHT_FRACTIONS.len(), lags_end, full_tolerance, ground_like, shallowest_drop_mm, yaw_blurred_rows }
+        Hypotheses { offset, displacement, usable: HEIGHT_FRACTIONS.len(), lags_end, full_tolerance, ground_like, shallowest_drop_mm, least_height_mm, yaw_blurred_rows }
     }
 
     /// The hypotheses this frame compares besides the ground.
@@ -294,6 +301,11 @@ impl CellHeights {
     /// Does the cell move with the robot (measured, not weak)?
     pub(super) fn is_moving(&self, cell: usize) -> bool {
         self.moving.contains(cell) && !self.weak.contains(cell)
+    }
+
+    /// Did a lag hypothesis win the cell (weak or not)?
+    pub(super) fn moving(&self, cell: usize) -> bool {
+        self.moving.contains(cell)
     }
 
     /// Marks a cell as moving with the robot (weak when `weak`); its height stays 0.
@@ -585,6 +597,29 @@ mod tests {
         robot.set(0, 199, false);
         robot.set(1, 19, true);
         assert_eq!((robot.get(0), robot.any(1), robot.get(1)), (199, 19, 0));
+    }
+
+    /// The least height a frame tells from the ground falls as its
+    /// baseline grows, and is the one whose displacement is what the ground
+    /// hides (the odometry's error and a pixel); a drop's depth likewise.
+    #[test]
+    fn a_longer_baseline_tells_lower_heights_from_the_ground() {
+        let grid = KgGrid { mm_per_px: 5.0, x_left_mm: -350.0, z_far_mm: 1600.0, width: 141, height: 120 };
+        let config = GpaConfig::default();
+        let least = |tz_mm: f64| {
+            let motion = Motion { tx_mm: 0.0, tz_mm, dyaw_deg: 0.0 };
+            let step = Motion { tx_mm: 0.0, tz_mm: 20.0, dyaw_deg: 0.0 };
+            let hypotheses = Hypotheses::plan(&motion, &step, &grid, &config, 400.0);
+            (hypotheses.least_height_mm, hypotheses.shallowest_drop_mm)
+        };
+        let hidden = config.odometry_error_fraction * 20.0 + 5.0;
+        for tz in [20.0, 60.0, 200.0] {
+            let (height, depth) = least(tz);
+            assert!((tz * height / (400.0 - height) - hidden).abs() < 1e-9, "{tz}: {height}");
+            assert!((tz * depth / (400.0 + depth) - hidden).abs() < 1e-9 || tz <= hidden, "{tz}: {depth}");
+        }
+        assert!(least(200.0).0 < least(60.0).0 && least(60.0).0 < least(20.0).0);
+        assert_eq!(Hypotheses::NONE.least_height_mm, f64::INFINITY);
     }
 
     /// A height is decided only where the ground leaves room for one: a

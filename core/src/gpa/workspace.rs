@@ -106,7 +106,6 @@ impl Workspace {
     }
 
     /// The row stages, read-only; None while the estimate has the memory.
-    #[cfg(test)]
     pub(super) fn rows_ref(&self) -> Option<&RowStages> {
         match self {
             Workspace::Rows(rows) => Some(rows),

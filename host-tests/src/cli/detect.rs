@@ -4,6 +4,7 @@
 use super::{fatal, Format, Pictures, Sensors};
 use flatland_core::report::{FrameReport, CSV_HEADER, MOTION_SCALE, SHIFT_SCALE};
 use flatland_core::scan::{Scan, Sector, SCAN_INCREMENT_MDEG};
+use flatland_host::cells::{cells_csv, CELLS_HEADER};
 use flatland_host::detect::{DetectConfig, Detector, FrameOutcome};
 use flatland_host::evaluate::{is_grace, score, score_hazard};
 use flatland_host::perturb::Perturbation;
@@ -149,6 +150,15 @@ pub(crate) fn run_detect(
         let _ = writeln!(out, "{CSV_HEADER}");
     }
     let mut picture_error = None;
+    let mut cells = match pictures.cells.map(|file| std::fs::File::create(file).map(std::io::BufWriter::new).map_err(|e| format!("{}: {e}", file.display()))) {
+        None => None,
+        Some(Ok(mut file)) => {
+            let _ = writeln!(file, "{CELLS_HEADER}");
+            Some(file)
+        }
+        Some(Err(e)) => return fatal(e),
+    };
+    let camera_height_mm = recording.rig.height_mm();
     let alter = |index: u32, frame: &mut Frame| {
         if let Some(p) = perturber.as_mut() {
             p.alter(index, frame)
@@ -177,6 +187,11 @@ pub(crate) fn run_detect(
                 match report.status.judged() {
                     Ok(()) => eprintln!("frame {}: {:?}", report.frame, gpa.alarm_source()),
                     Err(reason) => eprintln!("frame {}: not judged ({}): {reason}", report.frame, report.status),
+                }
+            }
+            if let (true, Some(file)) = (judged, cells.as_mut()) {
+                if let Err(e) = file.write_all(cells_csv(report.frame, gpa, &grid, camera_height_mm).as_bytes()) {
+                    picture_error.get_or_insert(format!("{}: {e}", pictures.cells.map_or(String::new(), |f| f.display().to_string())));
                 }
             }
             // Pictures are of the frames compared.
@@ -221,6 +236,11 @@ pub(crate) fn run_detect(
     }
     if let Some(e) = picture_error {
         return fatal(e);
+    }
+    if let (Some(mut file), Some(path)) = (cells, pictures.cells) {
+        if let Err(e) = file.flush() {
+            return fatal(format!("{}: {e}", path.display()));
+        }
     }
     if let (Some(animation), Some(file)) = (animation, pictures.gif) {
         if let Err(e) = animation.finish() {

@@ -60,6 +60,12 @@ enum Command {
         /// against truth.toml, the seed's statistics, motion and attitude.
         #[arg(long)]
         summary: Option<PathBuf>,
+        /// Write what every compared frame measured per cell (csv): each
+        /// cell with a height, a lag or residue, where it is seen and where
+        /// it stands, and the least height and drop the frame's baseline
+        /// tells from the ground.
+        #[arg(long)]
+        cells: Option<PathBuf>,
         /// Align the frame pictures (--png, --gif) by the planar motion only,
         /// ignoring the measured pitch and roll change (shows what attitude
         /// compensation removes).
@@ -300,6 +306,8 @@ struct Pictures<'a> {
     gif: Option<&'a Path>,
     /// One PNG of the whole run.
     summary: Option<&'a Path>,
+    /// One csv row per cell with evidence, per compared frame.
+    cells: Option<&'a Path>,
     attitude: bool,
 }
 
@@ -399,8 +407,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Kg { recording, frames, out, mm_per_px } => run_kg(&recording, frames, &out, mm_per_px),
-        Command::Detect { recording, format, png, gif, summary, png_level, truth, perturb, verbose, sensors } => {
-            let pictures = Pictures { dir: png.as_deref(), gif: gif.as_deref(), summary: summary.as_deref(), attitude: !png_level };
+        Command::Detect { recording, format, png, gif, summary, cells, png_level, truth, perturb, verbose, sensors } => {
+            let pictures = Pictures { dir: png.as_deref(), gif: gif.as_deref(), summary: summary.as_deref(), cells: cells.as_deref(), attitude: !png_level };
             run_detect(&recording, format, pictures, truth, perturb, verbose, &sensors)
         }
         Command::Bench { recording: path, mm_per_px, search, full_frame, opencv } => {

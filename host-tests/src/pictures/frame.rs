@@ -273,12 +273,16 @@ fn draw_header(picture: &mut RgbImage, inputs: &FrameInputs, layout: &FrameLayou
         AlarmSource::Held => "(held)   ",
         AlarmSource::None => "",
     };
+    let resolution = inputs.gpa.resolution();
+    let least = |v: f64| if v.is_finite() { format!("{v:.0} mm") } else { "none".to_string() };
     let line = format!(
-        "{source}frame {}  vs  reference {}   nearest {}   height {}",
+        "{source}frame {}  vs  reference {}   nearest {}   height {}   tells from ground: heights {}, drops {}",
         report.frame,
         report.ref_frame,
         millimetres(report.nearest_mm),
         millimetres(report.obstacle_h_mm),
+        least(resolution.least_height_mm),
+        least(resolution.shallowest_drop_mm),
     );
     let room = (layout.width - 2 * MARGIN) as i32 - 24;
     let size = fitting_size(&format!("{badge} {line}"), layout.title_size, room);
