@@ -271,7 +271,8 @@ fn parallax_group(
         Side::Below => i32::from(height) <= -min_height,
     };
     // Below, a cell that lags past the deepest drop looked for may be the
-    // lower level of a deeper one: it counts, at that depth.
+    // lower level of a deeper one: it counts, at that depth, in a group
+    // where some cell measured a depth.
     let deeper = |cell: usize| side == Side::Below && heights.is_moving(cell);
     let member = |cell: usize| cell >= first_row * w && (on_side(heights.get(cell)) || deeper(cell));
     // Hysteresis, as for edges: a weak height does not count, but it joins
@@ -332,6 +333,7 @@ fn parallax_group(
             continue;
         }
         let mut with_residue = false;
+        let mut measured_depth = false;
         let mut footprints: heapless::Vec<f32, MAX_BLOB_CELLS> = heapless::Vec::new();
         // Below: per cell column, 1 + the nearest cell row (0: none).
         let mut nearest_rows = [0u8; MAX_CELLS_SIDE];
@@ -373,6 +375,7 @@ fn parallax_group(
             match side {
                 Side::Above => tallest = tallest.max(height),
                 Side::Below => {
+                    measured_depth |= !deeper(cell);
                     let depth = if deeper(cell) { -(libm::round(config.max_drop_mm) as i16) } else { heights.get(cell) };
                     let _ = depths.push(depth);
                 }
@@ -389,6 +392,12 @@ fn parallax_group(
         // Where the group is seen to start on the ground.
         let nearest_seen = layout.near_side_mm(nearest_row);
         if group < 3 || (!with_residue && group < 4) || (short_baseline && !large) {
+            continue;
+        }
+        // A drop shows its depth somewhere: a group that only lags the
+        // ground is a thing moving along with the robot (a car ahead, its
+        // shadow), which `moving_obstacle` places, not a hole.
+        if side == Side::Below && !measured_depth {
             continue;
         }
 
@@ -571,4 +580,59 @@ fn locate(blob: &Blob, layout: &Layout, residue: &Residue) -> Footprint {
     let (left, _) = grid.pixel_to_ground(left_px as f64, 0.0);
     let (right, _) = grid.pixel_to_ground(right_px as f64, 0.0);
     Footprint { near_mm: libm::round(near_z) as i32, left_mm: libm::round(left) as i32, right_mm: libm::round(right) as i32 }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::tests::sample_rig;
+    use crate::grid::{GridConfig, KgGrid};
+    use crate::scan::{Scan, ScanLayout};
+
+    /// A patch below the ground in the middle of the sample rig's AOI,
+    /// every cell lagging the ground past the deepest drop; `depth_cell`
+    /// (if any, outside it) measured a drop's depth.
+    fn lagging_patch(layout: &Layout, depth_cell: Option<usize>) -> CellHeights {
+        let cells = &layout.cells;
+        let mut heights = CellHeights::for_camera(layout.camera_height_mm);
+        let (_, near_j) = layout.grid.ground_to_pixel(0.0, 800.0);
+        let (middle_i, _) = layout.grid.ground_to_pixel(0.0, 800.0);
+        let (row, column) = (near_j as usize / cells.px, middle_i as usize / cells.px);
+        for r in row - 5..=row {
+            for c in column - 3..=column + 3 {
+                heights.set_moving(r * cells.wide + c, false);
+            }
+        }
+        if let Some(cell) = depth_cell {
+            heights.set(cell, -80, false);
+        }
+        heights
+    }
+
+    /// Cells that only lag the ground (a car ahead's shadow moving with it)
+    /// are no drop, but a moving obstacle; the same lags beside a cell that
+    /// measured a depth are a drop deeper than any looked for.
+    #[test]
+    fn lags_alone_are_a_moving_thing_not_a_drop() {
+        let rig = sample_rig();
+        let grid = KgGrid::for_rig(&rig, &GridConfig::default()).unwrap();
+        let config = GpaConfig::default();
+        let layout = Layout::new(&rig, &grid, config.cell_mm);
+        let residue = Residue::EMPTY;
+        let mut scan = Scan::new(ScanLayout::new(40.0, 450.0, 1500.0));
+        let lags = lagging_patch(&layout, None);
+        let evidence = parallax_obstacle(&layout, &lags, &residue, &config, false, true, &mut scan);
+        assert!(evidence.hazard.is_none(), "{:?}", evidence.hazard);
+        let moving = moving_obstacle(&layout, &lags).expect("a moving obstacle");
+        assert!((750..=800).contains(&moving.near_mm), "{moving:?}");
+
+        let (_, near_j) = layout.grid.ground_to_pixel(0.0, 800.0);
+        let (middle_i, _) = layout.grid.ground_to_pixel(0.0, 800.0);
+        // Next to the patch, on its far side.
+        let measured = (near_j as usize / layout.cells.px - 6) * layout.cells.wide + middle_i as usize / layout.cells.px;
+        let with_depth = lagging_patch(&layout, Some(measured));
+        let evidence = parallax_obstacle(&layout, &with_depth, &residue, &config, false, true, &mut scan);
+        let (drop, depth) = evidence.hazard.expect("a drop");
+        assert!(depth < 0 && (750..=850).contains(&drop.near_mm), "{drop:?} {depth}");
+    }
 }
