@@ -21,6 +21,8 @@ use flatland_core::report::{FrameReport, ANGLE_SCALE, MOTION_SCALE};
 pub const AOI: [u8; 3] = [40, 220, 60];
 pub const RESIDUE: [u8; 3] = [255, 160, 0];
 pub const PARALLAX: [u8; 3] = [230, 60, 230];
+/// Cells a lag hypothesis won: they move with the robot, height unknown.
+pub const MOVING: [u8; 3] = [60, 210, 230];
 pub const TICKS: [u8; 3] = [255, 235, 80];
 // Text and background are grays, so antialiased text is gray too (the
 // GIF's palette has every gray level and few colours).
@@ -31,7 +33,7 @@ const CLEAR: [u8; 3] = [30, 150, 60];
 
 /// Every colour the frame pictures draw with (the GIF keeps them exact).
 pub fn key_colours() -> Vec<[u8; 3]> {
-    let mut colours = vec![AOI, RESIDUE, PARALLAX, TICKS, BACKGROUND, TEXT, DIM_TEXT, CLEAR, [0; 3], [255; 3]];
+    let mut colours = vec![AOI, RESIDUE, PARALLAX, MOVING, TICKS, BACKGROUND, TEXT, DIM_TEXT, CLEAR, [0; 3], [255; 3]];
     colours.extend(Hazard::ALL.map(Hazard::colour));
     colours
 }
@@ -114,6 +116,7 @@ fn legend_items() -> Vec<LegendItem> {
     }
     items.push(LegendItem { colour: RESIDUE, text: "residue no motion explains" });
     items.push(LegendItem { colour: PARALLAX, text: "parallax height >= 20 mm (camera: where it stands)" });
+    items.push(LegendItem { colour: MOVING, text: "moves with the robot (height unknown)" });
     items.push(LegendItem { colour: TICKS, text: "ground every 250 mm" });
     items
 }
@@ -512,11 +515,14 @@ fn top_view(inputs: &FrameInputs, gray: &[u8], parallax: bool, s: usize) -> RgbI
         for row in 0..rows {
             for column in 0..columns {
                 let h = gpa.cell_height(row, column);
-                // Standing up, or (a drop's lower level) below the floor.
+                let evidence = gpa.cell_evidence(row, column);
+                // Standing up, or (a drop's lower level) below the floor, or moving with the robot.
                 let colour = if h >= PARALLAX_MIN_MM {
                     PARALLAX
                 } else if h <= -PARALLAX_MIN_MM {
                     Hazard::Drop.colour()
+                } else if evidence.moving && !evidence.weak {
+                    MOVING
                 } else {
                     continue;
                 };
