@@ -458,8 +458,10 @@ fn parallax_group(
 }
 
 /// The nearest group of cells that move with the robot
-/// ([`CellHeights::is_moving`]): at least three cells, neighbours within a
-/// cell. Such a thing shows no height, so it is placed where its nearest
+/// ([`CellHeights::is_moving`]): at least three cells, neighbours within
+/// three cells, as a drop's lower level (a thing moving along lags only
+/// where it has texture, rows apart; these cells were a drop's until a
+/// drop had to measure a depth). Such a thing shows no height, so it is placed where its nearest
 /// cell's near side is seen on the ground: its own footprint where it
 /// meets the ground (a car's bumper and the shadow under it), never nearer
 /// than it is; at the AOI's near edge when it covers it.
@@ -478,7 +480,7 @@ pub(super) fn moving_obstacle(layout: &Layout, heights: &CellHeights) -> Option<
             continue;
         }
         let (mut group, mut nearest_row, mut left_column, mut right_column) = (0usize, 0usize, usize::MAX, 0usize);
-        flood_cells((w, h), 1, start, &mut seen, moving, None, |_, r, c| {
+        flood_cells((w, h), Side::Below.bridge(), start, &mut seen, moving, None, |_, r, c| {
             group += 1;
             nearest_row = nearest_row.max(r);
             left_column = left_column.min(c);
