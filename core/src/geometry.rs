@@ -630,13 +630,18 @@ fn monotonic_radius_sq(camera: &Intrinsics, d: &Distortion) -> Result<f64, RigEr
         corner_rd = corner_rd.max(sqrt(x * x + y * y));
     }
     // Walk out along the radius until the distorted radius passes the corner
-    // with a margin, requiring a positive derivative on the way.
-    let target = corner_rd * 1.1 + 0.05;
+    // by a pixel (what interpolation at the image's edge reads), requiring a
+    // positive derivative on the way. A wide lens folds back not far past
+    // its corners: a wider margin refused lenses whose whole image inverts.
+    let target = corner_rd + 1.0 / camera.fx.min(camera.fy);
     let radial_distorted = |r: f64| r * (1.0 + r * r * (d.k1 + r * r * (d.k2 + r * r * d.k3)));
     const STEPS: usize = 4000;
     let step = target / 400.0;
     let mut r = 0.0;
     let mut previous = 0.0;
+    // Past the target, the walk goes on to the corners' own undistorted
+    // radius (tangential terms move it off the radial one).
+    let mut needed: Option<f64> = None;
     for _ in 0..STEPS {
         r += step;
         let rd = radial_distorted(r);
@@ -644,21 +649,23 @@ fn monotonic_radius_sq(camera: &Intrinsics, d: &Distortion) -> Result<f64, RigEr
             return Err(RigError::Distortion);
         }
         previous = rd;
-        if rd >= target {
+        if rd >= target && needed.is_none() {
             // Tangential terms: make sure the corners invert and round-trip.
+            let mut farthest: f64 = 0.0;
             for (u, v) in corners {
                 let xd = (u - camera.cx) / camera.fx;
                 let yd = (v - camera.cy) / camera.fy;
                 let (xu, yu) = d.invert(xd, yd).ok_or(RigError::Distortion)?;
-                if xu * xu + yu * yu > r * r {
-                    return Err(RigError::Distortion);
-                }
                 let (xr, yr) = d.apply(xu, yu);
                 let err_px = (xr - xd).abs() * camera.fx + (yr - yd).abs() * camera.fy;
                 if !(err_px < UNDISTORT_TOLERANCE_PX) {
                     return Err(RigError::Distortion);
                 }
+                farthest = farthest.max(sqrt(xu * xu + yu * yu));
             }
+            needed = Some(farthest);
+        }
+        if needed.is_some_and(|needed| r >= needed) {
             return Ok(r * r);
         }
     }
@@ -759,6 +766,33 @@ pub(crate) mod tests {
         assert_eq!(with(f64::NAN, 0.0).unwrap_err(), RigError::NotFinite);
         // Turned 25 degrees, the AOI's right edge leaves the 256 px view.
         assert_eq!(with(0.0, 25.0).unwrap_err(), RigError::AoiOutsideImage(AoiEdge::Right));
+    }
+
+    /// A wide lens whose whole image inverts is accepted however close to
+    /// its corners it folds back (this one folds at 1.07 of the corner
+    /// radius, which a 10 % margin refused), and every corner pixel
+    /// round-trips through the ground; a lens that folds inside the image is
+    /// refused.
+    #[test]
+    fn a_wide_lens_is_accepted_while_its_image_inverts() {
+        let camera = |k1: f64| Intrinsics {
+            width: 320,
+            height: 240,
+            fx: 197.664,
+            fy: 197.664,
+            cx: 159.5,
+            cy: 119.5,
+            distortion: Some(Distortion { k1, k2: 0.00415, p1: 0.00111, p2: -0.00021, k3: 0.0 }),
+            readout_ms: 0.0,
+        };
+        let (mount, aoi) = (Mount::level(617.6, 46.06), Aoi { half_width_mm: 480.0, near_mm: 565.1, far_mm: 1686.7 });
+        let rig = Rig::new_checked(camera(-0.1369), mount, aoi).expect("the whole image inverts");
+        for (u, v) in [(0.0, 239.0), (319.0, 239.0), (0.0, 120.0), (319.0, 120.0)] {
+            let (x, z) = rig.pixel_to_ground(Pixel { u, v }).expect("below the horizon");
+            let p = rig.ground_to_pixel(x, z).expect("seen");
+            assert!((p.u - u).abs() < 0.01 && (p.v - v).abs() < 0.01, "({u}, {v}) -> ({}, {})", p.u, p.v);
+        }
+        assert_eq!(Rig::new_checked(camera(-0.35), mount, aoi).err(), Some(RigError::Distortion));
     }
 
     #[test]
