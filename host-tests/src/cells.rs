@@ -21,8 +21,9 @@ pub struct CellRow {
     pub x_mm: f64,
     pub z_mm: f64,
     pub evidence: CellEvidence,
-    /// Where a cell with a measured height above the ground stands (mm ahead).
-    pub stands_at_mm: Option<f64>,
+    /// Where a cell with a measured height above the ground stands on the
+    /// ground (mm across, mm ahead): seen at p with height h, on p (H-h)/H.
+    pub stands_at: Option<(f64, f64)>,
 }
 
 /// The cells of the last frame `gpa` compared that hold any evidence, far
@@ -38,9 +39,10 @@ pub fn cells_with_evidence(gpa: &Gpa, grid: &KgGrid, camera_height_mm: f64) -> V
                 continue;
             }
             let (x_mm, z_mm) = grid.pixel_to_ground((column as f64 + 0.5) * px - 0.5, (row as f64 + 0.5) * px - 0.5);
-            let h = f64::from(evidence.height_mm);
-            let stands_at_mm = (h > 0.0 && !evidence.weak).then(|| z_mm * (camera_height_mm - h) / camera_height_mm);
-            found.push(CellRow { row, column, x_mm, z_mm, evidence, stands_at_mm });
+            let h = f64::from(evidence.measured_height_mm());
+            let k = (camera_height_mm - h) / camera_height_mm;
+            let stands_at = (h > 0.0).then_some((x_mm * k, z_mm * k));
+            found.push(CellRow { row, column, x_mm, z_mm, evidence, stands_at });
         }
     }
     found
@@ -54,7 +56,7 @@ pub fn cells_csv(frame: u32, gpa: &Gpa, grid: &KgGrid, camera_height_mm: f64) ->
     let mut out = String::new();
     for cell in cells_with_evidence(gpa, grid, camera_height_mm) {
         let e = cell.evidence;
-        let stands = cell.stands_at_mm.map_or(String::new(), |z| format!("{z:.0}"));
+        let stands = cell.stands_at.map_or(String::new(), |(_, z)| format!("{z:.0}"));
         let _ = writeln!(
             out,
             "{frame},{},{},{:.0},{:.0},{},{},{},{},{stands},{least},{shallowest}",

@@ -119,6 +119,22 @@ pub struct CellEvidence {
     pub residue_percent: u32,
 }
 
+impl CellEvidence {
+    /// The height the obstacle groups read: 0 for a weak one.
+    pub fn measured_height_mm(&self) -> i16 {
+        if self.weak {
+            0
+        } else {
+            self.height_mm
+        }
+    }
+
+    /// Moves with the robot, and not weakly (as the moving obstacle reads it).
+    pub fn moves_with_robot(&self) -> bool {
+        self.moving && !self.weak
+    }
+}
+
 /// What a frame's baseline can tell from the ground ([`Gpa::resolution`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Resolution {
@@ -777,15 +793,6 @@ impl<'b> Gpa<'b> {
     /// Blobs found in the last frame (for pictures and tests).
     pub fn blobs(&self) -> &[Blob] {
         &self.blobs
-    }
-    /// Parallax height (mm) of a cell in the last frame, 0 for ground,
-    /// negative below it (a drop's lower level).
-    pub fn cell_height(&self, row: usize, column: usize) -> i16 {
-        let cells = &self.layout.cells;
-        if row >= cells.high || column >= cells.wide {
-            return 0;
-        }
-        self.parallax.height.get(row * cells.wide + column)
     }
     /// What the last frame measured in a cell (row 0 the farthest), for
     /// pictures and `flatland detect --cells`: nothing outside the cells.

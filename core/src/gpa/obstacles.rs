@@ -460,11 +460,11 @@ fn parallax_group(
 /// The nearest group of cells that move with the robot
 /// ([`CellHeights::is_moving`]): at least three cells, neighbours within
 /// three cells, as a drop's lower level (a thing moving along lags only
-/// where it has texture, rows apart; these cells were a drop's until a
-/// drop had to measure a depth). Such a thing shows no height, so it is placed where its nearest
-/// cell's near side is seen on the ground: its own footprint where it
-/// meets the ground (a car's bumper and the shadow under it), never nearer
-/// than it is; at the AOI's near edge when it covers it.
+/// where it has texture, rows apart). Such a thing shows no height, so it
+/// is placed where its nearest cell's near side is seen on the ground: its
+/// own footprint where it meets the ground (a car's bumper and the shadow
+/// under it), never nearer than it is; at the AOI's near edge when it
+/// covers it.
 // Not inlined: its flood's work stack stays out of `decide`'s frame, which
 // the parallax groups' floods stand on.
 #[inline(never)]
@@ -591,15 +591,20 @@ mod tests {
     use crate::grid::{GridConfig, KgGrid};
     use crate::scan::{Scan, ScanLayout};
 
+    /// The cell (row, column) at the middle of the sample rig's AOI, 800 mm
+    /// ahead: the nearest cell of the test's patch.
+    fn patch_corner(layout: &Layout) -> (usize, usize) {
+        let (i, j) = layout.grid.ground_to_pixel(0.0, 800.0);
+        (j as usize / layout.cells.px, i as usize / layout.cells.px)
+    }
+
     /// A patch below the ground in the middle of the sample rig's AOI,
     /// every cell lagging the ground past the deepest drop; `depth_cell`
     /// (if any, outside it) measured a drop's depth.
     fn lagging_patch(layout: &Layout, depth_cell: Option<usize>) -> CellHeights {
         let cells = &layout.cells;
         let mut heights = CellHeights::for_camera(layout.camera_height_mm);
-        let (_, near_j) = layout.grid.ground_to_pixel(0.0, 800.0);
-        let (middle_i, _) = layout.grid.ground_to_pixel(0.0, 800.0);
-        let (row, column) = (near_j as usize / cells.px, middle_i as usize / cells.px);
+        let (row, column) = patch_corner(layout);
         for r in row - 5..=row {
             for c in column - 3..=column + 3 {
                 heights.set_moving(r * cells.wide + c, false);
@@ -628,10 +633,9 @@ mod tests {
         let moving = moving_obstacle(&layout, &lags).expect("a moving obstacle");
         assert!((750..=800).contains(&moving.near_mm), "{moving:?}");
 
-        let (_, near_j) = layout.grid.ground_to_pixel(0.0, 800.0);
-        let (middle_i, _) = layout.grid.ground_to_pixel(0.0, 800.0);
         // Next to the patch, on its far side.
-        let measured = (near_j as usize / layout.cells.px - 6) * layout.cells.wide + middle_i as usize / layout.cells.px;
+        let (row, column) = patch_corner(&layout);
+        let measured = (row - 6) * layout.cells.wide + column;
         let with_depth = lagging_patch(&layout, Some(measured));
         let evidence = parallax_obstacle(&layout, &with_depth, &residue, &config, false, true, &mut scan);
         let (drop, depth) = evidence.hazard.expect("a drop");

@@ -150,13 +150,14 @@ pub(crate) fn run_detect(
         let _ = writeln!(out, "{CSV_HEADER}");
     }
     let mut picture_error = None;
-    let mut cells = match pictures.cells.map(|file| std::fs::File::create(file).map(std::io::BufWriter::new).map_err(|e| format!("{}: {e}", file.display()))) {
+    // The cells table and its path, for the errors.
+    let mut cells = match pictures.cells.map(|path| (path, std::fs::File::create(path).map(std::io::BufWriter::new))) {
         None => None,
-        Some(Ok(mut file)) => {
+        Some((path, Ok(mut file))) => {
             let _ = writeln!(file, "{CELLS_HEADER}");
-            Some(file)
+            Some((path, file))
         }
-        Some(Err(e)) => return fatal(e),
+        Some((path, Err(e))) => return fatal(format!("{}: {e}", path.display())),
     };
     let camera_height_mm = recording.rig.height_mm();
     let alter = |index: u32, frame: &mut Frame| {
@@ -189,9 +190,9 @@ pub(crate) fn run_detect(
                     Err(reason) => eprintln!("frame {}: not judged ({}): {reason}", report.frame, report.status),
                 }
             }
-            if let (true, Some(file)) = (judged, cells.as_mut()) {
+            if let (true, Some((path, file))) = (judged, cells.as_mut()) {
                 if let Err(e) = file.write_all(cells_csv(report.frame, gpa, &grid, camera_height_mm).as_bytes()) {
-                    picture_error.get_or_insert(format!("{}: {e}", pictures.cells.map_or(String::new(), |f| f.display().to_string())));
+                    picture_error.get_or_insert(format!("{}: {e}", path.display()));
                 }
             }
             // Pictures are of the frames compared.
@@ -237,7 +238,7 @@ pub(crate) fn run_detect(
     if let Some(e) = picture_error {
         return fatal(e);
     }
-    if let (Some(mut file), Some(path)) = (cells, pictures.cells) {
+    if let Some((path, mut file)) = cells {
         if let Err(e) = file.flush() {
             return fatal(format!("{}: {e}", path.display()));
         }

@@ -10,6 +10,7 @@
 //! [`Rig::ground_to_pixel`] / [`Rig::point_to_pixel`], lens distortion
 //! included; the top views' are KG pixels of the grid.
 
+use crate::cells::cells_with_evidence;
 use crate::pictures::raster::{Anchor, RgbImage};
 use crate::recording::{Frame, TruthPair};
 use flatland_core::geometry::{Point3, Rig};
@@ -412,23 +413,13 @@ fn camera_view(inputs: &FrameInputs, s: usize) -> RgbImage {
             view.polyline(&ground_line(rig, pair[0], pair[1], 8, s), RESIDUE, line);
         }
     }
-    // Parallax cells: each is drawn where it stands. A cell seen at ground
-    // position p with height h stands on p*(H-h)/H (what the detector uses).
-    let (rows, columns) = inputs.gpa.cells();
-    let height = rig.height_mm();
+    // Parallax cells: each is drawn where it stands (what the detector uses).
     let dot = (s as i32 + 1).max(2);
-    for row in 0..rows {
-        for column in 0..columns {
-            let h = inputs.gpa.cell_height(row, column);
-            if h < PARALLAX_MIN_MM {
-                continue;
-            }
-            let (x, z) = grid.pixel_to_ground((column as f64 + 0.5) * cell - 0.5, (row as f64 + 0.5) * cell - 0.5);
-            let k = (height - f64::from(h)) / height;
-            if let Some(p) = rig.ground_to_pixel(x * k, z * k) {
-                let (x, y) = view_point(p.u, p.v, s);
-                view.fill_box((x - dot / 2, y - dot / 2, x + dot / 2, y + dot / 2), PARALLAX);
-            }
+    for found in cells_with_evidence(inputs.gpa, grid, rig.height_mm()) {
+        let Some((x, z)) = found.stands_at.filter(|_| found.evidence.measured_height_mm() >= PARALLAX_MIN_MM) else { continue };
+        if let Some(p) = rig.ground_to_pixel(x, z) {
+            let (x, y) = view_point(p.u, p.v, s);
+            view.fill_box((x - dot / 2, y - dot / 2, x + dot / 2, y + dot / 2), PARALLAX);
         }
     }
     // The distances go over the evidence, under the hazard.
@@ -514,14 +505,14 @@ fn top_view(inputs: &FrameInputs, gray: &[u8], parallax: bool, s: usize) -> RgbI
         let (rows, columns) = gpa.cells();
         for row in 0..rows {
             for column in 0..columns {
-                let h = gpa.cell_height(row, column);
                 let evidence = gpa.cell_evidence(row, column);
+                let h = evidence.measured_height_mm();
                 // Standing up, or (a drop's lower level) below the floor, or moving with the robot.
                 let colour = if h >= PARALLAX_MIN_MM {
                     PARALLAX
                 } else if h <= -PARALLAX_MIN_MM {
                     Hazard::Drop.colour()
-                } else if evidence.moving && !evidence.weak {
+                } else if evidence.moves_with_robot() {
                     MOVING
                 } else {
                     continue;
