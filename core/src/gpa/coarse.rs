@@ -393,6 +393,39 @@ pub(super) struct CoarseFound {
     pub(super) p: Params,
     pub(super) score: f32,
     pub(super) runner_up: Option<Params>,
+    /// Which edge of the first yaws searched the best lies on (-1, +1),
+    /// when it is to be widened on larger cells; 0: none.
+    yaw_edge: i32,
+}
+
+/// How a search whose best lies on the edge of its first yaws searches
+/// every yaw within reach.
+#[derive(Clone, Copy, PartialEq)]
+pub(super) enum Widen {
+    /// On its own cells: a search a few yaw steps wide (the fine
+    /// searches, whose reach is a wide cell's yaw step or two).
+    InPlace,
+    /// On cells twice as large (half the yaw steps, a quarter of the
+    /// cells and translations: a sixteenth of the work), then its best
+    /// refined on the search's own cells; the better of the two is kept.
+    /// The wide search, whose reach is the prior's: up to 40 yaw steps
+    /// either side.
+    OnLargerCells,
+    /// Only past the edge away from this yaw (degrees): a search around a
+    /// runner-up whose best walks toward the best's yaw is walking into
+    /// the basin the best's own search covers.
+    AwayFrom(f32),
+}
+
+impl Widen {
+    /// Whether to widen past the edge on the side of `steps` (its sign).
+    fn past(self, steps: i32) -> bool {
+        match self {
+            Widen::InPlace | Widen::OnLargerCells => true,
+            // `from` is relative to the start: set by the caller as the best's yaw less this start's.
+            Widen::AwayFrom(from) => from == 0.0 || (steps as f32) * from < 0.0,
+        }
+    }
 }
 
 /// The coarse search's memory: both coarse images and the turned one.
@@ -414,19 +447,42 @@ impl CoarseSearch {
     }
 
     /// The planar motion (tx, tz, yaw) on images of `cell_mm` cells,
-    /// searched over 3 `sigma` around `start`; no runner-up.
-    pub(super) fn search(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32) -> CoarseFound {
-        self.search_for(scene, start, sigma, cell_mm, Wanted::Best)
+    /// searched over 3 `sigma` around `start`, widening its yaws as `widen`
+    /// says; no runner-up.
+    pub(super) fn search(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32, widen: Widen) -> CoarseFound {
+        self.search_for(scene, start, sigma, cell_mm, Wanted::Best, widen)
     }
 
     /// [`Self::search`] with the runner-up.
-    pub(super) fn search_with_runner_up(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32) -> CoarseFound {
-        self.search_for(scene, start, sigma, cell_mm, Wanted::BestAndRunnerUp)
+    pub(super) fn search_with_runner_up(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32, widen: Widen) -> CoarseFound {
+        self.search_for(scene, start, sigma, cell_mm, Wanted::BestAndRunnerUp, widen)
     }
 
-    fn search_for(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32, wanted: Wanted) -> CoarseFound {
+    /// The yaws nearest the start first; when the best lies on their edge,
+    /// every yaw within reach as `widen` says.
+    fn search_for(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32, wanted: Wanted, widen: Widen) -> CoarseFound {
+        let first = self.search_window(scene, start, sigma, cell_mm, wanted, widen);
+        if first.yaw_edge == 0 {
+            return first;
+        }
+        let larger = self.search_window(scene, start, sigma, 2.0 * cell_mm, Wanted::Best, Widen::InPlace);
+        if larger.score == f32::MAX {
+            return first;
+        }
+        // Its answer is good to about half its cell and yaw step: refined
+        // over a whole one either side (two cells and two yaw steps here).
+        let around = [2.0 * cell_mm / 3.0, 2.0 * cell_mm / 3.0, yaw_step(scene.grid, 2.0 * cell_mm) / 3.0, sigma[3], sigma[4]];
+        let refined = self.search_window(scene, &larger.p, &around, cell_mm, wanted, Widen::InPlace);
+        if refined.score < first.score { refined } else { first }
+    }
+
+    /// One search on `cell_mm` cells: the first yaws, then, when the best
+    /// lies on their edge and `widen` says so, every yaw within reach on
+    /// these cells; [`Widen::OnLargerCells`] is left to the caller
+    /// (`yaw_edge`).
+    fn search_window(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32, wanted: Wanted, widen: Widen) -> CoarseFound {
         let p = *start;
-        let unmeasured = CoarseFound { p, score: f32::MAX, runner_up: None };
+        let unmeasured = CoarseFound { p, score: f32::MAX, runner_up: None, yaw_edge: 0 };
         let grid = scene.grid;
         let mm_per_px = grid.mm_per_px as f32;
         let side = ((cell_mm / mm_per_px) as usize).max(2);
@@ -457,7 +513,7 @@ impl CoarseSearch {
         // best's neighbours are mostly on it).
         let mut scored = Scored::new();
         let (mut ranked, mut reach) = (None, yaw_reach.min(FIRST_YAW_STEPS));
-        let (best, second) = loop {
+        let (best, second, yaw_edge) = loop {
             for dyaw in -reach..=reach {
                 if ranked.is_some_and(|ranked: i32| dyaw.abs() <= ranked) {
                     continue;
@@ -478,9 +534,12 @@ impl CoarseSearch {
             }
             ranked = Some(reach);
             let (best, second) = self.rescore(&shortlist, &candidates, wanted, &mut scored);
-            let on_edge = best.cost < f32::MAX && best.steps[0].abs() == reach;
-            if reach == yaw_reach || !on_edge {
-                break (best, second);
+            let on_edge = best.cost < f32::MAX && best.steps[0].abs() == reach && reach < yaw_reach;
+            if !on_edge || !widen.past(best.steps[0]) {
+                break (best, second, 0);
+            }
+            if widen == Widen::OnLargerCells {
+                break (best, second, best.steps[0].signum());
             }
             reach = yaw_reach;
         };
@@ -505,7 +564,7 @@ impl CoarseSearch {
         let yaw = by as f32 + offset(exact(by - 1, bx, bz), exact(by + 1, bx, bz));
         let x = bx as f32 + offset(exact(by, bx - 1, bz), exact(by, bx + 1, bz));
         let z = bz as f32 + offset(exact(by, bx, bz - 1), exact(by, bx, bz + 1));
-        CoarseFound { p: candidates.moved(yaw, x, z), score: centre, runner_up }
+        CoarseFound { p: candidates.moved(yaw, x, z), score: centre, runner_up, yaw_edge }
     }
 
     /// The shortlist scored again sampling the keyframe at each current
@@ -550,6 +609,16 @@ impl CoarseSearch {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_runner_up_widens_only_away_from_the_best() {
+        // The best's yaw lies 1.5 degrees above the runner-up's start.
+        let away = Widen::AwayFrom(1.5);
+        assert!(!away.past(2), "towards the best: its own search covers it");
+        assert!(away.past(-2));
+        assert!(Widen::AwayFrom(0.0).past(2) && Widen::AwayFrom(0.0).past(-2), "same yaw: either side is new ground");
+        assert!(Widen::InPlace.past(2) && Widen::InPlace.past(-2));
+    }
 
     #[test]
     fn the_shortlist_keeps_the_lowest_costs_best_first() {

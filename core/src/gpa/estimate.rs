@@ -34,7 +34,7 @@
 //!
 //! All of it in `f32` (the M4 has a single-precision FPU).
 
-use super::coarse::{yaw_step, CoarseSearch, COARSE_CELL_MM};
+use super::coarse::{yaw_step, CoarseSearch, Widen, COARSE_CELL_MM};
 use super::hazard_mask::MovedMask;
 use super::direct::{self, Alignment, Direct, Geometry, Images, Schedule};
 use super::homography::{Params, SinCosMemo};
@@ -444,7 +444,7 @@ impl Estimator {
         let mut p = prior.p;
         let mut sigma = prior.sigma;
         if reach(sigma[0].max(sigma[1]), fine_mm) > 3.0 {
-            let wide = coarse.search_with_runner_up(scene, &p, &sigma, 2.0 * fine_mm);
+            let wide = coarse.search_with_runner_up(scene, &p, &sigma, 2.0 * fine_mm, Widen::OnLargerCells);
             // What is left: about a large cell, and its yaw step.
             sigma[0] = 2.0 * fine_mm / 3.0;
             sigma[1] = sigma[0];
@@ -453,16 +453,16 @@ impl Estimator {
             // between the two best (a near obstacle filling the view leaves
             // the large cells a near-tie a yaw step apart, which the
             // least rounding tips either way).
-            let best = coarse.search(scene, &wide.p, &sigma, fine_mm);
+            let best = coarse.search(scene, &wide.p, &sigma, fine_mm, Widen::InPlace);
             p = match wide.runner_up {
                 Some(runner_up) => {
-                    let other = coarse.search(scene, &runner_up, &sigma, fine_mm);
+                    let other = coarse.search(scene, &runner_up, &sigma, fine_mm, Widen::AwayFrom(wide.p[2] - runner_up[2]));
                     if other.score < best.score { other.p } else { best.p }
                 }
                 None => best.p,
             };
         } else {
-            p = coarse.search(scene, &p, &sigma, fine_mm).p;
+            p = coarse.search(scene, &p, &sigma, fine_mm, Widen::InPlace).p;
         }
         // The coarse search moves level images: its translation is the one
         // that best explains the attitude change too, so the alignment
@@ -628,6 +628,15 @@ mod tests {
     fn without_odometry_the_wide_search_finds_the_step() {
         let prior = Prior { motion: GroundMotion::default(), sigma: [83.0, 83.0, 8.0, 1.0, 1.0] };
         assert_close(&estimate_of(&TRUTH, &prior, |_, _| false), &TRUTH);
+    }
+
+    /// A turn far past the wide search's first yaws: every yaw within the
+    /// prior's reach is searched on cells twice as large, then refined.
+    #[test]
+    fn without_odometry_a_sharp_turn_is_found() {
+        let turn = GroundMotion { planar: Motion { dyaw_deg: 12.0, ..TRUTH.planar }, ..TRUTH };
+        let prior = Prior { motion: GroundMotion::default(), sigma: [83.0, 83.0, 8.0, 1.0, 1.0] };
+        assert_close(&estimate_of(&turn, &prior, |_, _| false), &turn);
     }
 
     #[test]
