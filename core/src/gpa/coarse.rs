@@ -411,9 +411,10 @@ pub(super) enum Widen {
     /// The wide search, whose reach is the prior's: up to 40 yaw steps
     /// either side.
     OnLargerCells,
-    /// Only past the edge away from this yaw (degrees): a search around a
-    /// runner-up whose best walks toward the best's yaw is walking into
-    /// the basin the best's own search covers.
+    /// In place, but only past the edge facing away from the best, which
+    /// lies this many degrees of yaw from the search's start (either edge
+    /// when 0): a search around a runner-up whose best walks toward the
+    /// best's yaw is walking into the basin the best's own search covers.
     AwayFrom(f32),
 }
 
@@ -422,8 +423,7 @@ impl Widen {
     fn past(self, steps: i32) -> bool {
         match self {
             Widen::InPlace | Widen::OnLargerCells => true,
-            // `from` is relative to the start: set by the caller as the best's yaw less this start's.
-            Widen::AwayFrom(from) => from == 0.0 || (steps as f32) * from < 0.0,
+            Widen::AwayFrom(best) => best == 0.0 || (steps as f32) * best < 0.0,
         }
     }
 }
