@@ -502,24 +502,21 @@ fn top_view(inputs: &FrameInputs, gray: &[u8], parallax: bool, s: usize) -> RgbI
         view.frame_box(rect(l, t, r.min(w - 1), b.min(h - 1)), RESIDUE, line);
     }
     if parallax {
-        let (rows, columns) = gpa.cells();
-        for row in 0..rows {
-            for column in 0..columns {
-                let evidence = gpa.cell_evidence(row, column);
-                let h = evidence.measured_height_mm();
-                // Standing up, or (a drop's lower level) below the floor, or moving with the robot.
-                let colour = if h >= PARALLAX_MIN_MM {
-                    PARALLAX
-                } else if h <= -PARALLAX_MIN_MM {
-                    Hazard::Drop.colour()
-                } else if evidence.moves_with_robot() {
-                    MOVING
-                } else {
-                    continue;
-                };
-                let (l, t, r, b) = rect(column * cell, row * cell, (column + 1) * cell - 1, (row + 1) * cell - 1);
-                view.frame_box((l + 1, t + 1, r - 1, b - 1), colour, 1);
-            }
+        for found in cells_with_evidence(gpa, grid, inputs.rig.height_mm()) {
+            let (evidence, row, column) = (found.evidence, found.row, found.column);
+            let h = evidence.measured_height_mm();
+            // Standing up, or (a drop's lower level) below the floor, or moving with the robot.
+            let colour = if h >= PARALLAX_MIN_MM {
+                PARALLAX
+            } else if h <= -PARALLAX_MIN_MM {
+                Hazard::Drop.colour()
+            } else if evidence.moves_with_robot() {
+                MOVING
+            } else {
+                continue;
+            };
+            let (l, t, r, b) = rect(column * cell, row * cell, (column + 1) * cell - 1, (row + 1) * cell - 1);
+            view.frame_box((l + 1, t + 1, r - 1, b - 1), colour, 1);
         }
     }
     let report = inputs.report;
