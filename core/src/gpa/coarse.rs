@@ -393,9 +393,9 @@ pub(super) struct CoarseFound {
     pub(super) p: Params,
     pub(super) score: f32,
     pub(super) runner_up: Option<Params>,
-    /// Which edge of the first yaws searched the best lies on (-1, +1),
-    /// when it is to be widened on larger cells; 0: none.
-    yaw_edge: i32,
+    /// The best lies on the edge of the first yaws searched, and is to be
+    /// widened on larger cells ([`Widen::OnLargerCells`]).
+    on_yaw_edge: bool,
 }
 
 /// How a search whose best lies on the edge of its first yaws searches
@@ -462,7 +462,7 @@ impl CoarseSearch {
     /// every yaw within reach as `widen` says.
     fn search_for(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32, wanted: Wanted, widen: Widen) -> CoarseFound {
         let first = self.search_window(scene, start, sigma, cell_mm, wanted, widen);
-        if first.yaw_edge == 0 {
+        if !first.on_yaw_edge {
             return first;
         }
         let larger = self.search_window(scene, start, sigma, 2.0 * cell_mm, Wanted::Best, Widen::InPlace);
@@ -479,10 +479,10 @@ impl CoarseSearch {
     /// One search on `cell_mm` cells: the first yaws, then, when the best
     /// lies on their edge and `widen` says so, every yaw within reach on
     /// these cells; [`Widen::OnLargerCells`] is left to the caller
-    /// (`yaw_edge`).
+    /// (`on_yaw_edge`).
     fn search_window(&mut self, scene: &Scene, start: &Params, sigma: &Params, cell_mm: f32, wanted: Wanted, widen: Widen) -> CoarseFound {
         let p = *start;
-        let unmeasured = CoarseFound { p, score: f32::MAX, runner_up: None, yaw_edge: 0 };
+        let unmeasured = CoarseFound { p, score: f32::MAX, runner_up: None, on_yaw_edge: false };
         let grid = scene.grid;
         let mm_per_px = grid.mm_per_px as f32;
         let side = ((cell_mm / mm_per_px) as usize).max(2);
@@ -513,7 +513,7 @@ impl CoarseSearch {
         // best's neighbours are mostly on it).
         let mut scored = Scored::new();
         let (mut ranked, mut reach) = (None, yaw_reach.min(FIRST_YAW_STEPS));
-        let (best, second, yaw_edge) = loop {
+        let (best, second, on_yaw_edge) = loop {
             for dyaw in -reach..=reach {
                 if ranked.is_some_and(|ranked: i32| dyaw.abs() <= ranked) {
                     continue;
@@ -536,10 +536,10 @@ impl CoarseSearch {
             let (best, second) = self.rescore(&shortlist, &candidates, wanted, &mut scored);
             let on_edge = best.cost < f32::MAX && best.steps[0].abs() == reach && reach < yaw_reach;
             if !on_edge || !widen.past(best.steps[0]) {
-                break (best, second, 0);
+                break (best, second, false);
             }
             if widen == Widen::OnLargerCells {
-                break (best, second, best.steps[0].signum());
+                break (best, second, true);
             }
             reach = yaw_reach;
         };
@@ -564,7 +564,7 @@ impl CoarseSearch {
         let yaw = by as f32 + offset(exact(by - 1, bx, bz), exact(by + 1, bx, bz));
         let x = bx as f32 + offset(exact(by, bx - 1, bz), exact(by, bx + 1, bz));
         let z = bz as f32 + offset(exact(by, bx, bz - 1), exact(by, bx, bz + 1));
-        CoarseFound { p: candidates.moved(yaw, x, z), score: centre, runner_up, yaw_edge }
+        CoarseFound { p: candidates.moved(yaw, x, z), score: centre, runner_up, on_yaw_edge }
     }
 
     /// The shortlist scored again sampling the keyframe at each current

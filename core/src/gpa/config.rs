@@ -17,9 +17,10 @@ pub struct GpaConfig {
     pub keyframe_travel_mm: f64,
     /// Turn since the keyframe at which the current frame becomes the keyframe:
     /// turning shrinks the ground both frames see (a turn of 6 degrees
-    /// moves the far edge sideways by a tenth of its distance). A tighter limit cuts a gentle arc's baseline short of
-    /// the travel a height needs: at 3 degrees a robot arcing 6 deg/s at
-    /// 10 frames/s compared over 60-75 mm, not 100.
+    /// moves the far edge sideways by a tenth of its distance). A tighter
+    /// limit cuts a gentle arc's baseline short of the travel a height
+    /// needs: at 3 degrees a robot arcing 6 deg/s at 10 frames/s compared
+    /// over 60-75 mm, not 100.
     pub keyframe_yaw_deg: f64,
     /// A residue pixel exceeds `max(residue_floor, noise_factor * noise)`.
     pub residue_floor: u8,
