@@ -37,6 +37,9 @@ const MAX_SHIFT_STEPS: i32 = 8;
 const TURNED_FRAC: u32 = 4;
 /// A cell the image does not cover.
 const UNSEEN: u16 = kernels::UNSEEN_Q4;
+/// What `libm::roundf` adds to a value >= 0 before it truncates: a half,
+/// less a quarter ulp of 1 (so that the float just under a half rounds down).
+const ROUND_HALF: f32 = 0.5 - 0.25 * f32::EPSILON;
 
 /// The yaw step that moves the grid's farthest corner by half a cell.
 pub(super) fn yaw_step(grid: &KgGrid, cell_mm: f32) -> f32 {
@@ -50,13 +53,18 @@ pub(super) fn yaw_step(grid: &KgGrid, cell_mm: f32) -> f32 {
 /// cell and its validity with one load.
 struct Coarse {
     cells: [u16; MAX_COARSE_CELLS],
+    /// The same cells as f32 gray levels, NaN where unseen: the bilinear
+    /// samples read them without a conversion or a test per corner (a NaN
+    /// corner makes the sample NaN). The workspace holds the alignment's
+    /// pyramids at other times, which are larger: no RAM of its own.
+    levels: [f32; MAX_COARSE_CELLS],
     wide: usize,
     high: usize,
     side: usize,
 }
 
 impl Coarse {
-    const EMPTY: Coarse = Coarse { cells: [UNSEEN; MAX_COARSE_CELLS], wide: 0, high: 0, side: 1 };
+    const EMPTY: Coarse = Coarse { cells: [UNSEEN; MAX_COARSE_CELLS], levels: [f32::NAN; MAX_COARSE_CELLS], wide: 0, high: 0, side: 1 };
 
     /// Cell `k`'s gray level, if seen.
     #[inline(always)]
@@ -96,7 +104,8 @@ impl Coarse {
             }
             for (ci, &sum) in sums.iter().enumerate() {
                 let level = (sum / (side * side) as u32) as u8;
-                self.cells[cj * wide + ci] = if valid.contains(&ci) { u16::from(level) << TURNED_FRAC } else { UNSEEN };
+                let k = cj * wide + ci;
+                (self.cells[k], self.levels[k]) = if valid.contains(&ci) { (u16::from(level) << TURNED_FRAC, f32::from(level)) } else { (UNSEEN, f32::NAN) };
             }
         }
     }
@@ -129,20 +138,18 @@ impl Coarse {
         let k = v0 * self.wide + u0;
         // SAFETY: u0 + 1 < wide and v0 + 1 < high, so every corner is below
         // wide * high, which `build` keeps within MAX_COARSE_CELLS.
-        let corners = unsafe {
+        let c = unsafe {
             [
-                *self.cells.get_unchecked(k),
-                *self.cells.get_unchecked(k + 1),
-                *self.cells.get_unchecked(k + self.wide),
-                *self.cells.get_unchecked(k + self.wide + 1),
+                *self.levels.get_unchecked(k),
+                *self.levels.get_unchecked(k + 1),
+                *self.levels.get_unchecked(k + self.wide),
+                *self.levels.get_unchecked(k + self.wide + 1),
             ]
         };
-        if corners.contains(&UNSEEN) {
-            return None;
-        }
         let (fu, fv) = (u - u0 as f32, v - v0 as f32);
-        let c = |i: usize| f32::from(corners[i] >> TURNED_FRAC);
-        Some((c(0) * (1.0 - fu) + c(1) * fu) * (1.0 - fv) + (c(2) * (1.0 - fu) + c(3) * fu) * fv)
+        let value = (c[0] * (1.0 - fu) + c[1] * fu) * (1.0 - fv) + (c[2] * (1.0 - fu) + c[3] * fu) * fv;
+        // NaN: a corner was not seen.
+        (!value.is_nan()).then_some(value)
     }
 }
 
@@ -167,7 +174,8 @@ impl Turned {
                 let du = qi as f32 - offset.0;
                 let (u, v) = (cos * du - sin * dv, sin * du + cos * dv);
                 self.cells[qj * current.wide + qi] = match current.at(u, v) {
-                    Some(value) => libm::roundf(value * scale).min(f32::from(UNSEEN - 1)) as u16,
+                    // libm::roundf for values >= 0, as it adds (trunc x + 0.5 - ulp/4), without its call.
+                    Some(value) => ((value * scale + ROUND_HALF) as u32).min(u32::from(UNSEEN - 1)) as u16,
                     None => UNSEEN,
                 };
             }
@@ -235,18 +243,18 @@ impl Candidates {
         Placement { sin, cos, offset: (ou - origin_u, origin_v - ov) }
     }
 
-    /// A candidate's score with the prior's say: it grows by
-    /// [`COARSE_PRIOR_WEIGHT`] per squared sigma the candidate lies from
-    /// the start (a floor with little texture at this scale, or one edge
+    /// What a candidate's score is multiplied by to give its cost, the
+    /// prior's say: the cost grows by [`COARSE_PRIOR_WEIGHT`] per squared
+    /// sigma the candidate lies from the start (a floor with little texture at this scale, or one edge
     /// across the view, scores alike along a whole line of candidates).
-    fn cost(&self, score: f32, dyaw: i32, dx: i32, dz: i32) -> f32 {
+    fn prior_factor(&self, dyaw: i32, dx: i32, dz: i32) -> f32 {
         let squared_sigmas = |steps: i32, unit: f32, sigma: f32| {
             let sigmas = steps as f32 * unit / sigma.max(1e-9);
             sigmas * sigmas
         };
         let sigma = &self.sigma;
         let squared = squared_sigmas(dx, self.cell_mm, sigma[0]) + squared_sigmas(dz, self.cell_mm, sigma[1]) + squared_sigmas(dyaw, self.yaw_step, sigma[2]);
-        score * (1.0 + COARSE_PRIOR_WEIGHT * squared)
+        1.0 + COARSE_PRIOR_WEIGHT * squared
     }
 
     /// The start moved by (yaw, x, z) steps.
@@ -524,10 +532,12 @@ impl CoarseSearch {
                         // Once the shortlist is full, a candidate whose cost
                         // cannot get under its last is given up early.
                         let last = shortlist.last_cost();
-                        let hopeless = |bound: f32| last < f32::MAX && candidates.cost(bound, dyaw, dx, dz) >= last;
+                        // The prior's factor once per candidate, not per row.
+                        let factor = candidates.prior_factor(dyaw, dx, dz);
+                        let hopeless = |bound: f32| last < f32::MAX && bound * factor >= last;
                         let Some(score) = candidates.turned_score_unless(&self.turned, &self.keyframe, dx, dz, hopeless) else { continue };
                         if score != f32::MAX {
-                            shortlist.offer(candidates.cost(score, dyaw, dx, dz), [dyaw, dz, dx]);
+                            shortlist.offer(score * factor, [dyaw, dz, dx]);
                         }
                     }
                 }
@@ -587,14 +597,15 @@ impl CoarseSearch {
                 Wanted::Best => best,
                 Wanted::BestAndRunnerUp => second,
             };
-            let hopeless = |bound: f32| to_beat.cost < f32::MAX && !(Ranked { cost: candidates.cost(bound, dyaw, dx, dz), steps }).beats(&to_beat);
+            let factor = candidates.prior_factor(dyaw, dx, dz);
+            let hopeless = |bound: f32| to_beat.cost < f32::MAX && !(Ranked { cost: bound * factor, steps }).beats(&to_beat);
             let Some(score) = candidates.exact_score_unless(&self.keyframe, &self.current, &placement, hopeless) else { continue };
             // Never full: the shortlist holds SHORTLIST candidates.
             let _ = scored.push((steps, score));
             if score == f32::MAX {
                 continue;
             }
-            let candidate = Ranked { cost: candidates.cost(score, dyaw, dx, dz), steps };
+            let candidate = Ranked { cost: score * factor, steps };
             if candidate.beats(&best) {
                 second = best;
                 best = candidate;
@@ -618,6 +629,24 @@ mod tests {
         assert!(away.past(-2));
         assert!(Widen::AwayFrom(0.0).past(2) && Widen::AwayFrom(0.0).past(-2), "same yaw: either side is new ground");
         assert!(Widen::InPlace.past(2) && Widen::InPlace.past(-2));
+    }
+
+    /// The turned image's rounding is libm's `roundf` on every value it
+    /// can meet (>= 0), halves and the float just under a half included.
+    #[test]
+    fn the_turned_rounding_is_roundf() {
+        let just_under_half = f32::from_bits(0.5f32.to_bits() - 1);
+        let mut values = std::vec![0.0, just_under_half, 0.5, 1.5, 2.5, 4079.5, 65534.5, 1e6];
+        let mut state = 0x1234_5678u32;
+        for _ in 0..100_000 {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            values.push(f32::from_bits(state % 0x4780_0000));
+        }
+        for x in values {
+            assert_eq!((x + ROUND_HALF) as u32 as f32, libm::roundf(x), "{x}");
+        }
     }
 
     #[test]
@@ -644,7 +673,8 @@ mod tests {
         (image.wide, image.high, image.side) = (wide, high, 5);
         for j in 0..high {
             for i in 0..wide {
-                image.cells[j * wide + i] = u16::from(value(i, j)) << TURNED_FRAC;
+                let level = value(i, j);
+                (image.cells[j * wide + i], image.levels[j * wide + i]) = (u16::from(level) << TURNED_FRAC, f32::from(level));
             }
         }
         image
