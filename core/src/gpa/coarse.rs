@@ -37,6 +37,26 @@ const MAX_SHIFT_STEPS: i32 = 8;
 const TURNED_FRAC: u32 = 4;
 /// A cell the image does not cover.
 const UNSEEN: u16 = kernels::UNSEEN_Q4;
+/// What the difference kernel counts as seen: below 2^15 (a turned cell
+/// of a very dark current image may lie above, and counts as unseen).
+const SEEN_BELOW: u16 = 1 << 15;
+/// Most rows a coarse image has (its cells are at least 2 px).
+const MAX_COARSE_ROWS: usize = MAX_GRID_SIDE / 2;
+/// A row's seen cells, `[start, end)`, when every cell between is seen;
+/// [`MIXED`] when unseen cells lie between seen ones.
+type Span = [u8; 2];
+const MIXED: Span = [u8::MAX, 0];
+
+/// The span of a row's seen cells, or [`MIXED`].
+fn span_of(row: &[u16]) -> Span {
+    let seen = |&cell: &u16| cell < SEEN_BELOW;
+    let Some(start) = row.iter().position(seen) else {
+        return [0, 0];
+    };
+    let end = row.len() - row.iter().rev().position(seen).unwrap_or(0);
+    // Rows are at most MAX_GRID_SIDE / 2 = 128 cells long.
+    if row[start..end].iter().all(seen) { [start as u8, end as u8] } else { MIXED }
+}
 /// What `libm::roundf` adds to a value >= 0 before it truncates: a half,
 /// less a quarter ulp of 1 (so that the float just under a half rounds down).
 const ROUND_HALF: f32 = 0.5 - 0.25 * f32::EPSILON;
@@ -58,13 +78,15 @@ struct Coarse {
     /// corner makes the sample NaN). The workspace holds the alignment's
     /// pyramids at other times, which are larger: no RAM of its own.
     levels: [f32; MAX_COARSE_CELLS],
+    /// Each row's seen cells (the difference kernel's fast path).
+    spans: [Span; MAX_COARSE_ROWS],
     wide: usize,
     high: usize,
     side: usize,
 }
 
 impl Coarse {
-    const EMPTY: Coarse = Coarse { cells: [UNSEEN; MAX_COARSE_CELLS], levels: [f32::NAN; MAX_COARSE_CELLS], wide: 0, high: 0, side: 1 };
+    const EMPTY: Coarse = Coarse { cells: [UNSEEN; MAX_COARSE_CELLS], levels: [f32::NAN; MAX_COARSE_CELLS], spans: [[0, 0]; MAX_COARSE_ROWS], wide: 0, high: 0, side: 1 };
 
     /// Cell `k`'s gray level, if seen.
     #[inline(always)]
@@ -107,6 +129,7 @@ impl Coarse {
                 let k = cj * wide + ci;
                 (self.cells[k], self.levels[k]) = if valid.contains(&ci) { (u16::from(level) << TURNED_FRAC, f32::from(level)) } else { (UNSEEN, f32::NAN) };
             }
+            self.spans[cj] = span_of(&self.cells[cj * wide..][..wide]);
         }
     }
 
@@ -158,10 +181,12 @@ impl Coarse {
 /// current image does not cover the cell).
 struct Turned {
     cells: [u16; MAX_COARSE_CELLS],
+    /// Each row's seen cells (the difference kernel's fast path).
+    spans: [Span; MAX_COARSE_ROWS],
 }
 
 impl Turned {
-    const EMPTY: Turned = Turned { cells: [UNSEEN; MAX_COARSE_CELLS] };
+    const EMPTY: Turned = Turned { cells: [UNSEEN; MAX_COARSE_CELLS], spans: [[0, 0]; MAX_COARSE_ROWS] };
 
     /// Samples `current` at every keyframe cell `q` through the inverse of
     /// `placement`, divided by `gain`.
@@ -179,6 +204,7 @@ impl Turned {
                     None => UNSEEN,
                 };
             }
+            self.spans[qj] = span_of(&self.cells[qj * current.wide..][..current.wide]);
         }
     }
 
@@ -199,9 +225,27 @@ impl Turned {
             if hopeless(sum, count + (rows.len() - done) as u32 * len as u32) {
                 return None;
             }
-            let key_at = (kj * wide + columns.start) as usize;
-            let turned_at = ((kj - dj) * wide + columns.start - di) as usize;
-            let (row_sum, row_count) = kernels::seen_difference(&keyframe.cells[key_at..][..len], &self.cells[turned_at..][..len]);
+            let (key_row, turned_row) = ((kj * wide) as usize, ((kj - dj) * wide) as usize);
+            let (row_sum, row_count) = match (keyframe.spans[kj as usize], self.spans[(kj - dj) as usize]) {
+                // Both rows seen throughout their spans: the cells both see
+                // are where the spans overlap (the turned one moved by di).
+                ([ks, ke], [ts, te]) if [ks, ke] != MIXED && [ts, te] != MIXED => {
+                    let from = columns.start.max(i32::from(ks)).max(i32::from(ts) + di);
+                    let to = columns.end.min(i32::from(ke)).min(i32::from(te) + di);
+                    if from < to {
+                        let turned_from = (turned_row as i32 + from - di) as usize;
+                        let (from, to) = (from as usize, to as usize);
+                        let turned = &self.cells[turned_from..][..to - from];
+                        (kernels::plain_difference(&keyframe.cells[key_row + from..key_row + to], turned), (to - from) as u32)
+                    } else {
+                        (0, 0)
+                    }
+                }
+                _ => {
+                    let (key_at, turned_at) = (key_row + columns.start as usize, (turned_row as i32 + columns.start - di) as usize);
+                    kernels::seen_difference(&keyframe.cells[key_at..][..len], &self.cells[turned_at..][..len])
+                }
+            };
             sum += row_sum;
             count += row_count;
         }
@@ -676,8 +720,20 @@ mod tests {
                 let level = value(i, j);
                 (image.cells[j * wide + i], image.levels[j * wide + i]) = (u16::from(level) << TURNED_FRAC, f32::from(level));
             }
+            image.spans[j] = span_of(&image.cells[j * wide..][..wide]);
         }
         image
+    }
+
+    #[test]
+    fn a_span_is_the_seen_cells_when_none_between_is_unseen() {
+        let (seen, dark) = (16, SEEN_BELOW);
+        assert_eq!(span_of(&[UNSEEN, seen, seen, UNSEEN]), [1, 3]);
+        assert_eq!(span_of(&[seen, seen]), [0, 2]);
+        assert_eq!(span_of(&[UNSEEN, UNSEEN]), [0, 0]);
+        assert_eq!(span_of(&[]), [0, 0]);
+        assert_eq!(span_of(&[seen, UNSEEN, seen]), MIXED);
+        assert_eq!(span_of(&[seen, dark, seen]), MIXED, "a cell at 2^15 counts as unseen, as the kernel reads it");
     }
 
     #[test]

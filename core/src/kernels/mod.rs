@@ -359,6 +359,13 @@ pub fn seen_difference(a: &[u16], b: &[u16]) -> (u32, u32) {
     selected::seen_difference(a, b)
 }
 
+/// [`seen_difference`]'s sum where every cell of both is seen (below
+/// 2^15): the count is the length.
+#[inline]
+pub fn plain_difference(a: &[u16], b: &[u16]) -> u32 {
+    selected::plain_difference(a, b)
+}
+
 // ---------------------------------------------------------------- float
 
 /// The square root, correctly rounded as IEEE 754 asks: bit for bit what

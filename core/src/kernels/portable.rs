@@ -161,6 +161,11 @@ pub fn seen_difference(a: &[u16], b: &[u16]) -> (u32, u32) {
     (sum, count)
 }
 
+/// Sum of |a - b| (values below 2^15).
+pub fn plain_difference(a: &[u16], b: &[u16]) -> u32 {
+    a.iter().zip(b).map(|(&x, &y)| u32::from(x.abs_diff(y))).sum()
+}
+
 #[inline(always)]
 pub fn residues<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLines, threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
     let super::ResidueLines { row, centre, up, down } = lines;

@@ -28,7 +28,7 @@ mod sad;
 
 pub use bilinear::{bilinear_line, bilinear_stretch};
 pub use blocks::dot_shifts;
-pub use coarse::seen_difference;
+pub use coarse::{plain_difference, seen_difference};
 pub use columns::{add_to_columns, take_pieces};
 pub use normal::add_normal_terms;
 pub use pyramid::{mean_4x4, strongest_gradients};
