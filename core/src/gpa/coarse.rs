@@ -86,7 +86,10 @@ struct Coarse {
 }
 
 impl Coarse {
-    const EMPTY: Coarse = Coarse { cells: [UNSEEN; MAX_COARSE_CELLS], levels: [f32::NAN; MAX_COARSE_CELLS], spans: [[0, 0]; MAX_COARSE_ROWS], wide: 0, high: 0, side: 1 };
+    // All zeros: `build` writes every cell that is read (the first `wide` x
+    // `high`) and the side, and a search's memory that is all zeros is set
+    // up without an image of it in flash (33 KB).
+    const EMPTY: Coarse = Coarse { cells: [0; MAX_COARSE_CELLS], levels: [0.0; MAX_COARSE_CELLS], spans: [[0, 0]; MAX_COARSE_ROWS], wide: 0, high: 0, side: 0 };
 
     /// Cell `k`'s gray level, if seen.
     #[inline(always)]
@@ -186,7 +189,8 @@ struct Turned {
 }
 
 impl Turned {
-    const EMPTY: Turned = Turned { cells: [UNSEEN; MAX_COARSE_CELLS], spans: [[0, 0]; MAX_COARSE_ROWS] };
+    // Zeros, as `Coarse::EMPTY`: `build` writes every cell that is read.
+    const EMPTY: Turned = Turned { cells: [0; MAX_COARSE_CELLS], spans: [[0, 0]; MAX_COARSE_ROWS] };
 
     /// Samples `current` at every keyframe cell `q` through the inverse of
     /// `placement`, divided by `gain`.

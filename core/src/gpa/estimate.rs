@@ -433,12 +433,15 @@ impl Estimator {
     /// Step 1: where the alignment starts from. `prior.sigma` sets the coarse
     /// search's reach (3 sigma); a reach of more than a few cells is
     /// searched on cells twice as large first.
-    pub(super) fn coarse_start(coarse: &mut CoarseSearch, scene: &Scene, prior: &Prior) -> Params {
-        coarse.new_scene();
+    /// `coarse` hands over the search's memory, asked for only when it
+    /// searches: setting up its 33 KB costs thousands of instructions.
+    pub(super) fn coarse_start<'c>(coarse: impl FnOnce() -> &'c mut CoarseSearch, scene: &Scene, prior: &Prior) -> Params {
         let prior = Start::of(prior);
         if within_alignment_reach(scene.grid, &prior.sigma) {
             return prior.p;
         }
+        let coarse = coarse();
+        coarse.new_scene();
         let fine_mm = COARSE_CELL_MM.max(2.0 * scene.grid.mm_per_px as f32);
         let reach = |sigma: f32, unit: f32| 3.0 * sigma / unit;
         let mut p = prior.p;
@@ -597,7 +600,7 @@ mod tests {
     /// Step 1, then the rest, as `Gpa::estimate` runs them.
     fn estimate(scene: &Scene, prior: &Prior) -> Option<Estimate> {
         let mut workspace = std::boxed::Box::new(Workspace::EMPTY);
-        let start = Estimator::coarse_start(workspace.coarse(), scene, prior);
+        let start = Estimator::coarse_start(|| workspace.coarse(), scene, prior);
         workspace.estimator().estimate(scene, prior, start)
     }
 

@@ -517,7 +517,7 @@ impl<'b> Gpa<'b> {
             sin_cos: SinCosMemo::new(),
         };
         let since = self.profiler.now();
-        let start = Estimator::coarse_start(self.workspace.coarse(), &scene, prior);
+        let start = Estimator::coarse_start(|| self.workspace.coarse(), &scene, prior);
         self.profiler.charge(since, |p| &mut p.estimate_coarse);
         let estimator = self.workspace.estimator();
         estimator.profiler = Profiler { clock: self.profiler.clock, profile: GpaProfile::default() };
