@@ -110,24 +110,27 @@ impl Coarse {
         self.wide = w / side;
         self.high = h / side;
         let wide = self.wide;
-        let mut sums = [0u32; MAX_GRID_SIDE / 2];
+        // Each pixel column summed over a row of cells first (at most 256
+        // rows of 255: a u16 holds it), then each cell's columns: one pass
+        // over a row, not a loop per cell and row.
+        let mut columns = [0u16; MAX_GRID_SIDE];
         for cj in 0..self.high {
             // A cell counts where the camera saw its first and last column
             // in each of its rows: the cells from `valid.start` to `valid.end`.
             let mut valid = 0..wide;
-            let sums = &mut sums[..wide];
-            sums.fill(0);
+            let columns = &mut columns[..wide * side];
+            columns.fill(0);
             for j in cj * side..(cj + 1) * side {
                 valid = match scene.coverage.seen(j) {
-                    Some(columns) => valid.start.max(columns.start.div_ceil(side))..valid.end.min(columns.end / side),
+                    Some(seen) => valid.start.max(seen.start.div_ceil(side))..valid.end.min(seen.end / side),
                     None => 0..0,
                 };
-                let row = &image[j * w..][..wide * side];
-                for (sum, cell) in sums.iter_mut().zip(row.chunks_exact(side)) {
-                    *sum += cell.iter().map(|&v| u32::from(v)).sum::<u32>();
+                for (column, &v) in columns.iter_mut().zip(&image[j * w..][..wide * side]) {
+                    *column += u16::from(v);
                 }
             }
-            for (ci, &sum) in sums.iter().enumerate() {
+            let sums = columns.chunks_exact(side).map(|cell| cell.iter().map(|&c| u32::from(c)).sum::<u32>());
+            for (ci, sum) in sums.enumerate() {
                 let level = (sum / (side * side) as u32) as u8;
                 let k = cj * wide + ci;
                 (self.cells[k], self.levels[k]) = if valid.contains(&ci) { (u16::from(level) << TURNED_FRAC, f32::from(level)) } else { (UNSEEN, f32::NAN) };
@@ -153,14 +156,12 @@ impl Coarse {
 
     /// Bilinear sample at cell coordinates (u, v) (cell centres at integers).
     fn at(&self, u: f32, v: f32) -> Option<f32> {
-        if !(u >= 0.0 && v >= 0.0) {
+        // Inside the cells that have a right and a lower neighbour: u0 + 1 <
+        // wide is u < wide - 1 for u >= 0 (false for a NaN, or a point far off).
+        if !(u >= 0.0 && v >= 0.0 && u < self.wide as f32 - 1.0 && v < self.high as f32 - 1.0) {
             return None;
         }
-        // Saturating: a point far off (a wild motion) is outside, not an overflow.
         let (u0, v0) = (u as usize, v as usize);
-        if u0.saturating_add(1) >= self.wide || v0.saturating_add(1) >= self.high {
-            return None;
-        }
         let k = v0 * self.wide + u0;
         // SAFETY: u0 + 1 < wide and v0 + 1 < high, so every corner is below
         // wide * high, which `build` keeps within MAX_COARSE_CELLS.
@@ -344,16 +345,16 @@ impl Candidates {
                 return None;
             }
             for ci in 0..current.wide {
-                let k = cj * current.wide + ci;
-                let Some(level) = current.value(k) else {
+                let level = current.levels[cj * current.wide + ci];
+                if level.is_nan() {
                     continue;
-                };
+                }
                 seen += 1;
                 let (u, v) = (ci as f32, cj as f32);
                 let Some(value) = keyframe.at(au * u + bu * v + ou, -(av * u + bv * v) + ov) else {
                     continue;
                 };
-                sum += libm::fabsf(f32::from(level) - self.gain * value);
+                sum += libm::fabsf(level - self.gain * value);
                 count += 1;
             }
         }
