@@ -46,6 +46,9 @@ const MAX_COARSE_ROWS: usize = MAX_GRID_SIDE / 2;
 /// [`MIXED`] when unseen cells lie between seen ones.
 type Span = [u8; 2];
 const MIXED: Span = [u8::MAX, 0];
+/// What `libm::roundf` adds to a value >= 0 before it truncates: a half,
+/// less a quarter ulp of 1 (so that the float just under a half rounds down).
+const ROUND_HALF: f32 = 0.5 - 0.25 * f32::EPSILON;
 
 /// The span of a row's seen cells, or [`MIXED`].
 fn span_of(row: &[u16]) -> Span {
@@ -57,9 +60,6 @@ fn span_of(row: &[u16]) -> Span {
     // Rows are at most MAX_GRID_SIDE / 2 = 128 cells long.
     if row[start..end].iter().all(seen) { [start as u8, end as u8] } else { MIXED }
 }
-/// What `libm::roundf` adds to a value >= 0 before it truncates: a half,
-/// less a quarter ulp of 1 (so that the float just under a half rounds down).
-const ROUND_HALF: f32 = 0.5 - 0.25 * f32::EPSILON;
 
 /// The yaw step that moves the grid's farthest corner by half a cell.
 pub(super) fn yaw_step(grid: &KgGrid, cell_mm: f32) -> f32 {
@@ -130,13 +130,21 @@ impl Coarse {
                 }
             }
             let sums = columns.chunks_exact(side).map(|cell| cell.iter().map(|&c| u32::from(c)).sum::<u32>());
-            for (ci, sum) in sums.enumerate() {
-                let level = (sum / (side * side) as u32) as u8;
-                let k = cj * wide + ci;
-                (self.cells[k], self.levels[k]) = if valid.contains(&ci) { (u16::from(level) << TURNED_FRAC, f32::from(level)) } else { (UNSEEN, f32::NAN) };
-            }
-            self.spans[cj] = span_of(&self.cells[cj * wide..][..wide]);
+            self.set_row(cj, sums.enumerate().map(|(ci, sum)| valid.contains(&ci).then_some((sum / (side * side) as u32) as u8)));
         }
+    }
+
+    /// Row `cj`'s cells from their gray levels (None: unseen), in both
+    /// forms, and its span.
+    fn set_row(&mut self, cj: usize, levels: impl Iterator<Item = Option<u8>>) {
+        let row = cj * self.wide..(cj + 1) * self.wide;
+        for ((cell, level), seen) in self.cells[row.clone()].iter_mut().zip(&mut self.levels[row.clone()]).zip(levels) {
+            (*cell, *level) = match seen {
+                Some(value) => (u16::from(value) << TURNED_FRAC, f32::from(value)),
+                None => (UNSEEN, f32::NAN),
+            };
+        }
+        self.spans[cj] = span_of(&self.cells[row]);
     }
 
     fn mean(&self) -> f32 {
@@ -204,7 +212,7 @@ impl Turned {
                 let du = qi as f32 - offset.0;
                 let (u, v) = (cos * du - sin * dv, sin * du + cos * dv);
                 self.cells[qj * current.wide + qi] = match current.at(u, v) {
-                    // libm::roundf for values >= 0, as it adds (trunc x + 0.5 - ulp/4), without its call.
+                    // libm::roundf (value >= 0): x + ROUND_HALF truncated, without the call.
                     Some(value) => ((value * scale + ROUND_HALF) as u32).min(u32::from(UNSEEN - 1)) as u16,
                     None => UNSEEN,
                 };
@@ -294,8 +302,9 @@ impl Candidates {
 
     /// What a candidate's score is multiplied by to give its cost, the
     /// prior's say: the cost grows by [`COARSE_PRIOR_WEIGHT`] per squared
-    /// sigma the candidate lies from the start (a floor with little texture at this scale, or one edge
-    /// across the view, scores alike along a whole line of candidates).
+    /// sigma the candidate lies from the start (a floor with little texture
+    /// at this scale, or one edge across the view, scores alike along a
+    /// whole line of candidates).
     fn prior_factor(&self, dyaw: i32, dx: i32, dz: i32) -> f32 {
         let squared_sigmas = |steps: i32, unit: f32, sigma: f32| {
             let sigmas = steps as f32 * unit / sigma.max(1e-9);
@@ -721,11 +730,7 @@ mod tests {
         let mut image = Coarse::EMPTY;
         (image.wide, image.high, image.side) = (wide, high, 5);
         for j in 0..high {
-            for i in 0..wide {
-                let level = value(i, j);
-                (image.cells[j * wide + i], image.levels[j * wide + i]) = (u16::from(level) << TURNED_FRAC, f32::from(level));
-            }
-            image.spans[j] = span_of(&image.cells[j * wide..][..wide]);
+            image.set_row(j, (0..wide).map(|i| Some(value(i, j))));
         }
         image
     }
