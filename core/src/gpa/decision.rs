@@ -188,7 +188,8 @@ impl Alarm {
             .filter(still_in_view)
             .filter(|_| self.previous.is_some_and(|previous| self.cannot_clear(&previous, baseline_mm, drops_looked_for, config)))
             .map(within_aoi);
-        let found = found.map(|found| match moved_previous {
+        // The last drop's edge, kept where it is nearer, is within the AOI too.
+        let found = found.map(|found| match moved_previous.map(within_aoi) {
             Some((last, _)) => nearer_drop_edge(found, &last),
             None => found,
         });
@@ -323,6 +324,17 @@ mod tests {
         // An obstacle standing up is where it is found.
         alarm.decide(Some((at(1000), -30)), None, 100.0, true, &config, &STEP);
         assert_eq!(alarm.decide(Some((at(1000), 80)), None, 100.0, true, &config, &STEP), Some((at(1000), Some(80))));
+    }
+
+    /// A drop found again after the motion brought the last one's edge
+    /// nearer than the AOI's near edge keeps that edge at the near edge,
+    /// as a held one does: a footprint is never reported outside the AOI.
+    #[test]
+    fn a_drop_edge_kept_from_the_last_frame_stays_within_the_aoi() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::within(AoiMm { near: 300.0, far: 1000.0, half_width: 200.0 });
+        alarm.decide(Some((at(320), -60)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(Some((at(400), -60)), None, 100.0, true, &config, &STEP), Some((at(300), Some(-60))));
     }
 
     /// A robot turning in place (no baseline: nothing can be cleared) holds
