@@ -176,20 +176,19 @@ impl Alarm {
             (None, None) => AlarmSource::None,
         };
         let found = parallax.map(|(footprint, height)| (footprint, Some(height))).or(residue.map(|footprint| (footprint, None)));
-        let moved_previous = self.previous.map(|((footprint, height), found_at)| ((footprint.moved(step), height), found_at));
-        let still_in_view = |moved: &(Hazard, f64)| self.aoi.as_ref().is_none_or(|aoi| moved.0 .0.in_aoi(aoi));
         // What the motion brought nearer than the AOI's near edge is at that
-        // edge, as far as the AOI goes (and the scan, which starts there).
+        // edge, as far as the AOI goes (and the scan, which starts there):
+        // held, or kept as a drop's nearer edge.
         let within_aoi = |((footprint, height), found_at): (Hazard, f64)| {
             let near_mm = self.aoi.as_ref().map_or(footprint.near_mm, |aoi| footprint.near_mm.max(libm::round(aoi.near) as i32));
             ((Footprint { near_mm, ..footprint }, height), found_at)
         };
+        let moved_previous = self.previous.map(|((footprint, height), found_at)| ((footprint.moved(step), height), found_at)).map(within_aoi);
+        let still_in_view = |moved: &(Hazard, f64)| self.aoi.as_ref().is_none_or(|aoi| moved.0 .0.in_aoi(aoi));
         let held = moved_previous
             .filter(still_in_view)
-            .filter(|_| self.previous.is_some_and(|previous| self.cannot_clear(&previous, baseline_mm, drops_looked_for, config)))
-            .map(within_aoi);
-        // The last drop's edge, kept where it is nearer, is within the AOI too.
-        let found = found.map(|found| match moved_previous.map(within_aoi) {
+            .filter(|_| self.previous.is_some_and(|previous| self.cannot_clear(&previous, baseline_mm, drops_looked_for, config)));
+        let found = found.map(|found| match moved_previous {
             Some((last, _)) => nearer_drop_edge(found, &last),
             None => found,
         });
