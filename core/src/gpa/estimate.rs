@@ -183,6 +183,13 @@ pub(super) struct Prior {
     pub(super) sigma: [f64; 5],
 }
 
+impl Prior {
+    /// Whether its 3 sigma lies within the alignment's own reach.
+    pub(super) fn within_alignment_reach(&self, grid: &KgGrid) -> bool {
+        within_alignment_reach(grid, &Start::of(self).sigma)
+    }
+}
+
 /// The prior in the estimate's units.
 struct Start {
     p: Params,
@@ -353,6 +360,24 @@ impl Estimator {
     /// [`Self::coarse_start`]), or None when no start leads to a
     /// measurement that can be trusted.
     pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior, start: Params) -> Option<Estimate> {
+        self.estimate_from(scene, prior, Some(start))
+    }
+
+    /// The motion keyframe -> now from the prior's prediction alone,
+    /// without step 1: the whole view aligned from it, kept only when it
+    /// is trusted and ends within the alignment's reach of its start (so
+    /// that it settled in the basin the prediction lies in, not one it
+    /// walked to). None otherwise: step 1 then searches the prior's reach.
+    /// A prior reaching beyond the alignment is wide for the frames where
+    /// the motion jumps (a turn begins, the robot stops); on the others
+    /// the prediction is within a few millimetres, and this costs one
+    /// alignment instead of the search.
+    pub(super) fn estimate_from_prediction(&mut self, scene: &Scene, prior: &Prior) -> Option<Estimate> {
+        self.estimate_from(scene, prior, None)
+    }
+
+    /// [`Self::estimate`] from `start`, or from the prediction alone (None).
+    fn estimate_from(&mut self, scene: &Scene, prior: &Prior, start: Option<Params>) -> Option<Estimate> {
         self.typical = scene.typical;
         let since = self.profiler.now();
         let images = scene.images();
@@ -372,9 +397,14 @@ impl Estimator {
             whole: schedule,
             near: Schedule { near_from_level: 0, ..schedule },
         };
-        // Step 1 searched when the prior reaches beyond the alignment.
-        let ladder = !within_alignment_reach(scene.grid, &prior_start.sigma);
-        let aligned = first_trusted(&mut self.direct, &attempts, &start, &prior_start, &prior7, ladder);
+        let aligned = match start {
+            Some(start) => {
+                // Step 1 searched when the prior reaches beyond the alignment.
+                let ladder = !within_alignment_reach(scene.grid, &prior_start.sigma);
+                first_trusted(&mut self.direct, &attempts, &start, &prior_start, &prior7, ladder)
+            }
+            None => attempts.whole(&mut self.direct, &prior_start.p, &prior7).filter(|(a, _)| within_reach_of(scene.grid, &prior_start.p, &a.p)),
+        };
         self.profiler.charge(since, |p| &mut p.estimate_align);
         let aligned = match aligned? {
             (whole, true) => self.nearest_surface(&images, &prior7, whole, schedule.near_row, scene.typical.0),
@@ -479,11 +509,24 @@ impl Estimator {
 /// Whether the prior's 3 sigma lies within the alignment's own reach
 /// (its top level's pixel), so the coarse search has nothing to add.
 pub(super) fn within_alignment_reach(grid: &KgGrid, sigma: &Params) -> bool {
-    let reach_px = ALIGNMENT_REACH_TOP_PX * super::pyramid::SCALES[LEVELS - 1] as f32;
-    let reach_mm = reach_px * grid.mm_per_px as f32;
-    let far_px = kernels::hypotf(grid.x_left_mm as f32, grid.z_far_mm as f32) / grid.mm_per_px as f32;
-    let reach_deg = (reach_px / far_px.max(1.0)).to_degrees();
+    let (reach_mm, reach_deg) = alignment_reach(grid);
     3.0 * sigma[0].max(sigma[1]) <= reach_mm && 3.0 * sigma[2] <= reach_deg
+}
+
+/// Whether the alignment that started at `start` ended at `end` within
+/// its own reach ([`within_alignment_reach`]'s) in translation and yaw.
+fn within_reach_of(grid: &KgGrid, start: &Params, end: &Geometry) -> bool {
+    let (reach_mm, reach_deg) = alignment_reach(grid);
+    kernels::hypotf(end[0] - start[0], end[1] - start[1]) <= reach_mm && libm::fabsf(end[2] - start[2]) <= reach_deg
+}
+
+/// How far the alignment reaches from its start: its top level's
+/// [`ALIGNMENT_REACH_TOP_PX`], in mm and in degrees of yaw at the grid's
+/// farthest corner.
+fn alignment_reach(grid: &KgGrid) -> (f32, f32) {
+    let reach_px = ALIGNMENT_REACH_TOP_PX * super::pyramid::SCALES[LEVELS - 1] as f32;
+    let far_px = kernels::hypotf(grid.x_left_mm as f32, grid.z_far_mm as f32) / grid.mm_per_px as f32;
+    (reach_px * grid.mm_per_px as f32, (reach_px / far_px.max(1.0)).to_degrees())
 }
 
 /// Whether an alignment is a measurement: most of the ground agrees with

@@ -517,13 +517,29 @@ impl<'b> Gpa<'b> {
             sin_cos: SinCosMemo::new(),
         };
         let since = self.profiler.now();
-        let start = Estimator::coarse_start(|| self.workspace.coarse(), &scene, prior);
-        self.profiler.charge(since, |p| &mut p.estimate_coarse);
-        let estimator = self.workspace.estimator();
-        estimator.profiler = Profiler { clock: self.profiler.clock, profile: GpaProfile::default() };
-        let estimate = estimator.estimate(&scene, prior, start);
-        self.typical_misregistration = estimator.typical;
-        let parts = estimator.profiler.profile;
+        let clock = self.profiler.clock;
+        let mut parts = GpaProfile::default();
+        let mut estimate = None;
+        // A predicted motion (the odometry's, or the last measured velocity)
+        // under a prior wider than the alignment reaches: the prediction is
+        // tried first, and step 1 searches only when its alignment fails.
+        let predicted = self.odometry.is_some() || self.velocity_known;
+        if predicted && !prior.within_alignment_reach(&self.layout.grid) {
+            let estimator = self.workspace.estimator();
+            estimator.profiler = Profiler { clock, profile: parts };
+            estimate = estimator.estimate_from_prediction(&scene, prior);
+            parts = estimator.profiler.profile;
+        }
+        if estimate.is_none() {
+            let coarse_since = self.profiler.now();
+            let start = Estimator::coarse_start(|| self.workspace.coarse(), &scene, prior);
+            self.profiler.charge(coarse_since, |p| &mut p.estimate_coarse);
+            let estimator = self.workspace.estimator();
+            estimator.profiler = Profiler { clock, profile: parts };
+            estimate = estimator.estimate(&scene, prior, start);
+            parts = estimator.profiler.profile;
+        }
+        self.typical_misregistration = self.workspace.estimator().typical;
         self.profiler.charge(since, |p| &mut p.estimate);
         let profile = &mut self.profiler.profile;
         (profile.estimate_pyramids, profile.estimate_align, profile.estimate_nearest_surface, profile.estimate_lower_level) =
