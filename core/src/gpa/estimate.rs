@@ -640,7 +640,8 @@ mod tests {
         estimate(&scene, prior).expect("a textured floor is measured").motion
     }
 
-    /// Step 1, then the rest, as `Gpa::estimate` runs them.
+    /// Step 1, then the rest, as `Gpa::estimate` runs them when it does
+    /// not try the prediction first (or the prediction fails).
     fn estimate(scene: &Scene, prior: &Prior) -> Option<Estimate> {
         let mut workspace = std::boxed::Box::new(Workspace::EMPTY);
         let start = Estimator::coarse_start(|| workspace.coarse(), scene, prior);
@@ -674,6 +675,46 @@ mod tests {
     fn without_odometry_the_wide_search_finds_the_step() {
         let prior = Prior { motion: GroundMotion::default(), sigma: [83.0, 83.0, 8.0, 1.0, 1.0] };
         assert_close(&estimate_of(&TRUTH, &prior, |_, _| false), &TRUTH);
+    }
+
+    /// The prediction alone (`Gpa::estimate`'s first try under a wide
+    /// prior), on the floor moved by `motion`.
+    fn from_prediction(motion: &GroundMotion, prior: &Prior) -> Option<GroundMotion> {
+        let (keyframe, current) = (render(&GroundMotion::default(), |_, _| false), render(motion, |_, _| false));
+        let grid = grid();
+        let coverage = Coverage::full(&grid);
+        let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0, hazards: None, keyframe_attitude: KeyframeAttitude::NOMINAL, typical: TypicalMisregistration::default(), sin_cos: SinCosMemo::new() };
+        let mut workspace = std::boxed::Box::new(Workspace::EMPTY);
+        workspace.estimator().estimate_from_prediction(&scene, prior).map(|e| e.motion)
+    }
+
+    /// Without odometry, a velocity measured: the prior is wide, but the
+    /// motion is where the velocity predicts, and one alignment measures it.
+    #[test]
+    fn a_prediction_that_holds_is_measured_without_the_search() {
+        let prior = Prior { motion: GroundMotion { planar: Motion { tx_mm: 10.0, tz_mm: 86.0, dyaw_deg: 1.8 }, attitude: Attitude::default() }, sigma: [83.0, 83.0, 8.0, 1.0, 1.0] };
+        assert!(!prior.within_alignment_reach(&grid()), "a prior the search would cover");
+        let found = from_prediction(&TRUTH, &prior).expect("the prediction holds");
+        assert_close(&found, &TRUTH);
+    }
+
+    /// The prediction lies beyond the alignment's reach (12 top-level px,
+    /// 60 mm here) of the motion: the robot sped up, or stopped. Its
+    /// alignment is not kept, so the search runs: on this floor it walks
+    /// to the motion from 75 mm, but a walk that long may as well end in
+    /// a texture's alias. And from the stop it does not fit.
+    #[test]
+    fn a_prediction_that_does_not_hold_is_left_to_the_search() {
+        let wide = [83.0, 83.0, 8.0, 1.0, 1.0];
+        let short = Prior { motion: GroundMotion { planar: Motion { tz_mm: TRUTH.planar.tz_mm - 75.0, ..TRUTH.planar }, attitude: Attitude::default() }, sigma: wide };
+        let found = from_prediction(&TRUTH, &short);
+        assert!(found.is_none(), "kept {found:?}, walked 75 mm from the prediction");
+        assert_close(&estimate_of(&TRUTH, &short, |_, _| false), &TRUTH);
+        let stopped = GroundMotion { planar: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 }, ..TRUTH };
+        let moving = Prior { motion: GroundMotion { planar: TRUTH.planar, attitude: Attitude::default() }, sigma: wide };
+        let found = from_prediction(&stopped, &moving);
+        assert!(found.is_none(), "kept {found:?} from a prediction 90 mm off");
+        assert_close(&estimate_of(&stopped, &moving, |_, _| false), &stopped);
     }
 
     /// A turn far past the wide search's first yaws: every yaw within the
