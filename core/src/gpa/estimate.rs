@@ -634,10 +634,14 @@ mod tests {
     }
 
     fn estimate_between(keyframe: &[u8], current: &[u8], prior: &Prior) -> GroundMotion {
+        with_scene(keyframe, current, |scene| estimate(scene, prior)).expect("a textured floor is measured").motion
+    }
+
+    /// `f` on the scene of two of [`grid`]'s images, the whole grid seen.
+    fn with_scene<R>(keyframe: &[u8], current: &[u8], f: impl FnOnce(&Scene) -> R) -> R {
         let grid = grid();
         let coverage = Coverage::full(&grid);
-        let scene = Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, hazards: None, keyframe_attitude: KeyframeAttitude::NOMINAL, typical: TypicalMisregistration::default(), sin_cos: SinCosMemo::new() };
-        estimate(&scene, prior).expect("a textured floor is measured").motion
+        f(&Scene { keyframe, current, grid: &grid, coverage: &coverage, height_mm: 400.0, hazards: None, keyframe_attitude: KeyframeAttitude::NOMINAL, typical: TypicalMisregistration::default(), sin_cos: SinCosMemo::new() })
     }
 
     /// Step 1, then the rest, as `Gpa::estimate` runs them when it does
@@ -681,11 +685,8 @@ mod tests {
     /// prior), on the floor moved by `motion`.
     fn from_prediction(motion: &GroundMotion, prior: &Prior) -> Option<GroundMotion> {
         let (keyframe, current) = (render(&GroundMotion::default(), |_, _| false), render(motion, |_, _| false));
-        let grid = grid();
-        let coverage = Coverage::full(&grid);
-        let scene = Scene { keyframe: &keyframe, current: &current, grid: &grid, coverage: &coverage, height_mm: 400.0, hazards: None, keyframe_attitude: KeyframeAttitude::NOMINAL, typical: TypicalMisregistration::default(), sin_cos: SinCosMemo::new() };
         let mut workspace = std::boxed::Box::new(Workspace::EMPTY);
-        workspace.estimator().estimate_from_prediction(&scene, prior).map(|e| e.motion)
+        with_scene(&keyframe, &current, |scene| workspace.estimator().estimate_from_prediction(scene, prior)).map(|e| e.motion)
     }
 
     /// Without odometry, a velocity measured: the prior is wide, but the
