@@ -1,0 +1,205 @@
+#!/usr/bin/env python3
+"""Why the wrong pairs of rendered recordings are wrong: each miss sorted by
+what the frame could tell, each false alarm by what raised it. The figures
+behind a change of the decision or of the keyframe schedule, which the
+scoreboard's right/wrong alone does not give.
+
+usage: miss_causes.py FLATLAND SCENES_DIR REC [REC ...] [--odometry none]
+
+FLATLAND is the `flatland` binary; SCENES_DIR the folder of the scene TOMLs
+the recordings were rendered from (named like them, as random_scenes.py
+writes them). The hazard a missed pair is about is the scene's nearest one
+in the AOI at the frame's true pose (the renderer's own `pair_truth` rule:
+obstacles 20 mm or higher, drops 20 mm or deeper). Pairs next to a change
+of the truth are not scored, as on the scoreboard. Needs the renderer,
+../shared/tools/render, and its Python environment (numpy).
+
+A miss is, first that applies:
+- `not judged`: the frame's status is not ok;
+- `below resolution`: the hazard is lower (a drop: shallower) than the frame
+  tells from the ground at its baseline (`least_height_mm`,
+  `shallowest_drop_mm` of `flatland detect --cells`: docs/ARCHITECTURE.md,
+  "How certain a height is"); unknown on a frame where no cell measured
+  anything (the table lists none);
+- `nothing measured there`: no cell has a height, a lag or residue within a
+  cell of where the hazard shows in the top view (an obstacle from its
+  footprint to where its top is seen, H/(H-h) times as far; a drop from its
+  edge to the AOI's far edge);
+- `measured there, weakly`: cells there measured something, every one of
+  them weakly (their best hypothesis beats the ground by less than the
+  gain a height needs: low contrast), and no hazard was decided;
+- `measured there`: some of them measured it firmly, and no hazard was
+  decided (the groups' rules: size, residue, baseline).
+Each miss is also counted by where the hazard starts in the AOI: `near`
+(its first fifth), `far` (its last fifth) or `middle`. A false alarm is
+`held` (a hazard of an earlier frame, carried on) or `found` on the frame
+itself (`flatland detect --verbose`).
+
+stdout: a line per recording with a wrong pair, then the totals.
+"""
+
+import csv
+import io
+import os
+import subprocess
+import sys
+import tempfile
+import tomllib
+from collections import Counter, defaultdict
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RENDER = os.path.normpath(os.path.join(HERE, "..", "..", "..", "shared", "tools", "render"))
+sys.path.insert(0, RENDER)
+import generate  # noqa: E402  (the renderer's own poses and truth geometry)
+import numpy as np  # noqa: E402
+from rigmath import world_to_robot_xz  # noqa: E402
+
+MISS_CAUSES = ("not judged", "below resolution", "nothing measured there", "measured there, weakly", "measured there")
+BANDS = ("near", "middle", "far")
+ALARM_CAUSES = ("held", "found")
+GROUND_LIMIT_MM = 20.0
+
+
+def nearest_hazards(sc):
+    """Per frame (1..), the nearest hazard in the AOI at the true pose:
+    (kind, height or depth mm, where it starts mm ahead, its (left, right)
+    mm in the AOI), or None."""
+    a = sc["aoi"]
+    hw, near, far = a["half_width_mm"], a["near_mm"], a["far_mm"]
+    poses = generate.true_poses(sc)
+    found = {}
+    for i in range(1, len(poses)):
+        t = i * sc["dt_s"]
+        best = None
+        for ob in sc["obstacle"]:
+            if ob["height_mm"] >= GROUND_LIMIT_MM:
+                fp = generate.footprint(ob, generate.obstacle_pos(ob, t))
+                best = nearer(best, ("obstacle", ob["height_mm"]), fp, poses[i], (hw, near, far))
+        for dr in sc["drop"]:
+            if dr["drop_mm"] >= GROUND_LIMIT_MM:
+                best = nearer(best, ("drop", dr["drop_mm"]), generate.drop_footprint(dr), poses[i], (hw, near, far))
+        found[i] = best
+    return found
+
+
+def nearer(best, hazard, footprint, pose, aoi):
+    hw, near, far = aoi
+    xr, zr = world_to_robot_xz(footprint[:, 0], footprint[:, 1], pose)
+    clipped = generate.clip_rect(np.stack([xr, zr], 1), -hw, hw, near, far)
+    if not clipped:
+        return best
+    start = min(p[1] for p in clipped)
+    across = (min(p[0] for p in clipped), max(p[0] for p in clipped))
+    return best if best is not None and best[2] <= start else (hazard[0], hazard[1], start, across)
+
+
+def detect(flatland, rec, extra):
+    """The csv rows by frame, the frames' listed cells, and the --verbose sources."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cells_path = os.path.join(tmp, "cells.csv")
+        run = subprocess.run([flatland, "detect", rec, "--format", "csv", "--verbose", "--cells", cells_path, *extra],
+                             capture_output=True, text=True, check=True)
+        cells = defaultdict(list)
+        with open(cells_path) as f:
+            for row in csv.DictReader(f):
+                cells[int(row["frame"])].append(row)
+    rows = {int(row["frame"]): row for row in csv.DictReader(io.StringIO(run.stdout))}
+    sources = {}
+    for line in run.stderr.splitlines():
+        if line.startswith("frame ") and ": " in line:
+            frame, source = line[len("frame "):].split(": ", 1)
+            if frame.isdigit():
+                sources[int(frame)] = source.strip()
+    return rows, cells, sources
+
+
+def miss_cause(row, cells, hazard, camera_height_mm, aoi, cell_mm):
+    if row is None or row.get("status", "ok") != "ok":
+        return "not judged"
+    kind, size_mm, start, (left, right) = hazard
+    if cells:
+        limit = float(cells[0]["least_height_mm" if kind == "obstacle" else "shallowest_drop_mm"] or "inf")
+        if size_mm < limit:
+            return "below resolution"
+    # How far the hazard shows in the top view.
+    if kind == "drop":
+        reach = aoi["far_mm"]
+    elif size_mm < camera_height_mm:
+        reach = start * camera_height_mm / (camera_height_mm - size_mm)
+    else:
+        reach = float("inf")
+    there = [c for c in cells
+             if left - cell_mm <= float(c["x_mm"]) <= right + cell_mm and start - cell_mm <= float(c["z_mm"]) <= reach + cell_mm]
+    if not there:
+        return "nothing measured there"
+    return "measured there" if any(c["weak"] == "0" for c in there) else "measured there, weakly"
+
+
+def cell_size_mm(cells):
+    """A cell's side (mm), from the spacing of the cell centres listed."""
+    zs = sorted({float(c["z_mm"]) for frame in cells.values() for c in frame})
+    steps = [b - a for a, b in zip(zs, zs[1:]) if b - a > 1.0]
+    return min(steps) if steps else 0.0
+
+
+def band(start_mm, aoi):
+    fraction = (start_mm - aoi["near_mm"]) / (aoi["far_mm"] - aoi["near_mm"])
+    return "near" if fraction < 0.2 else "far" if fraction > 0.8 else "middle"
+
+
+def causes(flatland, scene, rec, extra):
+    sc = generate.load_scene(scene)
+    hazards = nearest_hazards(sc)
+    with open(os.path.join(rec, "rig.toml"), "rb") as f:
+        camera_height_mm = tomllib.load(f)["mount"]["height_mm"]
+    with open(os.path.join(rec, "truth.toml"), "rb") as f:
+        truth = {p["frame"]: p for p in tomllib.load(f).get("pair", [])}
+    rows, cells, sources = detect(flatland, rec, extra)
+    cell_mm = cell_size_mm(cells)
+    counts = Counter()
+    for frame, pair in truth.items():
+        if any(g in truth and truth[g]["alarm"] != pair["alarm"] for g in (frame - 1, frame + 1)):
+            continue
+        row = rows.get(frame)
+        judged = row is not None and row.get("status", "ok") == "ok"
+        alarm = judged and row["alarm"] == "1"
+        if pair["alarm"] and not alarm:
+            hazard = hazards.get(frame)
+            if hazard is None:  # the truth's rule and ours disagree: count it, unsorted
+                counts["miss", "unknown hazard"] += 1
+                continue
+            counts["miss", miss_cause(row, cells.get(frame, []), hazard, camera_height_mm, sc["aoi"], cell_mm)] += 1
+            counts["band", band(hazard[2], sc["aoi"])] += 1
+        elif alarm and not pair["alarm"]:
+            counts["alarm", "held" if sources.get(frame) == "Held" else "found"] += 1
+    return counts
+
+
+def line(name, counts):
+    misses = ", ".join("%s %d" % (c, counts["miss", c]) for c in MISS_CAUSES + ("unknown hazard",) if counts["miss", c])
+    bands = " / ".join(str(counts["band", b]) for b in BANDS)
+    alarms = ", ".join("%s %d" % (c, counts["alarm", c]) for c in ALARM_CAUSES if counts["alarm", c])
+    return "%s | misses: %s | near/middle/far %s | false alarms: %s" % (name, misses or "-", bands, alarms or "-")
+
+
+def main(args):
+    extra = []
+    if "--odometry" in args:
+        at = args.index("--odometry")
+        extra = args[at:at + 2]
+        del args[at:at + 2]
+    if len(args) < 3:
+        sys.exit(__doc__)
+    flatland, scenes, recs = args[0], args[1], args[2:]
+    total = Counter()
+    for rec in recs:
+        name = os.path.basename(os.path.normpath(rec))
+        counts = causes(flatland, os.path.join(scenes, name + ".toml"), rec, extra)
+        total.update(counts)
+        if counts:
+            print(line(name, counts))
+    print(line("all", total))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
