@@ -47,9 +47,7 @@ import tempfile
 import tomllib
 from collections import Counter, defaultdict
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-RENDER = os.path.normpath(os.path.join(HERE, "..", "..", "..", "shared", "tools", "render"))
-sys.path.insert(0, RENDER)
+from rendered_set import arguments, scene_of  # also puts the renderer on the path
 import generate  # noqa: E402  (the renderer's own poses and truth geometry)
 import numpy as np  # noqa: E402
 from rigmath import world_to_robot_xz  # noqa: E402
@@ -183,18 +181,11 @@ def line(name, counts):
 
 
 def main(args):
-    extra = []
-    if "--odometry" in args:
-        at = args.index("--odometry")
-        extra = args[at:at + 2]
-        del args[at:at + 2]
-    if len(args) < 3:
-        sys.exit(__doc__)
-    flatland, scenes, recs = args[0], args[1], args[2:]
+    flatland, scenes, recs, extra = arguments(args, __doc__)
     total = Counter()
     for rec in recs:
-        name = os.path.basename(os.path.normpath(rec))
-        counts = causes(flatland, os.path.join(scenes, name + ".toml"), rec, extra)
+        name, scene = scene_of(scenes, rec)
+        counts = causes(flatland, scene, rec, extra)
         total.update(counts)
         if counts:
             print(line(name, counts))

@@ -20,13 +20,10 @@ by more than 1 / 3 degrees of yaw, then the totals.
 import csv
 import io
 import math
-import os
 import subprocess
 import sys
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-RENDER = os.path.normpath(os.path.join(HERE, "..", "..", "..", "shared", "tools", "render"))
-sys.path.insert(0, RENDER)
+from rendered_set import arguments, scene_of  # also puts the renderer on the path
 import generate  # noqa: E402  (the renderer's own poses)
 from rigmath import relative  # noqa: E402
 
@@ -56,20 +53,13 @@ def counts(found):
 
 
 def main(args):
-    extra = []
-    if "--odometry" in args:
-        at = args.index("--odometry")
-        extra = args[at:at + 2]
-        del args[at:at + 2]
-    if len(args) < 3:
-        sys.exit(__doc__)
-    flatland, scenes, recs = args[0], args[1], args[2:]
+    flatland, scenes, recs, extra = arguments(args, __doc__)
     header = "frames off by > %s mm, yaw off by > %s deg" % (" / ".join(map(str, LIMITS_MM)), " / ".join(map(str, LIMITS_DEG)))
     print("recording | frames | " + header)
     total, frames = [0] * (len(LIMITS_MM) + len(LIMITS_DEG)), 0
     for rec in recs:
-        name = os.path.basename(os.path.normpath(rec))
-        found = errors(flatland, os.path.join(scenes, name + ".toml"), rec, extra)
+        name, scene = scene_of(scenes, rec)
+        found = errors(flatland, scene, rec, extra)
         row = counts(found)
         frames += len(found)
         total = [a + b for a, b in zip(total, row)]
