@@ -29,11 +29,14 @@ A miss is, first that applies:
   them weakly (their best hypothesis beats the ground by less than the
   gain a height needs: low contrast), and no hazard was decided;
 - `measured there`: some of them measured it firmly, and no hazard was
-  decided (the groups' rules: size, residue, baseline).
+  decided (the groups' rules: size, residue, baseline);
+- `unknown hazard`: the truth says alarm, but no hazard of the scene lies
+  in the AOI by the renderer's rule (the two disagree; counted, unsorted).
 Each miss is also counted by where the hazard starts in the AOI: `near`
-(its first fifth), `far` (its last fifth) or `middle`. A false alarm is
-`held` (a hazard of an earlier frame, carried on) or `found` on the frame
-itself (`flatland detect --verbose`).
+(its first fifth), `far` (its last fifth) or `middle`. A clear pair
+that is wrong is a false alarm `held` (a hazard of an earlier frame,
+carried on) or `found` on the frame itself (`flatland detect --verbose`),
+or `not judged`.
 
 stdout: a line per recording with a wrong pair, then the totals.
 """
@@ -52,9 +55,9 @@ import generate  # noqa: E402  (the renderer's own poses and truth geometry)
 import numpy as np  # noqa: E402
 from rigmath import world_to_robot_xz  # noqa: E402
 
-MISS_CAUSES = ("not judged", "below resolution", "nothing measured there", "measured there, weakly", "measured there")
+MISS_CAUSES = ("not judged", "below resolution", "nothing measured there", "measured there, weakly", "measured there", "unknown hazard")
 BANDS = ("near", "middle", "far")
-ALARM_CAUSES = ("held", "found")
+ALARM_CAUSES = ("held", "found", "not judged")
 GROUND_LIMIT_MM = 20.0
 
 
@@ -168,16 +171,18 @@ def causes(flatland, scene, rec, extra):
                 continue
             counts["miss", miss_cause(row, cells.get(frame, []), hazard, camera_height_mm, sc["aoi"], cell_mm)] += 1
             counts["band", band(hazard[2], sc["aoi"])] += 1
+        elif not pair["alarm"] and not judged:
+            counts["alarm", "not judged"] += 1
         elif alarm and not pair["alarm"]:
             counts["alarm", "held" if sources.get(frame) == "Held" else "found"] += 1
     return counts
 
 
 def line(name, counts):
-    misses = ", ".join("%s %d" % (c, counts["miss", c]) for c in MISS_CAUSES + ("unknown hazard",) if counts["miss", c])
+    misses = ", ".join("%s %d" % (c, counts["miss", c]) for c in MISS_CAUSES if counts["miss", c])
     bands = " / ".join(str(counts["band", b]) for b in BANDS)
     alarms = ", ".join("%s %d" % (c, counts["alarm", c]) for c in ALARM_CAUSES if counts["alarm", c])
-    return "%s | misses: %s | near/middle/far %s | false alarms: %s" % (name, misses or "-", bands, alarms or "-")
+    return "%s | misses: %s | near/middle/far %s | clear pairs wrong: %s" % (name, misses or "-", bands, alarms or "-")
 
 
 def main(args):
