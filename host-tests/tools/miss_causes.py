@@ -23,8 +23,9 @@ A miss is, first that applies:
   anything (the table lists none);
 - `nothing measured there`: no cell has a height, a lag or residue within a
   cell of where the hazard shows in the top view (an obstacle from its
-  footprint to where its top is seen, H/(H-h) times as far; a drop from its
-  edge to the AOI's far edge);
+  footprint to where its top is seen, H/(H-h) times as far from the camera,
+  sideways too, inside the AOI or not; a drop from its edge to the AOI's
+  far edge);
 - `measured there, weakly`: cells there measured something, every one of
   them weakly (their best hypothesis beats the ground by less than the
   gain a height needs: low contrast), and no hazard was decided;
@@ -64,7 +65,7 @@ GROUND_LIMIT_MM = 20.0
 def nearest_hazards(sc):
     """Per frame (1..), the nearest hazard in the AOI at the true pose:
     (kind, height or depth mm, where it starts mm ahead, its (left, right)
-    mm in the AOI), or None."""
+    mm in the AOI, its whole footprint in the robot frame), or None."""
     a = sc["aoi"]
     hw, near, far = a["half_width_mm"], a["near_mm"], a["far_mm"]
     poses = generate.true_poses(sc)
@@ -91,7 +92,8 @@ def nearer(best, hazard, footprint, pose, aoi):
         return best
     start = min(p[1] for p in clipped)
     across = (min(p[0] for p in clipped), max(p[0] for p in clipped))
-    return best if best is not None and best[2] <= start else (hazard[0], hazard[1], start, across)
+    whole = np.stack([xr, zr], 1)
+    return best if best is not None and best[2] <= start else (hazard[0], hazard[1], start, across, whole)
 
 
 def detect(flatland, rec, extra):
@@ -117,23 +119,37 @@ def detect(flatland, rec, extra):
 def miss_cause(row, cells, hazard, camera_height_mm, aoi, cell_mm):
     if row is None or row.get("status", "ok") != "ok":
         return "not judged"
-    kind, size_mm, start, (left, right) = hazard
+    kind, size_mm = hazard[0], hazard[1]
     if cells:
         limit = float(cells[0]["least_height_mm" if kind == "obstacle" else "shallowest_drop_mm"] or "inf")
         if size_mm < limit:
             return "below resolution"
-    # How far the hazard shows in the top view.
-    if kind == "drop":
-        reach = aoi["far_mm"]
-    elif size_mm < camera_height_mm:
-        reach = start * camera_height_mm / (camera_height_mm - size_mm)
-    else:
-        reach = float("inf")
-    there = [c for c in cells
-             if left - cell_mm <= float(c["x_mm"]) <= right + cell_mm and start - cell_mm <= float(c["z_mm"]) <= reach + cell_mm]
+    there = [c for c in cells if shows_there(c, hazard, camera_height_mm, aoi, cell_mm)]
     if not there:
         return "nothing measured there"
     return "measured there" if any(c["weak"] == "0" for c in there) else "measured there, weakly"
+
+
+def shows_there(cell, hazard, camera_height_mm, aoi, cell_mm):
+    """Whether a listed cell lies, within a cell, where the hazard shows in
+    the top view. A drop: from its edge to the AOI's far edge, across its
+    part of the AOI. An obstacle: a point of it h up shows H/(H-h) times as
+    far from the camera (which stands over the robot origin in rendered
+    rigs) as its footprint, ahead and sideways alike: a tall thing beside
+    the AOI shows outside it, fanning out."""
+    kind, size_mm, start, (left, right), footprint = hazard
+    x, z = float(cell["x_mm"]), float(cell["z_mm"])
+    if kind == "drop":
+        return left - cell_mm <= x <= right + cell_mm and start - cell_mm <= z <= aoi["far_mm"] + cell_mm
+    # The cell's point brought back toward the camera by every factor
+    # (H-h)/H a height up to the obstacle's gives, against the footprint
+    # grown by a cell.
+    lowest = max(0.0, 1.0 - size_mm / camera_height_mm)
+    (x0, z0), (x1, z1) = footprint.min(axis=0) - cell_mm, footprint.max(axis=0) + cell_mm
+    for s in np.linspace(lowest, 1.0, 24):
+        if x0 <= x * s <= x1 and z0 <= z * s <= z1:
+            return True
+    return False
 
 
 def cell_size_mm(cells):
