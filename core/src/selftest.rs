@@ -55,6 +55,7 @@ macro_rules! checks {
 checks! {
     kernels: [
         dsp_kernels_equal_portable,
+        sad_of_long_rows_equals_plain,
         bilinear_line_equals_plain,
         bilinear_stretch_equals_plain,
         seed_statistics_equal_plain,

@@ -100,6 +100,56 @@ pub fn dsp_kernels_equal_portable() -> Outcome {
     Ok(())
 }
 
+/// Bytes of the long rows below, longer than two of NEON's u16 sums
+/// (each 128 blocks of 16 bytes) with every tail. Statics, in flash on
+/// the M4, which runs these checks too.
+const LONG: usize = 4200;
+static ZEROS: [u8; LONG] = [0; LONG];
+static FULL: [u8; LONG] = [255; LONG];
+static NOISE: [[u8; LONG]; 2] = [noise(0x2545_F491), noise(0x6C07_8965)];
+
+/// [`xorshift32`]'s bytes from `state` (not 0), at compile time.
+const fn noise(mut state: u32) -> [u8; LONG] {
+    let mut bytes = [0; LONG];
+    let mut n = 0;
+    while n < LONG {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        bytes[n] = state as u8;
+        n += 1;
+    }
+    bytes
+}
+
+/// `sad` and `sad_shifts` (3, 5 and 7 shifts, those the SIMD backends
+/// do at once) of rows thousands of bytes long equal the per-pixel sums:
+/// |diff| of 255 everywhere (the most a lane can add) and random bytes,
+/// lengths across 2,048 and 4,096 bytes (where the NEON kernels carry
+/// their u16 lanes over to u32) with every kind of tail.
+pub fn sad_of_long_rows_equals_plain() -> Outcome {
+    for (a, b) in [(&ZEROS, &FULL), (&FULL, &ZEROS), (&NOISE[0], &NOISE[1])] {
+        for length in [2047, 2048, 2049, 2063, 2064, 2072, 2079, 4095, 4096, 4111, 4127, LONG - 6] {
+            let x = &a[..length];
+            let plain = |y: &[u8]| x.iter().zip(y).map(|(&p, &q)| u32::from(p.abs_diff(q))).sum::<u32>();
+            if super::sad(x, &b[..length]) != plain(b) || portable::sad(x, &b[..length]) != plain(b) {
+                return Err("sad of a long row differs from the per-pixel loop");
+            }
+            for shifts in [3, 5, 7] {
+                let reference = &b[..length + shifts - 1];
+                let mut sums = [7u32; 7];
+                super::sad_shifts(x, reference, &mut sums[..shifts]);
+                for (k, &sum) in sums[..shifts].iter().enumerate() {
+                    if sum != 7 + plain(&reference[k..]) {
+                        return Err("sad_shifts of a long row differs from the per-pixel loop");
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The seed's statistics from a histogram equal a per-pixel loop.
 pub fn seed_statistics_equal_plain() -> Outcome {
     let mut a = [0u8; 1000];

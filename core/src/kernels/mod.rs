@@ -2,9 +2,11 @@
 //! |diff| histogram, bilinear lines) and of the remap (pinhole rows, ring
 //! row copy), with one selection of the instruction set.
 //!
-//! Three backends hold the same functions:
+//! Four backends hold the same functions:
 //! - `portable`: plain Rust, the reference, and the SIMD backends' tails;
 //! - `sse2`: x86_64 (SSE2 is baseline there);
+//! - `neon`: aarch64, e.g. a Raspberry Pi host (NEON is baseline there;
+//!   checked under `qemu-aarch64`, `.ci/test`);
 //! - `dsp`: Cortex-M4/M7, `asm!` with the DSP extension (cfg `flatland_dsp`,
 //!   set by build.rs for `thumbv7em`).
 //!
@@ -20,7 +22,7 @@
 
 // Where a SIMD backend is selected, only its tails and the checks call the
 // portable one, each a part of it.
-#[cfg_attr(any(flatland_dsp, target_arch = "x86_64"), allow(dead_code))]
+#[cfg_attr(any(flatland_dsp, target_arch = "x86_64", target_arch = "aarch64"), allow(dead_code))]
 mod portable;
 
 #[cfg(flatland_dsp)]
@@ -33,7 +35,12 @@ mod sse2;
 #[cfg(all(target_arch = "x86_64", not(flatland_dsp)))]
 use sse2 as selected;
 
-#[cfg(not(any(flatland_dsp, target_arch = "x86_64")))]
+#[cfg(all(target_arch = "aarch64", not(flatland_dsp)))]
+mod neon;
+#[cfg(all(target_arch = "aarch64", not(flatland_dsp)))]
+use neon as selected;
+
+#[cfg(not(any(flatland_dsp, target_arch = "x86_64", target_arch = "aarch64")))]
 use portable as selected;
 
 pub(crate) mod pinhole;
@@ -169,7 +176,7 @@ pub fn sad_shifts(current: &[u8], reference: &[u8], sums: &mut [u32]) {
 }
 
 /// A histogram of |diff|, counted into the backend's number of interleaved
-/// lanes (four on x86_64, one on the M4: see `HISTOGRAM_LANES` there).
+/// lanes (four on x86_64 and aarch64, one on the M4: see `HISTOGRAM_LANES` there).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct DiffHistogram {
     lanes: [[u32; 256]; selected::HISTOGRAM_LANES],

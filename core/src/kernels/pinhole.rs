@@ -10,12 +10,14 @@
 //! `(top * (256 - wy) + bottom * wy + 2^15) >> 16`. The `x1 = min(x0 + 1,
 //! width - 1)` clamp becomes one duplicated entry after the last column.
 //!
-//! The vertical pass is contiguous and vectorises (SSE2 on the host, packed
-//! halfwords on the M4); the horizontal one is one pair load and one
-//! multiply-add per pixel. On x86_64 (`sse2`) and on the M4 (`dsp`, `asm!`)
-//! the line holds `V ^ FLIP`, which read as i16 is `V - 2^15`, so that a
-//! signed 16x16 dual multiply-add (`pmaddwd`, `smlad`) blends the pair
-//! `[V[x0] | V[x0 + 1]]` (one 32-bit load) with `[256 - wx | wx]` at once.
+//! The vertical pass is contiguous and vectorises (SSE2 or NEON on the
+//! host, packed halfwords on the M4); the horizontal one is one pair load
+//! and one multiply-add per pixel. On x86_64 (`sse2`) and on the M4 (`dsp`,
+//! `asm!`) the line holds `V ^ FLIP`, which read as i16 is `V - 2^15`, so
+//! that a signed 16x16 dual multiply-add (`pmaddwd`, `smlad`) blends the
+//! pair `[V[x0] | V[x0 + 1]]` (one 32-bit load) with `[256 - wx | wx]` at
+//! once. On aarch64 (`neon`) it holds `V`, as `portable`'s does: NEON's
+//! multiplies are unsigned and widen, so the flip would gain nothing.
 //! This module holds the line and the span checks; the passes are the
 //! backends' `pinhole_vertical` and `pinhole_horizontal`.
 
@@ -115,7 +117,8 @@ fn sample_row_with(
     true
 }
 
-/// What the SIMD backends' line holds is `V ^ FLIP`: `V - 2^15` as an i16.
+/// What the x86_64 and M4 backends' line holds is `V ^ FLIP`: `V - 2^15`
+/// as an i16 (portable and `neon` hold `V`, so there it goes unused).
 #[cfg_attr(not(any(flatland_dsp, target_arch = "x86_64")), allow(dead_code))]
 pub(super) const FLIP: u16 = 0x8000;
 

@@ -1,6 +1,6 @@
 //! Plain Rust kernels: the reference the SIMD ones are checked against
 //! (`checks`), the SIMD ones' tails, and the kernels of targets without
-//! SIMD ones. Same functions as `sse2` and `dsp`.
+//! SIMD ones. Same functions as `sse2`, `neon` and `dsp`.
 
 /// The sums of `columns` cut `px` wide from its start (the last piece
 /// short where it ends), as many as `pieces` holds.
@@ -57,7 +57,7 @@ pub fn sad_shifts(current: &[u8], reference: &[u8], sums: &mut [u32]) {
     }
 }
 
-/// One lane (`sse2` interleaves four; see there).
+/// One lane (`sse2` and `neon` interleave four; see there).
 pub const HISTOGRAM_LANES: usize = 1;
 
 #[inline]
@@ -104,8 +104,8 @@ pub unsafe fn pinhole_horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]
     unsafe { pinhole_horizontal_flipped(line, u, step, out, 0) }
 }
 
-/// The vertical pass storing `V ^ flip` (the SIMD kernels' line
-/// holds `V ^ 0x8000`; they use this for the vectorised x86 pass and
+/// The vertical pass storing `V ^ flip` (the x86_64 and M4 kernels'
+/// line holds `V ^ 0x8000`; they use this for the vectorised x86 pass and
 /// for the M4's tail).
 #[inline]
 pub fn pinhole_vertical_flipped(upper: &[u8], lower: &[u8], wy: u32, line: &mut [u16], flip: u16) {
@@ -116,8 +116,8 @@ pub fn pinhole_vertical_flipped(upper: &[u8], lower: &[u8], wy: u32, line: &mut 
     }
 }
 
-/// The horizontal pass from a line holding `V ^ flip` (the SIMD
-/// kernels' tails).
+/// The horizontal pass from a line holding `V ^ flip` (the x86_64 and
+/// M4 kernels' tails).
 ///
 /// # Safety
 /// Every pixel's `x0 + 1` indexes `line` (see `pinhole::Horizontal`).
