@@ -95,26 +95,17 @@ pub const HISTOGRAM_LANES: usize = 4;
 /// |diff| of 16 pixels at a time, counted into the four lanes in turn.
 #[inline]
 pub fn diff_histogram(a: &[u8], b: &[u8], lanes: &mut [[u32; 256]; HISTOGRAM_LANES]) {
-    let n = a.len().min(b.len());
-    let mut done = 0;
-    let mut diffs = [0u8; 16];
-    while done + 16 <= n {
-        // SAFETY: NEON is baseline on aarch64; loads read a/b[done..done + 16]
-        // (<= n), the store writes the 16 bytes of `diffs`.
+    portable::diff_histogram_in_four_lanes(a, b, lanes, |at| {
+        let mut diffs = [0u8; 16];
+        // SAFETY: NEON is baseline on aarch64; loads read a/b[at..at + 16],
+        // within both (the caller's promise); the store writes `diffs`.
         unsafe {
-            let x = vld1q_u8(a.as_ptr().add(done));
-            let y = vld1q_u8(b.as_ptr().add(done));
+            let x = vld1q_u8(a.as_ptr().add(at));
+            let y = vld1q_u8(b.as_ptr().add(at));
             vst1q_u8(diffs.as_mut_ptr(), vabdq_u8(x, y));
         }
-        for quad in diffs.chunks_exact(4) {
-            lanes[0][usize::from(quad[0])] += 1;
-            lanes[1][usize::from(quad[1])] += 1;
-            lanes[2][usize::from(quad[2])] += 1;
-            lanes[3][usize::from(quad[3])] += 1;
-        }
-        done += 16;
-    }
-    portable::diff_histogram(&a[done..n], &b[done..n], core::array::from_mut(&mut lanes[0]));
+        diffs
+    });
 }
 
 /// `p0 * (256 - w) + p1 * w` in u16 lanes (`w` <= 255 in every lane):

@@ -67,6 +67,25 @@ pub fn diff_histogram(a: &[u8], b: &[u8], [histogram]: &mut [[u32; 256]; HISTOGR
     }
 }
 
+/// The SIMD backends' `diff_histogram` (`sse2`, `neon`): the |diff|s of 16
+/// pixels at a time, `diff16(at)` for `a` and `b` at `at..at + 16` (always
+/// within both), counted into four lanes in turn; the tail into lane 0 here.
+#[inline(always)]
+pub fn diff_histogram_in_four_lanes(a: &[u8], b: &[u8], lanes: &mut [[u32; 256]; 4], diff16: impl Fn(usize) -> [u8; 16]) {
+    let n = a.len().min(b.len());
+    let mut done = 0;
+    while done + 16 <= n {
+        for quad in diff16(done).chunks_exact(4) {
+            lanes[0][usize::from(quad[0])] += 1;
+            lanes[1][usize::from(quad[1])] += 1;
+            lanes[2][usize::from(quad[2])] += 1;
+            lanes[3][usize::from(quad[3])] += 1;
+        }
+        done += 16;
+    }
+    diff_histogram(&a[done..n], &b[done..n], core::array::from_mut(&mut lanes[0]));
+}
+
 #[inline]
 pub fn bilinear_line(upper: &[u8], lower: &[u8], wx: u32, wy: u32, out: &mut [u8]) {
     let (ax, ay) = (256 - wx, 256 - wy);

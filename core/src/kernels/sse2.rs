@@ -83,26 +83,18 @@ pub const HISTOGRAM_LANES: usize = 4;
 /// |diff| of 16 pixels at a time, counted into the four lanes in turn.
 #[inline]
 pub fn diff_histogram(a: &[u8], b: &[u8], lanes: &mut [[u32; 256]; HISTOGRAM_LANES]) {
-    let n = a.len().min(b.len());
-    let mut done = 0;
-    let mut diffs = [0u8; 16];
-    while done + 16 <= n {
-        // SAFETY: SSE2 is baseline on x86_64; loads read a/b[done..done + 16] (<= n).
+    portable::diff_histogram_in_four_lanes(a, b, lanes, |at| {
+        let mut diffs = [0u8; 16];
+        // SAFETY: SSE2 is baseline on x86_64; loads read a/b[at..at + 16],
+        // within both (the caller's promise).
         unsafe {
-            let x = _mm_loadu_si128(a.as_ptr().add(done).cast());
-            let y = _mm_loadu_si128(b.as_ptr().add(done).cast());
+            let x = _mm_loadu_si128(a.as_ptr().add(at).cast());
+            let y = _mm_loadu_si128(b.as_ptr().add(at).cast());
             let d = _mm_or_si128(_mm_subs_epu8(x, y), _mm_subs_epu8(y, x));
             _mm_storeu_si128(diffs.as_mut_ptr().cast(), d);
         }
-        for quad in diffs.chunks_exact(4) {
-            lanes[0][usize::from(quad[0])] += 1;
-            lanes[1][usize::from(quad[1])] += 1;
-            lanes[2][usize::from(quad[2])] += 1;
-            lanes[3][usize::from(quad[3])] += 1;
-        }
-        done += 16;
-    }
-    portable::diff_histogram(&a[done..n], &b[done..n], core::array::from_mut(&mut lanes[0]));
+        diffs
+    });
 }
 
 /// 16 samples per step. `top` (<= 65,280) fits u16 lanes; the vertical
