@@ -18,6 +18,9 @@ pub enum AlarmSource {
     Parallax,
     /// Residue that no height explains (moving or deforming things).
     Residue,
+    /// Cells that move with the robot (a car ahead): placed where they
+    /// meet the ground, nearer than any parallax or residue placed it.
+    MovingAlong,
     /// Too short a baseline to decide: the last obstacle, held.
     Held,
 }
@@ -128,6 +131,15 @@ impl Alarm {
 
     pub(super) fn source(&self) -> AlarmSource {
         self.source
+    }
+
+    /// The hazard found this frame was placed by cells that move with the
+    /// robot ([`super::obstacles::moving_obstacle`]), not where parallax
+    /// or residue put it: so says the source (a held hazard stays held).
+    pub(super) fn placed_by_a_thing_moving_along(&mut self) {
+        if matches!(self.source, AlarmSource::Parallax | AlarmSource::Residue) {
+            self.source = AlarmSource::MovingAlong;
+        }
     }
 
     /// Motion is lost: an obstacle seen before cannot be carried on.
@@ -259,6 +271,26 @@ mod tests {
 
     fn at(near_mm: i32) -> Footprint {
         Footprint { near_mm, left_mm: -100, right_mm: 100 }
+    }
+
+    /// A hazard that cells moving along placed says so; a held one stays
+    /// held, and the next frame's source is its own again.
+    #[test]
+    fn a_hazard_placed_by_a_thing_moving_along_says_so() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        alarm.decide(Some((at(1000), 300)), None, 100.0, true, &config, &STEP);
+        alarm.placed_by_a_thing_moving_along();
+        assert_eq!(alarm.source(), AlarmSource::MovingAlong);
+        alarm.decide(None, Some(at(900)), 100.0, true, &config, &STEP);
+        assert_eq!(alarm.source(), AlarmSource::Residue);
+        alarm.placed_by_a_thing_moving_along();
+        assert_eq!(alarm.source(), AlarmSource::MovingAlong);
+        // Too short a baseline to clear it: held, whatever placed it.
+        alarm.decide(None, None, 10.0, true, &config, &STEP);
+        assert_eq!(alarm.source(), AlarmSource::Held);
+        alarm.placed_by_a_thing_moving_along();
+        assert_eq!(alarm.source(), AlarmSource::Held);
     }
 
     /// A drop seen, then a full baseline that could not look for drops:

@@ -698,13 +698,19 @@ impl<'b> Gpa<'b> {
         // nearer than what parallax placed, it is that thing's footprint
         // (a car ahead: its roof measured, its bumper lagging the ground).
         // A drop's lower level lags the floor too: a drop keeps its edge.
-        let (parallax, residue) = match (parallax, obstacles::moving_obstacle(layout, &self.parallax.height)) {
-            (Some((placed, height)), Some(moving)) if height > 0 && moving.near_mm < placed.near_mm => (Some((moving, height)), residue),
-            (None, Some(moving)) => (None, Some(residue.filter(|r| r.near_mm < moving.near_mm).unwrap_or(moving))),
-            (parallax, _) => (parallax, residue),
+        let (parallax, residue, placed_by_moving) = match (parallax, obstacles::moving_obstacle(layout, &self.parallax.height)) {
+            (Some((placed, height)), Some(moving)) if height > 0 && moving.near_mm < placed.near_mm => (Some((moving, height)), residue, true),
+            (None, Some(moving)) => match residue.filter(|r| r.near_mm < moving.near_mm) {
+                Some(nearer) => (None, Some(nearer), false),
+                None => (None, Some(moving), true),
+            },
+            (parallax, _) => (parallax, residue, false),
         };
         self.alarm.sees_drops_from(self.parallax.hypotheses.shallowest_drop_mm);
         let hazard = self.alarm.decide(parallax, residue, baseline_mm, drops_looked_for, config, &self.prediction.step);
+        if placed_by_moving {
+            self.alarm.placed_by_a_thing_moving_along();
+        }
         self.hazard_mask.record(self.frame, layout.cells, &self.parallax.height, &rows.residue, config);
         let obstacle = hazard.map(|(footprint, _)| footprint);
         self.finish_scan(obstacle);

@@ -274,6 +274,7 @@ fn draw_header(picture: &mut RgbImage, inputs: &FrameInputs, layout: &FrameLayou
     let source = match inputs.gpa.alarm_source() {
         AlarmSource::Parallax => "(parallax)   ",
         AlarmSource::Residue => "(residue)   ",
+        AlarmSource::MovingAlong => "(moving along)   ",
         AlarmSource::Held => "(held)   ",
         AlarmSource::None => "",
     };
