@@ -689,7 +689,8 @@ impl<'b> Gpa<'b> {
         let short_baseline = baseline_mm < 0.5 * self.config.keyframe_travel_mm;
         let (layout, config) = (&self.layout, &self.config);
         self.scan.begin(self.frame);
-        let evidence = obstacles::parallax_obstacle(layout, &self.parallax.height, &rows.residue, config, short_baseline, drops_looked_for, &mut self.scan);
+        let last_frame = self.hazard_mask.moved(self.frame, self.prediction.step.tz_mm / layout.grid.mm_per_px);
+        let evidence = obstacles::parallax_obstacle(layout, &self.parallax.height, &rows.residue, config, short_baseline, drops_looked_for, last_frame, &mut self.scan);
         let parallax = evidence.hazard;
         self.alarm.sees_beyond_the_aoi(evidence.beyond);
         self.blobs = obstacles::residue_blobs(layout, &rows.residue, config);

@@ -7,6 +7,7 @@
 //! thresholds carry across cameras.
 
 use super::config::GpaConfig;
+use super::hazard_mask::MovedMask;
 use super::parallax::CellHeights;
 use super::layout::{AoiMm, CellSet, Layout};
 use super::residue::Residue;
@@ -166,6 +167,9 @@ impl CellSpan {
 
 /// Cells a group needs where heights are coarse (short baselines, drops).
 const LARGE_GROUP_CELLS: usize = 8;
+/// Cells a group of weak heights alone needs, at least half of them where
+/// the last frame saw heights stand up, to count as measured.
+const WEAK_GROUP_CELLS: usize = 5;
 
 /// Which side of the ground a group of parallax cells lies on.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -194,12 +198,16 @@ impl Side {
 
 /// The groups [`parallax_group`] looks for.
 #[derive(Clone, Copy)]
-struct Wanted {
+struct Wanted<'a> {
     side: Side,
     /// Cell rows above it are left out.
     first_row: usize,
     /// Heights are coarse: only a large group counts.
     short_baseline: bool,
+    /// The last frame's cells that stood up, moved to this one (None: not
+    /// the frame before, or below the ground): where weak heights seen
+    /// again count.
+    last_frame: Option<MovedMask<'a>>,
 }
 
 /// What the parallax cells show: the nearest hazard inside the AOI,
@@ -221,9 +229,10 @@ pub(super) fn parallax_obstacle(
     config: &GpaConfig,
     short_baseline: bool,
     drops: bool,
+    last_frame: Option<MovedMask<'_>>,
     scan: &mut Scan,
 ) -> ParallaxEvidence {
-    let drop = if drops { parallax_group(layout, (heights, residue), config, Wanted { side: Side::Below, first_row: 0, short_baseline }, scan).0 } else { None };
+    let drop = if drops { parallax_group(layout, (heights, residue), config, Wanted { side: Side::Below, first_row: 0, short_baseline, last_frame: None }, scan).0 } else { None };
     // Past a drop's edge the floor is gone: what stands there is reached
     // only after the drop, and cells that seem to stand up there are the
     // lower level's blur, which can fake an obstacle nearer than the edge.
@@ -232,7 +241,7 @@ pub(super) fn parallax_obstacle(
         let centre_z = |r: usize| layout.grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1;
         (0..cells.high).find(|&r| centre_z(r) < f64::from(edge.near_mm)).unwrap_or(cells.high)
     });
-    let (obstacle, beyond) = parallax_group(layout, (heights, residue), config, Wanted { side: Side::Above, first_row: first_before_edge, short_baseline }, scan);
+    let (obstacle, beyond) = parallax_group(layout, (heights, residue), config, Wanted { side: Side::Above, first_row: first_before_edge, short_baseline, last_frame }, scan);
     let hazard = match (obstacle, drop) {
         (Some(o), Some(d)) if d.0.near_mm < o.0.near_mm => Some(d),
         (o, d) => o.or(d),
@@ -260,7 +269,7 @@ fn parallax_group(
     wanted: Wanted,
     scan: &mut Scan,
 ) -> (Option<(Footprint, i32)>, Option<Footprint>) {
-    let Wanted { side, first_row, short_baseline } = wanted;
+    let Wanted { side, first_row, short_baseline, last_frame } = wanted;
     let (grid, cells, camera_height_mm) = (&layout.grid, &layout.cells, layout.camera_height_mm);
     let (w, h) = (cells.wide, cells.high);
     // Heights are whole mm, so |h| >= min_height exactly when |h| >= ceil(min_height):
@@ -328,11 +337,21 @@ fn parallax_group(
     let mut seen = CellSet::EMPTY;
     let mut best: Option<(f64, f64, f64, f64)> = None;
     let mut beyond: Option<(f64, f64, f64)> = None;
-    for start in 0..h * w {
-        if seen.contains(start) || !member(start) {
+    // Then, above the ground, groups of weak heights alone (each beat the
+    // ground by less than the absolute gain: low contrast, or shading
+    // that differs between the views). One frame's such group is too
+    // easily shading; seen again where the last frame saw heights stand
+    // up, it is a surface of low contrast (a printed box on a wooden
+    // floor), measured over two frames. Every measured cell, and every
+    // weak one joined to it, is seen by the first sweep.
+    let weak_member = |cell: usize| cell >= first_row * w && heights.is_weak(cell) && on_side(heights.any(cell));
+    let weak_sweep = if side == Side::Above && last_frame.is_some() { 0..h * w } else { 0..0 };
+    for (weak_only, start) in (0..h * w).map(|cell| (false, cell)).chain(weak_sweep.map(|cell| (true, cell))) {
+        if seen.contains(start) || !(if weak_only { weak_member(start) } else { member(start) }) {
             continue;
         }
         let mut with_residue = false;
+        let mut stood_up_before = 0usize;
         let mut measured_depth = false;
         let mut footprints: heapless::Vec<f32, MAX_BLOB_CELLS> = heapless::Vec::new();
         // Below: per cell column, 1 + the nearest cell row (0: none).
@@ -344,17 +363,19 @@ fn parallax_group(
         let (mut left, mut right, mut tallest) = (f32::MAX, f32::MIN, 0.0f32);
         let (mut group, mut nearest_row) = (0usize, 0usize);
         let linked: Option<Linked> = match side {
-            Side::Above => Some((&same_face, &mut unseen_rows)),
-            Side::Below => None,
+            Side::Above if !weak_only => Some((&same_face, &mut unseen_rows)),
+            _ => None,
         };
         flood_cells((w, h), side.bridge(), start, &mut seen, reaches, linked, |cell, r, c| {
-            if heights.is_weak(cell) {
+            if heights.is_weak(cell) && !weak_only {
                 return;
             }
+            stood_up_before += usize::from(weak_only && last_frame.is_some_and(|last| last.stood_up(r, c)));
             group += 1;
             nearest_row = nearest_row.max(r);
             with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
-            let height = f32::from(heights.get(cell));
+            // (A weak cell reaches here only in the weak sweep.)
+            let height = f32::from(heights.any(cell));
             // The cell's measured height belongs to its centre.
             let z_centre = row_centre_z[r];
             let scale = match side {
@@ -392,6 +413,9 @@ fn parallax_group(
         // Where the group is seen to start on the ground.
         let nearest_seen = layout.near_side_mm(nearest_row);
         if group < 3 || (!with_residue && group < 4) || (short_baseline && !large) {
+            continue;
+        }
+        if weak_only && (group < WEAK_GROUP_CELLS || 2 * stood_up_before < group) {
             continue;
         }
         // A drop shows its depth somewhere: a group that only lags the
@@ -628,7 +652,7 @@ mod tests {
         let residue = Residue::EMPTY;
         let mut scan = Scan::new(ScanLayout::new(40.0, 450.0, 1500.0));
         let lags = lagging_patch(&layout, None);
-        let evidence = parallax_obstacle(&layout, &lags, &residue, &config, false, true, &mut scan);
+        let evidence = parallax_obstacle(&layout, &lags, &residue, &config, false, true, None, &mut scan);
         assert!(evidence.hazard.is_none(), "{:?}", evidence.hazard);
         let moving = moving_obstacle(&layout, &lags).expect("a moving obstacle");
         assert!((750..=800).contains(&moving.near_mm), "{moving:?}");
@@ -637,8 +661,73 @@ mod tests {
         let (row, column) = patch_corner(&layout);
         let measured = (row - 6) * layout.cells.wide + column;
         let with_depth = lagging_patch(&layout, Some(measured));
-        let evidence = parallax_obstacle(&layout, &with_depth, &residue, &config, false, true, &mut scan);
+        let evidence = parallax_obstacle(&layout, &with_depth, &residue, &config, false, true, None, &mut scan);
         let (drop, depth) = evidence.hazard.expect("a drop");
         assert!(depth < 0 && (750..=850).contains(&drop.near_mm), "{drop:?} {depth}");
+    }
+
+    /// Heights that each beat the ground only weakly, a patch of
+    /// `rows` x 3 cells 60 mm up from the middle of the AOI on.
+    fn weak_patch(layout: &Layout, rows: usize) -> CellHeights {
+        let mut heights = CellHeights::for_camera(layout.camera_height_mm);
+        let (row, column) = patch_corner(layout);
+        for r in row + 1 - rows..=row {
+            for c in column - 1..=column + 1 {
+                heights.set(r * layout.cells.wide + c, 60, true);
+            }
+        }
+        heights
+    }
+
+    /// A group of weak heights alone is no obstacle on one frame; it is
+    /// one where the last frame saw heights stand up, if it is large
+    /// enough and at least half of it stood up then.
+    #[test]
+    fn weak_heights_count_where_the_last_frame_saw_them_stand_up() {
+        let rig = sample_rig();
+        let grid = KgGrid::for_rig(&rig, &GridConfig::default()).unwrap();
+        let config = GpaConfig::default();
+        let layout = Layout::new(&rig, &grid, config.cell_mm);
+        let residue = Residue::EMPTY;
+        let mut scan = Scan::new(ScanLayout::new(40.0, 450.0, 1500.0));
+        let weak = weak_patch(&layout, 2);
+        let found = |last: Option<MovedMask>, scan: &mut Scan| parallax_obstacle(&layout, &weak, &residue, &config, false, true, last, scan).hazard;
+        assert_eq!(found(None, &mut scan), None);
+
+        let mut last_frame = super::super::hazard_mask::HazardMask::EMPTY;
+        // The last frame saw nothing stand up there.
+        last_frame.record(7, layout.cells, &CellHeights::for_camera(layout.camera_height_mm), &residue, &config);
+        assert_eq!(found(last_frame.moved(8, 0.0), &mut scan), None);
+        // It saw the same weak heights: an obstacle, standing nearer than
+        // where its cells are seen (60 mm up).
+        last_frame.record(7, layout.cells, &weak, &residue, &config);
+        let (obstacle, height) = found(last_frame.moved(8, 0.0), &mut scan).expect("an obstacle");
+        assert_eq!(height, 60);
+        let (row, _) = patch_corner(&layout);
+        assert!(f64::from(obstacle.near_mm) < layout.near_side_mm(row), "{obstacle:?}");
+        // Not the frame before: nothing to see it again in.
+        assert_eq!(found(last_frame.moved(9, 0.0), &mut scan), None);
+        // Within a cell of where heights stood up (the step's error) is
+        // where they stood up: the patch's nearer row is enough for its two
+        // rows; of five rows, the three farther ones stood up nowhere near,
+        // more than half of the patch: it does not count.
+        last_frame.record(7, layout.cells, &weak_patch(&layout, 1), &residue, &config);
+        assert!(found(last_frame.moved(8, 0.0), &mut scan).is_some());
+        let five_rows = weak_patch(&layout, 5);
+        assert_eq!(parallax_obstacle(&layout, &five_rows, &residue, &config, false, true, last_frame.moved(8, 0.0), &mut scan).hazard, None);
+        // Too small a group (four cells, enough for measured heights),
+        // however often seen.
+        let mut four = CellHeights::for_camera(layout.camera_height_mm);
+        let (row, column) = patch_corner(&layout);
+        for cell in [row - 1, row].into_iter().flat_map(|r| [r * layout.cells.wide + column, r * layout.cells.wide + column + 1]) {
+            four.set(cell, 60, true);
+        }
+        last_frame.record(7, layout.cells, &four, &residue, &config);
+        assert_eq!(parallax_obstacle(&layout, &four, &residue, &config, false, true, last_frame.moved(8, 0.0), &mut scan).hazard, None);
+        let mut measured = CellHeights::for_camera(layout.camera_height_mm);
+        for cell in [row - 1, row].into_iter().flat_map(|r| [r * layout.cells.wide + column, r * layout.cells.wide + column + 1]) {
+            measured.set(cell, 60, false);
+        }
+        assert!(parallax_obstacle(&layout, &measured, &residue, &config, false, true, None, &mut scan).hazard.is_some());
     }
 }
