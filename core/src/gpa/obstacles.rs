@@ -640,17 +640,22 @@ mod tests {
         heights
     }
 
+    /// The sample rig's layout at the default grid and configuration, no
+    /// residue, and a scan to fill.
+    fn sample_layout() -> (Layout, GpaConfig, Residue, Scan) {
+        let rig = sample_rig();
+        let grid = KgGrid::for_rig(&rig, &GridConfig::default()).unwrap();
+        let config = GpaConfig::default();
+        let layout = Layout::new(&rig, &grid, config.cell_mm);
+        (layout, config, Residue::EMPTY, Scan::new(ScanLayout::new(40.0, 450.0, 1500.0)))
+    }
+
     /// Cells that only lag the ground (a car ahead's shadow moving with it)
     /// are no drop, but a moving obstacle; the same lags beside a cell that
     /// measured a depth are a drop deeper than any looked for.
     #[test]
     fn lags_alone_are_a_moving_thing_not_a_drop() {
-        let rig = sample_rig();
-        let grid = KgGrid::for_rig(&rig, &GridConfig::default()).unwrap();
-        let config = GpaConfig::default();
-        let layout = Layout::new(&rig, &grid, config.cell_mm);
-        let residue = Residue::EMPTY;
-        let mut scan = Scan::new(ScanLayout::new(40.0, 450.0, 1500.0));
+        let (layout, config, residue, mut scan) = sample_layout();
         let lags = lagging_patch(&layout, None);
         let evidence = parallax_obstacle(&layout, &lags, &residue, &config, false, true, None, &mut scan);
         assert!(evidence.hazard.is_none(), "{:?}", evidence.hazard);
@@ -684,12 +689,7 @@ mod tests {
     /// enough and at least half of it stood up then.
     #[test]
     fn weak_heights_count_where_the_last_frame_saw_them_stand_up() {
-        let rig = sample_rig();
-        let grid = KgGrid::for_rig(&rig, &GridConfig::default()).unwrap();
-        let config = GpaConfig::default();
-        let layout = Layout::new(&rig, &grid, config.cell_mm);
-        let residue = Residue::EMPTY;
-        let mut scan = Scan::new(ScanLayout::new(40.0, 450.0, 1500.0));
+        let (layout, config, residue, mut scan) = sample_layout();
         let weak = weak_patch(&layout, 2);
         let found = |last: Option<MovedMask>, scan: &mut Scan| parallax_obstacle(&layout, &weak, &residue, &config, false, true, last, scan).hazard;
         assert_eq!(found(None, &mut scan), None);
