@@ -717,17 +717,18 @@ mod tests {
         assert_eq!(parallax_obstacle(&layout, &five_rows, &residue, &config, false, true, last_frame.moved(8, 0.0), &mut scan).hazard, None);
         // Too small a group (four cells, enough for measured heights),
         // however often seen.
-        let mut four = CellHeights::for_camera(layout.camera_height_mm);
-        let (row, column) = patch_corner(&layout);
-        for cell in [row - 1, row].into_iter().flat_map(|r| [r * layout.cells.wide + column, r * layout.cells.wide + column + 1]) {
-            four.set(cell, 60, true);
-        }
+        let two_by_two = |weak: bool| {
+            let mut heights = CellHeights::for_camera(layout.camera_height_mm);
+            let (row, column) = patch_corner(&layout);
+            for cell in [row - 1, row].into_iter().flat_map(|r| [r * layout.cells.wide + column, r * layout.cells.wide + column + 1]) {
+                heights.set(cell, 60, weak);
+            }
+            heights
+        };
+        let four = two_by_two(true);
         last_frame.record(7, layout.cells, &four, &residue, &config);
         assert_eq!(parallax_obstacle(&layout, &four, &residue, &config, false, true, last_frame.moved(8, 0.0), &mut scan).hazard, None);
-        let mut measured = CellHeights::for_camera(layout.camera_height_mm);
-        for cell in [row - 1, row].into_iter().flat_map(|r| [r * layout.cells.wide + column, r * layout.cells.wide + column + 1]) {
-            measured.set(cell, 60, false);
-        }
+        let measured = two_by_two(false);
         assert!(parallax_obstacle(&layout, &measured, &residue, &config, false, true, None, &mut scan).hazard.is_some());
     }
 }
