@@ -705,7 +705,7 @@ impl<'b> Gpa<'b> {
                 Some(nearer) => (None, Some(nearer), false),
                 None => (None, Some(moving), true),
             },
-            (parallax, _) => (parallax, residue, false),
+            (parallax, _) => (parallax, residue, evidence.moves_along),
         };
         self.alarm.sees_drops_from(self.parallax.hypotheses.shallowest_drop_mm);
         let hazard = self.alarm.decide(parallax, residue, baseline_mm, drops_looked_for, config, &self.prediction.step);

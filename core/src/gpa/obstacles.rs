@@ -218,6 +218,9 @@ struct Wanted<'a> {
 pub(super) struct ParallaxEvidence {
     pub(super) hazard: Option<(Footprint, i32)>,
     pub(super) beyond: Option<Footprint>,
+    /// The hazard is an obstacle placed by its own lower part, which lags
+    /// the ground ([`lower_part`]): a thing moving along with the robot.
+    pub(super) moves_along: bool,
 }
 
 /// The frame's [`ParallaxEvidence`]; drops only when `drops`. See
@@ -242,11 +245,72 @@ pub(super) fn parallax_obstacle(
         (0..cells.high).find(|&r| centre_z(r) < f64::from(edge.near_mm)).unwrap_or(cells.high)
     });
     let (obstacle, beyond) = parallax_group(layout, (heights, residue), config, Wanted { side: Side::Above, first_row: first_before_edge, short_baseline, last_frame }, scan);
-    let hazard = match (obstacle, drop) {
-        (Some(o), Some(d)) if d.0.near_mm < o.0.near_mm => Some(d),
-        (o, d) => o.or(d),
+    let lowered = obstacle.and_then(|(face, height)| lower_part(layout, heights, &face, config.max_drop_mm).map(|nearer| (nearer, height)));
+    let obstacle = lowered.or(obstacle);
+    let (hazard, moves_along) = match (obstacle, drop) {
+        (Some(o), Some(d)) if d.0.near_mm < o.0.near_mm => (Some(d), false),
+        (o, d) => (o.or(d), lowered.is_some()),
     };
-    ParallaxEvidence { hazard, beyond }
+    ParallaxEvidence { hazard, beyond, moves_along }
+}
+
+/// Least cells of a face's [`lower_part`]: one alone is too easily a
+/// fluke of texture.
+const LOWER_PART_CELLS: usize = 2;
+
+/// Where an obstacle placed at `face` reaches nearer, by its own part
+/// below the ground's level; None when nothing shows one.
+///
+/// A face standing still at its footprint F has ground in front of it. A
+/// face that moves along with the robot (a car ahead, braking) has no
+/// footprint of its own in the heights: static parallax reads every cell
+/// of it as standing on one F = z T / V (z its true distance, T the
+/// robot's travel, V the face's approach), beyond the true one when it
+/// approaches slower than the ground. Its cells above F's ground line
+/// measure heights (the trunk), those below it depths or lags past the
+/// deepest drop (the bumper): cells nearer than F whose depth points at F
+/// (within a cell, as [`parallax_group`]'s faces agree), or that lag too
+/// much to point nearer, in the face's columns (within a cell), are its
+/// lower part. From the nearest of them on is the thing, or a hole in
+/// front of a face: a hazard either way. At least
+/// [`LOWER_PART_CELLS`] must show it; the AOI's near edge is the nearest
+/// it is placed.
+// Not inlined: its locals stay out of `parallax_obstacle`'s frame, which
+// the parallax groups' floods stand on.
+#[inline(never)]
+fn lower_part(layout: &Layout, heights: &CellHeights, face: &Footprint, deepest_drop_mm: f64) -> Option<Footprint> {
+    let (grid, cells) = (&layout.grid, &layout.cells);
+    let camera_height = layout.camera_height_mm;
+    let cell_mm = cells.px as f64 * grid.mm_per_px;
+    let (face_z, left, right) = (f64::from(face.near_mm), f64::from(face.left_mm) - cell_mm, f64::from(face.right_mm) + cell_mm);
+    let (first_left, _) = grid.pixel_to_ground(0.0, 0.0);
+    let columns = (0..cells.wide).filter(|&c| {
+        let cell_left = first_left + c as f64 * cell_mm;
+        cell_left + cell_mm > left && cell_left < right
+    });
+    let (first_column, last_column) = (columns.clone().next()?, columns.last()?);
+    let (mut count, mut nearest_row) = (0usize, None);
+    for r in 0..cells.high {
+        if layout.near_side_mm(r) >= face_z {
+            continue;
+        }
+        let z_centre = grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1;
+        let points_at_face = |cell: usize| {
+            let depth = heights.any(cell);
+            if heights.moving(cell) {
+                z_centre * (camera_height + deepest_drop_mm) / camera_height <= face_z + cell_mm
+            } else {
+                depth < 0 && libm::fabs(z_centre * (camera_height - f64::from(depth)) / camera_height - face_z) <= cell_mm
+            }
+        };
+        let found = (first_column..=last_column).filter(|&c| points_at_face(r * cells.wide + c)).count();
+        count += found;
+        if found > 0 {
+            nearest_row = Some(r);
+        }
+    }
+    let near = layout.near_side_mm(nearest_row.filter(|_| count >= LOWER_PART_CELLS)?).max(layout.aoi_mm().near);
+    Some(Footprint { near_mm: libm::round(near) as i32, ..*face }).filter(|nearer| nearer.near_mm < face.near_mm)
 }
 
 /// Groups cells whose parallax height (`heights`, mm) reaches the obstacle
@@ -669,6 +733,90 @@ mod tests {
         let evidence = parallax_obstacle(&layout, &with_depth, &residue, &config, false, true, None, &mut scan);
         let (drop, depth) = evidence.hazard.expect("a drop");
         assert!(depth < 0 && (750..=850).contains(&drop.near_mm), "{drop:?} {depth}");
+    }
+
+    /// A face standing on `face_mm` ahead, 3 cells wide around the middle
+    /// of the AOI: every cell of it from 1060 to 1250 mm seen measures the
+    /// height that points at that footprint.
+    fn face_on(layout: &Layout, face_mm: f64) -> CellHeights {
+        let (grid, cells) = (&layout.grid, &layout.cells);
+        let mut heights = CellHeights::for_camera(layout.camera_height_mm);
+        let row_of = |z: f64| grid.ground_to_pixel(0.0, z).1 as usize / cells.px;
+        let column = grid.ground_to_pixel(0.0, 800.0).0 as usize / cells.px;
+        for r in row_of(1250.0)..=row_of(1060.0) {
+            let z = grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1;
+            let height = layout.camera_height_mm * (1.0 - face_mm / z);
+            for c in column - 1..=column + 1 {
+                heights.set(r * cells.wide + c, height as i16, false);
+            }
+        }
+        heights
+    }
+
+    /// A face whose lower part, nearer than its footprint, lags the ground
+    /// where that footprint says (a car ahead moving along: its bumper)
+    /// reaches there, and moves along; one cell of it is not enough, nor
+    /// cells that point elsewhere or stand beside the face.
+    #[test]
+    fn a_face_whose_lower_part_lags_reaches_there() {
+        let (layout, config, residue, mut scan) = sample_layout();
+        let (grid, cells) = (&layout.grid, &layout.cells);
+        let camera_height = layout.camera_height_mm;
+        let face_mm = 1000.0;
+        let standing = face_on(&layout, face_mm);
+        let found = |heights: &CellHeights, scan: &mut Scan| parallax_obstacle(&layout, heights, &residue, &config, false, true, None, scan);
+        let alone = found(&standing, &mut scan);
+        let (face, height) = alone.hazard.expect("the face");
+        assert!(height > 0 && (face.near_mm - 1000).abs() <= 2 && !alone.moves_along, "{face:?}");
+
+        let cell_at = |x: f64, z: f64| {
+            let (i, j) = grid.ground_to_pixel(x, z);
+            (j as usize / cells.px) * cells.wide + i as usize / cells.px
+        };
+        let centre_z = |cell: usize| grid.pixel_to_ground(0.0, ((cell / cells.wide) as f64 + 0.5) * cells.px as f64 - 0.5).1;
+        // The depth a cell below the ground measures when it points at the face.
+        let pointing = |cell: usize| -((camera_height * (face_mm / centre_z(cell) - 1.0)) as i16);
+        let with = |cells_set: &[(usize, i16)]| {
+            let mut heights = face_on(&layout, face_mm);
+            for &(cell, depth) in cells_set {
+                heights.set(cell, depth, false);
+            }
+            heights
+        };
+        let (nearer, nearest) = (cell_at(0.0, 900.0), cell_at(0.0, 870.0));
+        let evidence = found(&with(&[(nearer, pointing(nearer)), (nearest, pointing(nearest))]), &mut scan);
+        let (lowered, lowered_height) = evidence.hazard.expect("the face, lowered");
+        assert_eq!(lowered_height, height);
+        assert_eq!(f64::from(lowered.near_mm), libm::round(layout.near_side_mm(nearest / cells.wide)));
+        assert!(evidence.moves_along && lowered.near_mm < 870);
+
+        // One cell alone; two whose depths point past the face; two a
+        // column beyond the face's side and its cell of slack.
+        let beside = |z: f64| cell_at(face.right_mm as f64 + 2.5 * cells.px as f64 * grid.mm_per_px, z);
+        for lower in [
+            [(nearer, pointing(nearer)), (nearer, pointing(nearer))],
+            [(nearer, 3 * pointing(nearer)), (nearest, 3 * pointing(nearest))],
+            [(beside(900.0), pointing(nearer)), (beside(870.0), pointing(nearest))],
+        ] {
+            let evidence = found(&with(&lower), &mut scan);
+            assert_eq!(evidence.hazard, alone.hazard, "{lower:?}");
+            assert!(!evidence.moves_along);
+        }
+
+        // Lags past the deepest drop: part of the face where that depth
+        // would still put them nearer than it, not where it would put
+        // them beyond.
+        let lagging = |z: f64| {
+            let mut heights = face_on(&layout, face_mm);
+            for cell in [cell_at(0.0, z), cell_at(0.0, z - 30.0)] {
+                heights.set_moving(cell, false);
+            }
+            heights
+        };
+        let reach = face_mm * camera_height / (camera_height + config.max_drop_mm);
+        assert!(reach > layout.aoi_mm().near + 60.0, "the sample rig sees lags that point at the face");
+        assert!(found(&lagging(reach - 20.0), &mut scan).moves_along);
+        assert_eq!(found(&lagging(900.0), &mut scan).hazard, alone.hazard);
     }
 
     /// Heights that each beat the ground only weakly, a patch of
