@@ -7,13 +7,15 @@
 //!   (rows from the remap callback, odometry gaps, abandoned frames);
 //! - [`GtiStage::enrich`] fills `FrameReport::obstacle_h_mm` from GTI's
 //!   heights inside GPA's obstacle, and lets GTI alone raise an alarm for a
-//!   confirmed obstacle point of at least `min_obstacle_mm` (20 mm).
+//!   confirmed obstacle point at least `min_obstacle_mm` (20 mm) high by
+//!   three standard errors of its height.
 //!
 //! GTI's own alarm: GPA decides from a keyframe pair, and holds or drops an
 //! obstacle by its parallax over that baseline; GTI integrates a feature's
 //! locus over up to 16 frames, so it sees low obstacles on short baselines
 //! where GPA's parallax is below its blob thresholds. GTI alarms only on a
-//! good point at or above the minimum height backed by `MIN_SUPPORT` agreeing
+//! good point that clears the minimum height by `CERTAIN_SIGMAS` of its
+//! standard error, backed by `MIN_SUPPORT` agreeing
 //! points nearby (`Gti::nearest_obstacle_point`), never on one stray track.
 
 use crate::geometry::Rig;

@@ -430,26 +430,68 @@ impl Gti {
         top_supported_height(&mut heights).map(|h| roundf(h) as i32)
     }
 
-    /// GTI's own alarm: the nearest good point inside the AOI at least
-    /// `min_obstacle_mm` high and backed by [`MIN_SUPPORT`] points within the
-    /// support tolerance of its height and 100 mm of it on the ground.
+    /// GTI's own alarm: the nearest good point inside the AOI whose height
+    /// is at least `min_obstacle_mm` by [`CERTAIN_SIGMAS`] of its standard
+    /// error, backed by [`MIN_SUPPORT`] good points within the support
+    /// tolerance of its height and 100 mm of it on the ground.
     pub fn nearest_obstacle_point(&self, aoi: &RegionMm) -> Option<HeightPoint> {
-        let good = |p: &HeightPoint| p.quality >= self.config.good_quality;
-        let mut nearest: Option<HeightPoint> = None;
-        for p in self.points().filter(good) {
-            if p.h_mm < self.config.min_obstacle_mm || !aoi.contains(p.x_mm, p.z_mm) {
-                continue;
-            }
-            let tolerance = support_tolerance(p.h_mm);
-            let support = self
-                .points()
-                .filter(good)
-                .filter(|o| fabsf(o.h_mm - p.h_mm) <= tolerance && fabsf(o.x_mm - p.x_mm) <= 100.0 && fabsf(o.z_mm - p.z_mm) <= 100.0)
-                .count();
-            if support >= MIN_SUPPORT && nearest.is_none_or(|n| p.z_mm < n.z_mm) {
-                nearest = Some(p);
-            }
+        nearest_certain_obstacle(|| self.points(), aoi, &self.config)
+    }
+}
+
+/// Standard errors by which a GTI point's height must clear the obstacle
+/// height to raise an alarm alone. A frame tests every point it tracks
+/// (tens to a hundred), so a test at one or two sigma would pass a floor
+/// marking's point every few frames: a 22 mm reading whose fit is good to
+/// 3 mm is not told from 20 mm. Three sigma passes one floor point in a
+/// few hundred.
+pub const CERTAIN_SIGMAS: f32 = 3.0;
+
+/// [`Gti::nearest_obstacle_point`] over the points `points` gives.
+fn nearest_certain_obstacle<I: Iterator<Item = HeightPoint>>(points: impl Fn() -> I, aoi: &RegionMm, config: &GtiConfig) -> Option<HeightPoint> {
+    let good = |p: &HeightPoint| p.quality >= config.good_quality;
+    let mut nearest: Option<HeightPoint> = None;
+    for p in points().filter(good) {
+        if p.h_mm - CERTAIN_SIGMAS * p.h_sigma_mm < config.min_obstacle_mm || !aoi.contains(p.x_mm, p.z_mm) {
+            continue;
         }
-        nearest
+        let tolerance = support_tolerance(p.h_mm);
+        let support = points()
+            .filter(good)
+            .filter(|o| fabsf(o.h_mm - p.h_mm) <= tolerance && fabsf(o.x_mm - p.x_mm) <= 100.0 && fabsf(o.z_mm - p.z_mm) <= 100.0)
+            .count();
+        if support >= MIN_SUPPORT && nearest.is_none_or(|n| p.z_mm < n.z_mm) {
+            nearest = Some(p);
+        }
+    }
+    nearest
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const AOI: RegionMm = RegionMm { x_min: -200.0, x_max: 200.0, z_min: 300.0, z_max: 1000.0 };
+
+    /// Three good points 30 mm up, 20 mm apart, each known to `sigma_mm`.
+    fn three_at(sigma_mm: f32) -> [HeightPoint; 3] {
+        core::array::from_fn(|k| HeightPoint { x_mm: 20.0 * k as f32, z_mm: 600.0 + 20.0 * k as f32, h_mm: 30.0, quality: 80, h_sigma_mm: sigma_mm })
+    }
+
+    /// A supported height raises GTI's alarm only when it clears the
+    /// obstacle height by three of its standard errors: 30 mm known to
+    /// 3 mm does, known to 4 mm (a 22 mm marking's reading is as likely)
+    /// does not; nor two points however sure.
+    #[test]
+    fn a_height_alarms_only_when_certain() {
+        let config = GtiConfig::DEFAULT;
+        assert_eq!(config.min_obstacle_mm, 20.0);
+        let sure = three_at(3.0);
+        let found = nearest_certain_obstacle(|| sure.iter().copied(), &AOI, &config).expect("an obstacle");
+        assert_eq!(found.z_mm, 600.0);
+        let unsure = three_at(4.0);
+        assert!(nearest_certain_obstacle(|| unsure.iter().copied(), &AOI, &config).is_none());
+        let two = &three_at(0.5)[..2];
+        assert!(nearest_certain_obstacle(|| two.iter().copied(), &AOI, &config).is_none());
     }
 }
