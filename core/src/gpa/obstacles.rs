@@ -271,7 +271,8 @@ const LOWER_PART_CELLS: usize = 2;
 /// deepest drop (the bumper): cells nearer than F whose depth points at F
 /// (within a cell, as [`parallax_group`]'s faces agree), or that lag too
 /// much to point nearer, in the face's columns (within a cell), are its
-/// lower part. From the nearest of them on is the thing, or a hole in
+/// lower part; weak ones too (a bumper in shade), since they only move an
+/// obstacle already found. From the nearest of them on is the thing, or a hole in
 /// front of a face: a hazard either way. At least
 /// [`LOWER_PART_CELLS`] must show it; the AOI's near edge is the nearest
 /// it is placed.
