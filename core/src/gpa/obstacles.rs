@@ -290,18 +290,21 @@ fn lower_part(layout: &Layout, heights: &CellHeights, face: &Footprint, deepest_
         cell_left + cell_mm > left && cell_left < right
     });
     let (first_column, last_column) = (columns.clone().next()?, columns.last()?);
+    // Per cell in f32 (the M4's FPU), as `parallax_group`'s footprints.
+    let (camera_f32, face_f32, cell_f32) = (camera_height as f32, face_z as f32, cell_mm as f32);
+    let deepest_reach = (camera_height + deepest_drop_mm) as f32 / camera_f32;
     let (mut count, mut nearest_row) = (0usize, None);
     for r in 0..cells.high {
         if layout.near_side_mm(r) >= face_z {
             continue;
         }
-        let z_centre = grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1;
+        let z_centre = grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1 as f32;
         let points_at_face = |cell: usize| {
             let depth = heights.any(cell);
             if heights.moving(cell) {
-                z_centre * (camera_height + deepest_drop_mm) / camera_height <= face_z + cell_mm
+                z_centre * deepest_reach <= face_f32 + cell_f32
             } else {
-                depth < 0 && libm::fabs(z_centre * (camera_height - f64::from(depth)) / camera_height - face_z) <= cell_mm
+                depth < 0 && libm::fabsf(z_centre * (camera_f32 - f32::from(depth)) / camera_f32 - face_f32) <= cell_f32
             }
         };
         let found = (first_column..=last_column).filter(|&c| points_at_face(r * cells.wide + c)).count();
