@@ -80,6 +80,12 @@ impl Layout {
         j < (self.aoi.top + self.aoi.bottom) / 2
     }
 
+    /// Ground distance (mm) of cell row `row`'s centre, where its
+    /// measured height belongs.
+    pub(super) fn centre_mm(&self, row: usize) -> f64 {
+        self.grid.pixel_to_ground(0.0, (row as f64 + 0.5) * self.cells.px as f64 - 0.5).1
+    }
+
     /// Ground distance (mm) of cell row `row`'s near side: the bottom of
     /// its last pixel row.
     pub(super) fn near_side_mm(&self, row: usize) -> f64 {

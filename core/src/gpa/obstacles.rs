@@ -241,8 +241,7 @@ pub(super) fn parallax_obstacle(
     // lower level's blur, which can fake an obstacle nearer than the edge.
     let cells = &layout.cells;
     let first_before_edge = drop.map_or(0, |(edge, _)| {
-        let centre_z = |r: usize| layout.grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1;
-        (0..cells.high).find(|&r| centre_z(r) < f64::from(edge.near_mm)).unwrap_or(cells.high)
+        (0..cells.high).find(|&r| layout.centre_mm(r) < f64::from(edge.near_mm)).unwrap_or(cells.high)
     });
     let (obstacle, beyond) = parallax_group(layout, (heights, residue), config, Wanted { side: Side::Above, first_row: first_before_edge, short_baseline, last_frame }, scan);
     let lowered = obstacle.and_then(|(face, height)| lower_part(layout, heights, &face, config.max_drop_mm).map(|nearer| (nearer, height)));
@@ -298,7 +297,7 @@ fn lower_part(layout: &Layout, heights: &CellHeights, face: &Footprint, deepest_
         if layout.near_side_mm(r) >= face_z {
             continue;
         }
-        let z_centre = grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1 as f32;
+        let z_centre = layout.centre_mm(r) as f32;
         let points_at_face = |cell: usize| {
             let depth = heights.any(cell);
             if heights.moving(cell) {
@@ -369,7 +368,7 @@ fn parallax_group(
     // millimetres to well under a millimetre, what the report rounds to.
     let mut row_centre_z = [0.0f32; MAX_CELLS_SIDE];
     for (r, z) in row_centre_z.iter_mut().enumerate().take(h) {
-        *z = grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1 as f32;
+        *z = layout.centre_mm(r) as f32;
     }
     // The columns' sides step by a cell from the first's (pixel_to_ground
     // is affine along a row): two software f64 calls, not two a column.
@@ -748,8 +747,7 @@ mod tests {
         let row_of = |z: f64| grid.ground_to_pixel(0.0, z).1 as usize / cells.px;
         let column = grid.ground_to_pixel(0.0, 800.0).0 as usize / cells.px;
         for r in row_of(1250.0)..=row_of(1060.0) {
-            let z = grid.pixel_to_ground(0.0, (r as f64 + 0.5) * cells.px as f64 - 0.5).1;
-            let height = layout.camera_height_mm * (1.0 - face_mm / z);
+            let height = layout.camera_height_mm * (1.0 - face_mm / layout.centre_mm(r));
             for c in column - 1..=column + 1 {
                 heights.set(r * cells.wide + c, height as i16, false);
             }
@@ -777,9 +775,8 @@ mod tests {
             let (i, j) = grid.ground_to_pixel(x, z);
             (j as usize / cells.px) * cells.wide + i as usize / cells.px
         };
-        let centre_z = |cell: usize| grid.pixel_to_ground(0.0, ((cell / cells.wide) as f64 + 0.5) * cells.px as f64 - 0.5).1;
         // The depth a cell below the ground measures when it points at the face.
-        let pointing = |cell: usize| -((camera_height * (face_mm / centre_z(cell) - 1.0)) as i16);
+        let pointing = |cell: usize| -((camera_height * (face_mm / layout.centre_mm(cell / cells.wide) - 1.0)) as i16);
         let with = |cells_set: &[(usize, i16)]| {
             let mut heights = face_on(&layout, face_mm);
             for &(cell, depth) in cells_set {
