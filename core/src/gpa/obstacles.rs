@@ -284,11 +284,12 @@ fn lower_part(layout: &Layout, heights: &CellHeights, face: &Footprint, deepest_
     let cell_mm = cells.px as f64 * grid.mm_per_px;
     let (face_z, left, right) = (f64::from(face.near_mm), f64::from(face.left_mm) - cell_mm, f64::from(face.right_mm) + cell_mm);
     let (first_left, _) = grid.pixel_to_ground(0.0, 0.0);
-    let columns = (0..cells.wide).filter(|&c| {
+    let mut columns = (0..cells.wide).filter(|&c| {
         let cell_left = first_left + c as f64 * cell_mm;
         cell_left + cell_mm > left && cell_left < right
     });
-    let (first_column, last_column) = (columns.clone().next()?, columns.last()?);
+    let first_column = columns.next()?;
+    let last_column = columns.next_back().unwrap_or(first_column);
     // Per cell in f32 (the M4's FPU), as `parallax_group`'s footprints.
     let (camera_f32, face_f32, cell_f32) = (camera_height as f32, face_z as f32, cell_mm as f32);
     let deepest_reach = (camera_height + deepest_drop_mm) as f32 / camera_f32;
