@@ -1,7 +1,8 @@
 //! Step 1 of the motion estimate: the planar motion (tx, tz, yaw) on both
 //! KG images box-averaged to coarse cells, every candidate within the
 //! prior's reach scored by its mean absolute difference after a global
-//! gain match.
+//! gain match. The current image is levelled first by the prior's
+//! attitude change (the IMU's), which no planar motion explains.
 //!
 //! A candidate's translation moves the keyframe position of every cell by
 //! the same whole number of cells, so the current image is turned onto the
@@ -9,7 +10,7 @@
 //! translation is then an integer difference of two aligned images.
 
 use super::estimate::Scene;
-use super::homography::Params;
+use super::homography::{Params, PixelMap};
 use crate::grid::{KgGrid, MAX_GRID_SIDE};
 use crate::kernels;
 use crate::limits::MAX_COARSE_CELLS;
@@ -33,6 +34,10 @@ const MAX_YAW_STEPS: i32 = 40;
 const FIRST_YAW_STEPS: i32 = 2;
 /// Most translation steps either side of the start, per axis.
 const MAX_SHIFT_STEPS: i32 = 8;
+/// An attitude change (degrees) above which the current image is levelled
+/// before the search ([`Coarse::level`]): below, it moves the farthest
+/// ground by less than a small share of a cell.
+const LEVEL_ABOVE_DEG: f32 = 0.05;
 /// Fractional bits of the turned image's gray levels.
 const TURNED_FRAC: u32 = 4;
 /// A cell the image does not cover.
@@ -145,6 +150,31 @@ impl Coarse {
             };
         }
         self.spans[cj] = span_of(&self.cells[row]);
+    }
+
+    /// Resamples the cells as a body at the keyframe's attitude would have
+    /// seen them: each cell takes the value the attitude change `change`
+    /// (pitch, roll, degrees) moved to it. `scratch` holds the new values
+    /// meanwhile (the samples read the old ones around them).
+    fn level(&mut self, scene: &Scene, change: [f32; 2], scratch: &mut [u16; MAX_COARSE_CELLS]) {
+        // The inverse of the change: from the body as it stands now back to the keyframe's.
+        let keyframe = scene.keyframe_attitude.deg;
+        let back = [0.0, 0.0, 0.0, -change[0], -change[1]];
+        let now = [keyframe[0] + change[0], keyframe[1] + change[1]];
+        let map = PixelMap::with_sin_cos(&back, now, scene.height_mm as f32, scene.grid, &|deg| scene.sin_cos.sin_cos_deg(deg));
+        let side = self.side as f32;
+        let centre = 0.5 * (side - 1.0);
+        for qj in 0..self.high {
+            for qi in 0..self.wide {
+                let seen = map.at(qi as f32 * side + centre, qj as f32 * side + centre).and_then(|(i, j)| self.at((i - centre) / side, (j - centre) / side));
+                // Rounded as `build` rounds its box averages (down).
+                scratch[qj * self.wide + qi] = seen.map_or(UNSEEN, |value| value as u16);
+            }
+        }
+        for qj in 0..self.high {
+            let row = &scratch[qj * self.wide..][..self.wide];
+            self.set_row(qj, row.iter().map(|&v| (v != UNSEEN).then_some(v as u8)));
+        }
     }
 
     fn mean(&self) -> f32 {
@@ -555,6 +585,13 @@ impl CoarseSearch {
         if self.built_side != Some(side) {
             self.keyframe.build(scene.keyframe, scene, side);
             self.current.build(scene.current, scene, side);
+            // Level images (no attitude change) are what a rigid planar
+            // motion maps onto each other: a pitch change of 0.7 degree
+            // moves ground 1 m ahead as far as 35 mm of travel.
+            let change = [p[3], p[4]];
+            if libm::fabsf(change[0]).max(libm::fabsf(change[1])) > LEVEL_ABOVE_DEG {
+                self.current.level(scene, change, &mut self.turned.cells);
+            }
             self.built_side = Some(side);
         }
         let (key_mean, cur_mean) = (self.keyframe.mean(), self.current.mean());

@@ -5,7 +5,8 @@
 //! attitude are priors.
 //!
 //! 1. [`coarse`](super::coarse): the planar motion on both images
-//!    box-averaged to cells, every yaw and translation within the prior's
+//!    box-averaged to cells (the current one levelled by the prior's
+//!    attitude change), every yaw and translation within the prior's
 //!    reach scored. Skipped when the prior's 3 sigma lies within the
 //!    alignment's own reach ([`within_alignment_reach`]): with odometry.
 //! 2. [`direct`](super::direct): Gauss-Newton on the gray levels, coarse
@@ -716,6 +717,22 @@ mod tests {
         let found = from_prediction(&stopped, &moving);
         assert!(found.is_none(), "kept {found:?} from a prediction 90 mm off");
         assert_close(&estimate_of(&stopped, &moving, |_, _| false), &stopped);
+    }
+
+    /// Without odometry but with an IMU: the body pitched by 0.8 degree
+    /// while the robot moved 20 mm. Unlevelled, the pitch moves the ground
+    /// 1 m ahead by about 40 mm, and the search's rigid motions take that
+    /// for travel; the current image levelled by the IMU's change first,
+    /// its start lies within half a fine cell of the motion.
+    #[test]
+    fn the_search_levels_the_view_by_the_attitude_prior() {
+        let pitched = GroundMotion { planar: Motion { tx_mm: 0.0, tz_mm: 20.0, dyaw_deg: 0.0 }, attitude: Attitude { pitch_deg: -0.8, roll_deg: 0.0 } };
+        let imu = Prior { motion: GroundMotion { planar: Motion::default(), attitude: pitched.attitude }, sigma: [83.0, 83.0, 8.0, 0.1, 0.1] };
+        let (keyframe, current) = (render(&GroundMotion::default(), |_, _| false), render(&pitched, |_, _| false));
+        let mut workspace = std::boxed::Box::new(Workspace::EMPTY);
+        let start = with_scene(&keyframe, &current, |scene| Estimator::coarse_start(|| workspace.coarse(), scene, &imu));
+        let off = kernels::hypotf(start[0] - pitched.planar.tx_mm as f32, start[1] - pitched.planar.tz_mm as f32);
+        assert!(off < 0.5 * COARSE_CELL_MM, "start {start:?}, {off:.1} mm from the motion");
     }
 
     /// A turn far past the wide search's first yaws: every yaw within the
