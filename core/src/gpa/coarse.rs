@@ -10,7 +10,7 @@
 //! translation is then an integer difference of two aligned images.
 
 use super::estimate::Scene;
-use super::homography::{Params, PixelMap};
+use super::homography::Params;
 use crate::grid::{KgGrid, MAX_GRID_SIDE};
 use crate::kernels;
 use crate::limits::MAX_COARSE_CELLS;
@@ -159,9 +159,7 @@ impl Coarse {
     fn level(&mut self, scene: &Scene, change: [f32; 2], scratch: &mut [u16; MAX_COARSE_CELLS]) {
         // The inverse of the change: from the body as it stands now back to the keyframe's.
         let keyframe = scene.keyframe_attitude.deg;
-        let back = [0.0, 0.0, 0.0, -change[0], -change[1]];
-        let now = [keyframe[0] + change[0], keyframe[1] + change[1]];
-        let map = PixelMap::with_sin_cos(&back, now, scene.height_mm as f32, scene.grid, &|deg| scene.sin_cos.sin_cos_deg(deg));
+        let map = scene.images().map(&[0.0, 0.0, 0.0, -change[0], -change[1], keyframe[0] + change[0], keyframe[1] + change[1]]);
         let side = self.side as f32;
         let centre = 0.5 * (side - 1.0);
         for qj in 0..self.high {

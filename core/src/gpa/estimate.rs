@@ -220,7 +220,7 @@ pub(super) struct Scene<'a> {
 }
 
 impl Scene<'_> {
-    fn images(&self) -> Images<'_> {
+    pub(super) fn images(&self) -> Images<'_> {
         Images {
             keyframe: self.keyframe,
             current: self.current,
