@@ -695,18 +695,9 @@ impl<'b> Gpa<'b> {
         self.alarm.sees_beyond_the_aoi(evidence.beyond);
         self.blobs = obstacles::residue_blobs(layout, &rows.residue, config);
         let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &rows.residue, config);
-        // What moves with the robot shows no height of its own: where it is
-        // nearer than what parallax placed, it is that thing's footprint
-        // (a car ahead: its roof measured, its bumper lagging the ground).
-        // A drop's lower level lags the floor too: a drop keeps its edge.
-        let (parallax, residue, placed_by_moving) = match (parallax, obstacles::moving_obstacle(layout, &self.parallax.height)) {
-            (Some((placed, height)), Some(moving)) if height > 0 && moving.near_mm < placed.near_mm => (Some((moving, height)), residue, true),
-            (None, Some(moving)) => match residue.filter(|r| r.near_mm < moving.near_mm) {
-                Some(nearer) => (None, Some(nearer), false),
-                None => (None, Some(moving), true),
-            },
-            (parallax, _) => (parallax, residue, evidence.moves_along),
-        };
+        let moving = obstacles::moving_obstacle(layout, &self.parallax.height);
+        let cell_mm = layout.cells.px as f64 * layout.grid.mm_per_px;
+        let (parallax, residue, placed_by_moving) = obstacles::weigh_moving(parallax, residue, moving, evidence.moves_along, cell_mm);
         self.alarm.sees_drops_from(self.parallax.hypotheses.shallowest_drop_mm);
         let hazard = self.alarm.decide(parallax, residue, baseline_mm, drops_looked_for, config, &self.prediction.step);
         if placed_by_moving {

@@ -593,6 +593,42 @@ pub(super) fn moving_obstacle(layout: &Layout, heights: &CellHeights) -> Option<
     best
 }
 
+/// The frame's evidence once what moves with the robot (`moving`, from
+/// [`moving_obstacle`]) is weighed: (parallax, residue, whether a thing
+/// moving along placed the hazard). Such a thing shows no height of its
+/// own: where it is nearer than what parallax placed, it is that thing's
+/// footprint (a car ahead: its roof measured, its bumper lagging the
+/// ground). A drop's lower level lags the floor too, but only past its
+/// edge: a drop keeps its edge unless the moving thing starts more than a
+/// cell (`cell_mm`) nearer, which no lower level of it can (a car's
+/// shadow lagging ahead of a "drop" that is the car's body). Residue
+/// nearer than a moving thing places the hazard itself.
+pub(super) fn weigh_moving(
+    parallax: Option<(Footprint, i32)>,
+    residue: Option<Footprint>,
+    moving: Option<Footprint>,
+    moves_along: bool,
+    cell_mm: f64,
+) -> (Option<(Footprint, i32)>, Option<Footprint>, bool) {
+    let nearer_than_drop = |edge: &Footprint, moving: &Footprint| f64::from(moving.near_mm) < f64::from(edge.near_mm) - cell_mm;
+    match (parallax, moving) {
+        (Some((placed, height)), Some(moving)) if height > 0 && moving.near_mm < placed.near_mm => (Some((moving, height)), residue, true),
+        (Some((edge, depth)), Some(moving)) if depth < 0 && !nearer_than_drop(&edge, &moving) => (parallax, residue, moves_along),
+        (Some((_, height)), Some(moving)) if height < 0 => moving_alone(residue, moving),
+        (None, Some(moving)) => moving_alone(residue, moving),
+        (parallax, _) => (parallax, residue, moves_along),
+    }
+}
+
+/// A moving thing with no parallax hazard before it: it places the hazard
+/// unless residue lies nearer.
+fn moving_alone(residue: Option<Footprint>, moving: Footprint) -> (Option<(Footprint, i32)>, Option<Footprint>, bool) {
+    match residue.filter(|r| r.near_mm < moving.near_mm) {
+        Some(nearer) => (None, Some(nearer), false),
+        None => (None, Some(moving), true),
+    }
+}
+
 /// Labels the cells active with residue into blobs (at most [`MAX_BLOBS`]).
 pub(super) fn residue_blobs(layout: &Layout, residue: &Residue, config: &GpaConfig) -> heapless::Vec<Blob, MAX_BLOBS> {
     let mut blobs: heapless::Vec<Blob, MAX_BLOBS> = heapless::Vec::new();
@@ -880,5 +916,24 @@ mod tests {
         assert_eq!(parallax_obstacle(&layout, &four, &residue, &config, false, true, last_frame.moved(8, 0.0), &mut scan).hazard, None);
         let measured = two_by_two(false);
         assert!(parallax_obstacle(&layout, &measured, &residue, &config, false, true, None, &mut scan).hazard.is_some());
+    }
+
+    /// A moving thing nearer than a parallax obstacle places it, keeping its
+    /// height; a drop keeps its edge against a moving thing within a cell
+    /// of it (its lower level lags too), but not against one that starts
+    /// farther than a cell nearer (a car's shadow ahead of its body
+    /// misread as a drop), which places the hazard as a thing moving along,
+    /// unless residue lies nearer still.
+    #[test]
+    fn a_thing_moving_along_places_what_it_starts_nearer_than() {
+        let at = |near_mm: i32| Footprint { near_mm, left_mm: -100, right_mm: 100 };
+        let cell_mm = 30.0;
+        assert_eq!(weigh_moving(Some((at(1000), 400)), None, Some(at(800)), false, cell_mm), (Some((at(800), 400)), None, true));
+        assert_eq!(weigh_moving(Some((at(1000), 400)), None, Some(at(1200)), false, cell_mm), (Some((at(1000), 400)), None, false));
+        assert_eq!(weigh_moving(Some((at(1000), -60)), None, Some(at(980)), false, cell_mm), (Some((at(1000), -60)), None, false));
+        assert_eq!(weigh_moving(Some((at(1000), -60)), None, Some(at(800)), false, cell_mm), (None, Some(at(800)), true));
+        assert_eq!(weigh_moving(Some((at(1000), -60)), Some(at(700)), Some(at(800)), false, cell_mm), (None, Some(at(700)), false));
+        assert_eq!(weigh_moving(None, Some(at(900)), Some(at(800)), false, cell_mm), (None, Some(at(800)), true));
+        assert_eq!(weigh_moving(None, Some(at(900)), None, false, cell_mm), (None, Some(at(900)), false));
     }
 }
