@@ -152,11 +152,12 @@ impl Alarm {
     /// `baseline_mm` from its keyframe shows too little parallax to clear
     /// an alarm when the baseline is short (under 0.6 of the keyframe
     /// travel: a frame at half of it, the keyframe's own step, must not
-    /// clear or hold by a millimetre of estimate noise), nor when it is
-    /// shorter than the baseline the hazard was found at (up to the
-    /// keyframe travel): parallax grows with the baseline, so a shorter
-    /// one may show too little of what a longer one just saw (a box at
-    /// the AOI's far edge). A drop's parallax is smaller still (T*d/(H+d), under T
+    /// clear or hold by a millimetre of estimate noise), nor, for a
+    /// height, when it is shorter than the baseline the hazard was found at
+    /// (up to the keyframe travel): parallax grows with the baseline, so a
+    /// shorter one may show too little of what a longer one just saw (a box
+    /// at the AOI's far edge). Residue measures no height: past the short
+    /// baselines a frame that does not see it again clears it. A drop's parallax is smaller still (T*d/(H+d), under T
     /// however deep), so a drop is held through baselines under three
     /// quarters of the travel, and through frames that could not look for
     /// drops at all (`drops_looked_for` false: the attitude change is
@@ -240,7 +241,13 @@ impl Alarm {
     /// baseline of `found_at` (see [`Self::decide`]).
     fn cannot_clear(&self, (held, found_at): &(Hazard, f64), baseline_mm: f64, drops_looked_for: bool, config: &GpaConfig) -> bool {
         let drop = is_drop(held);
-        let needed = (if drop { 0.75 } else { 0.6 } * config.keyframe_travel_mm).max(found_at.min(keyframe::full_baseline_mm(config)));
+        // Parallax grows with the baseline; residue measures no height, and
+        // a baseline past the short ones sees it again or not, whatever the
+        // one it was found at (a thing that moved away leaves the
+        // keyframe's view of it as residue until the keyframe renews: held
+        // up to that baseline, it outlasts it by a keyframe).
+        let found_at = if held.1.is_some() { found_at.min(keyframe::full_baseline_mm(config)) } else { 0.0 };
+        let needed = (if drop { 0.75 } else { 0.6 } * config.keyframe_travel_mm).max(found_at);
         let unseen_depth = held.1.is_some_and(|h| f64::from(-h) < self.shallowest_drop_mm);
         let seen_again = held.1.is_some_and(|h| h > 0) && self.beyond.is_some_and(|beyond| beyond.overlaps_sideways(&held.0));
         baseline_mm < needed || (drop && (!drops_looked_for || unseen_depth)) || seen_again
@@ -429,6 +436,23 @@ mod tests {
         assert_eq!(alarm.decide(None, None, 100.0, true, &config, &STEP), None);
         alarm.decide(Some((at(1300), 80)), None, 40.0, true, &config, &STEP);
         assert_eq!(alarm.decide(None, None, 60.0, true, &config, &STEP), None);
+    }
+
+    /// Residue measures no height: found at a full baseline, it is held
+    /// through a short one and cleared from 0.6 of the travel, where a
+    /// height found at that baseline is held until a full one (a thing
+    /// that rolled away leaves the keyframe's view of it as residue: held
+    /// to a full baseline, that ghost outlasted the keyframe).
+    #[test]
+    fn residue_is_held_only_through_short_baselines() {
+        let config = GpaConfig::default();
+        let mut alarm = Alarm::NONE;
+        alarm.decide(None, Some(at(900)), 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(None, None, 40.0, true, &config, &STEP), Some((at(850), None)));
+        assert_eq!(alarm.source(), AlarmSource::Held);
+        assert_eq!(alarm.decide(None, None, 80.0, true, &config, &STEP), None);
+        alarm.decide(Some((at(900), 80)), None, 100.0, true, &config, &STEP);
+        assert_eq!(alarm.decide(None, None, 80.0, true, &config, &STEP), Some((at(850), Some(80))));
     }
 
     /// An obstacle found at a full baseline, then seen again only a little
