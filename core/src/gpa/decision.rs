@@ -157,8 +157,9 @@ impl Alarm {
     /// (up to the keyframe travel): parallax grows with the baseline, so a
     /// shorter one may show too little of what a longer one just saw (a box
     /// at the AOI's far edge). Residue measures no height: past the short
-    /// baselines a frame that does not see it again clears it. A drop's parallax is smaller still (T*d/(H+d), under T
-    /// however deep), so a drop is held through baselines under three
+    /// baselines a frame that does not see it again clears it. A drop's
+    /// parallax is smaller still (T*d/(H+d), under T however deep), so a
+    /// drop is held through baselines under three
     /// quarters of the travel, and through frames that could not look for
     /// drops at all (`drops_looked_for` false: the attitude change is
     /// unmeasured), else a drop seen on the last frame would

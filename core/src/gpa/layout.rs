@@ -80,6 +80,11 @@ impl Layout {
         j < (self.aoi.top + self.aoi.bottom) / 2
     }
 
+    /// A coherence cell's side on the ground (mm).
+    pub(super) fn cell_mm(&self) -> f64 {
+        self.cells.px as f64 * self.grid.mm_per_px
+    }
+
     /// Ground distance (mm) of cell row `row`'s centre, where its
     /// measured height belongs.
     pub(super) fn centre_mm(&self, row: usize) -> f64 {

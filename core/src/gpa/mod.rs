@@ -696,8 +696,7 @@ impl<'b> Gpa<'b> {
         self.blobs = obstacles::residue_blobs(layout, &rows.residue, config);
         let residue = obstacles::nearest_residue_obstacle(&self.blobs, layout, &rows.residue, config);
         let moving = obstacles::moving_obstacle(layout, &self.parallax.height);
-        let cell_mm = layout.cells.px as f64 * layout.grid.mm_per_px;
-        let (parallax, residue, placed_by_moving) = obstacles::weigh_moving(parallax, residue, moving, evidence.moves_along, cell_mm);
+        let (parallax, residue, placed_by_moving) = obstacles::weigh_moving(parallax, residue, moving, evidence.moves_along, layout.cell_mm());
         self.alarm.sees_drops_from(self.parallax.hypotheses.shallowest_drop_mm);
         let hazard = self.alarm.decide(parallax, residue, baseline_mm, drops_looked_for, config, &self.prediction.step);
         if placed_by_moving {
@@ -768,7 +767,7 @@ impl<'b> Gpa<'b> {
         let (x_left, z_far) = (grid.x_left_mm as f32, grid.z_far_mm as f32);
         let (width, rows) = (grid.width(), layout.analysis_rows);
         let cell_pixels = (cells.px * cells.px) as u32;
-        let step_mm = (cells.px as f64 * grid.mm_per_px) as f32;
+        let step_mm = layout.cell_mm() as f32;
         // Ground is seen where the frame compared at least half of its cell;
         // sampled a cell apart.
         self.scan.mark_view(step_mm, |x, z| {

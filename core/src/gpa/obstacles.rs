@@ -281,7 +281,7 @@ const LOWER_PART_CELLS: usize = 2;
 fn lower_part(layout: &Layout, heights: &CellHeights, face: &Footprint, deepest_drop_mm: f64) -> Option<Footprint> {
     let (grid, cells) = (&layout.grid, &layout.cells);
     let camera_height = layout.camera_height_mm;
-    let cell_mm = cells.px as f64 * grid.mm_per_px;
+    let cell_mm = layout.cell_mm();
     let (face_z, left, right) = (f64::from(face.near_mm), f64::from(face.left_mm) - cell_mm, f64::from(face.right_mm) + cell_mm);
     let (first_left, _) = grid.pixel_to_ground(0.0, 0.0);
     let mut columns = (0..cells.wide).filter(|&c| {
@@ -375,7 +375,7 @@ fn parallax_group(
     // is affine along a row): two software f64 calls, not two a column.
     let (first_left, _) = grid.pixel_to_ground(0.0, 0.0);
     let (first_right, _) = grid.pixel_to_ground(cells.px as f64 - 1.0, 0.0);
-    let cell_mm = cells.px as f64 * grid.mm_per_px;
+    let cell_mm = layout.cell_mm();
     let cell_mm_f32 = cell_mm as f32;
     let mut column_sides = [[0.0f32; 2]; MAX_CELLS_SIDE];
     for (c, sides) in column_sides.iter_mut().enumerate().take(w) {
@@ -610,11 +610,9 @@ pub(super) fn weigh_moving(
     moves_along: bool,
     cell_mm: f64,
 ) -> (Option<(Footprint, i32)>, Option<Footprint>, bool) {
-    let nearer_than_drop = |edge: &Footprint, moving: &Footprint| f64::from(moving.near_mm) < f64::from(edge.near_mm) - cell_mm;
     match (parallax, moving) {
         (Some((placed, height)), Some(moving)) if height > 0 && moving.near_mm < placed.near_mm => (Some((moving, height)), residue, true),
-        (Some((edge, depth)), Some(moving)) if depth < 0 && !nearer_than_drop(&edge, &moving) => (parallax, residue, moves_along),
-        (Some((_, height)), Some(moving)) if height < 0 => moving_alone(residue, moving),
+        (Some((edge, depth)), Some(moving)) if depth < 0 && f64::from(moving.near_mm) < f64::from(edge.near_mm) - cell_mm => moving_alone(residue, moving),
         (None, Some(moving)) => moving_alone(residue, moving),
         (parallax, _) => (parallax, residue, moves_along),
     }
