@@ -32,6 +32,9 @@ const MAX_YAW_STEPS: i32 = 40;
 /// only when the best lies on their edge (the start is within one step
 /// in most searches).
 const FIRST_YAW_STEPS: i32 = 2;
+/// How far over a whole number of steps 3 sigma may lie and still reach
+/// that many steps (a share of a step).
+const REACH_SLACK: f32 = 1e-3;
 /// Most translation steps either side of the start, per axis.
 const MAX_SHIFT_STEPS: i32 = 8;
 /// An attitude change (degrees) above which the current image is levelled
@@ -64,6 +67,21 @@ fn span_of(row: &[u16]) -> Span {
     let end = row.len() - row.iter().rev().position(seen).unwrap_or(0);
     // Rows are at most MAX_GRID_SIDE / 2 = 128 cells long.
     if row[start..end].iter().all(seen) { [start as u8, end as u8] } else { MIXED }
+}
+
+/// The side (px) of the cells a coarse image of `cell_mm` cells averages
+/// over on this grid: at least 2 px, more if the grid would need too many.
+fn cell_side(grid: &KgGrid, cell_mm: f32) -> usize {
+    let mut side = ((cell_mm / grid.mm_per_px as f32) as usize).max(2);
+    while grid.width().div_ceil(side) * grid.height().div_ceil(side) > MAX_COARSE_CELLS {
+        side += 1;
+    }
+    side
+}
+
+/// The ground side (mm) of the cells a search asked for `cell_mm` cells works on.
+pub(super) fn cell_mm_on(grid: &KgGrid, cell_mm: f32) -> f32 {
+    cell_side(grid, cell_mm) as f32 * grid.mm_per_px as f32
 }
 
 /// The yaw step that moves the grid's farthest corner by half a cell.
@@ -103,14 +121,10 @@ impl Coarse {
         (cell != UNSEEN).then_some((cell >> TURNED_FRAC) as u8)
     }
 
-    /// Averages `image` over cells of `side` px (more if the grid would need too many).
+    /// Averages `image` over cells of `side` px ([`cell_side`]).
     fn build(&mut self, image: &[u8], scene: &Scene, side: usize) {
         let grid = scene.grid;
         let (w, h) = (grid.width(), grid.height());
-        let mut side = side;
-        while w.div_ceil(side) * h.div_ceil(side) > MAX_COARSE_CELLS {
-            side += 1;
-        }
         self.side = side;
         self.wide = w / side;
         self.high = h / side;
@@ -579,7 +593,7 @@ impl CoarseSearch {
         let unmeasured = CoarseFound { p, score: f32::MAX, runner_up: None, on_yaw_edge: false };
         let grid = scene.grid;
         let mm_per_px = grid.mm_per_px as f32;
-        let side = ((cell_mm / mm_per_px) as usize).max(2);
+        let side = cell_side(grid, cell_mm);
         if self.built_side != Some(side) {
             self.keyframe.build(scene.keyframe, scene, side);
             self.current.build(scene.current, scene, side);
@@ -598,10 +612,12 @@ impl CoarseSearch {
         }
         let gain = cur_mean / key_mean;
         let cell_mm = mm_per_px * self.current.side as f32;
-        let reach_cells = |sigma_mm: f32| (libm::ceilf(3.0 * sigma_mm / cell_mm) as i32).clamp(1, MAX_SHIFT_STEPS);
-        let (reach_x, reach_z) = (reach_cells(sigma[0]), reach_cells(sigma[1]));
+        // 3 sigma in whole steps; a hair over a whole number (float
+        // rounding of a sigma set as steps / 3) takes no step more.
+        let steps = |sigma: f32, step: f32| libm::ceilf(3.0 * sigma / step - REACH_SLACK) as i32;
+        let (reach_x, reach_z) = (steps(sigma[0], cell_mm).clamp(1, MAX_SHIFT_STEPS), steps(sigma[1], cell_mm).clamp(1, MAX_SHIFT_STEPS));
         let yaw_step = yaw_step(grid, cell_mm);
-        let yaw_reach = (libm::ceilf(3.0 * sigma[2] / yaw_step) as i32).clamp(0, MAX_YAW_STEPS);
+        let yaw_reach = steps(sigma[2], yaw_step).clamp(0, MAX_YAW_STEPS);
         let counted = (0..self.current.wide * self.current.high).filter(|&k| self.current.value(k).is_some()).count() as u32;
         let cell_centre = 0.5 * (self.current.side as f32 - 1.0) / self.current.side as f32;
         let origin = (grid.x_left_mm as f32 / cell_mm + cell_centre, grid.z_far_mm as f32 / cell_mm - cell_centre);

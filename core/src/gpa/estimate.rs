@@ -35,7 +35,7 @@
 //!
 //! All of it in `f32` (the M4 has a single-precision FPU).
 
-use super::coarse::{yaw_step, CoarseSearch, Widen, COARSE_CELL_MM};
+use super::coarse::{cell_mm_on, yaw_step, CoarseSearch, Widen, COARSE_CELL_MM};
 use super::hazard_mask::MovedMask;
 use super::direct::{self, Alignment, Direct, Geometry, Images, Schedule};
 use super::homography::{Params, SinCosMemo};
@@ -479,10 +479,15 @@ impl Estimator {
         let mut sigma = prior.sigma;
         if reach(sigma[0].max(sigma[1]), fine_mm) > 3.0 {
             let wide = coarse.search_with_runner_up(scene, &p, &sigma, 2.0 * fine_mm, Widen::OnLargerCells);
-            // What is left: about a large cell, and its yaw step.
-            sigma[0] = 2.0 * fine_mm / 3.0;
+            // What is left: the large cells' answer is good to about half
+            // a large cell, which the fine searches cover a whole one
+            // either side (two fine cells, 3 sigma); and about a large
+            // yaw step, which they cover three either side, the nearest
+            // first (a turn can leave the large cells a minimum that far off).
+            let large_cell_mm = cell_mm_on(scene.grid, 2.0 * fine_mm);
+            sigma[0] = large_cell_mm / 3.0;
             sigma[1] = sigma[0];
-            sigma[2] = sigma[2].min(yaw_step(scene.grid, 2.0 * fine_mm));
+            sigma[2] = sigma[2].min(yaw_step(scene.grid, large_cell_mm));
             // The large cells rank the candidates; the fine cells decide
             // between the two best (a near obstacle filling the view leaves
             // the large cells a near-tie a yaw step apart, which the
