@@ -525,7 +525,9 @@ pub(super) enum Widen {
     /// In place, but only past the edge facing away from the best, which
     /// lies this many degrees of yaw from the search's start (either edge
     /// when 0): a search around a runner-up whose best walks toward the
-    /// best's yaw is walking into the basin the best's own search covers.
+    /// yaw the best's own search ended at is walking into ground that
+    /// search covered (on a turn both walked the same way, the second
+    /// search for nothing).
     AwayFrom(f32),
 }
 

@@ -495,7 +495,9 @@ impl Estimator {
             let best = coarse.search(scene, &wide.p, &sigma, fine_mm, Widen::InPlace);
             p = match wide.runner_up {
                 Some(runner_up) => {
-                    let other = coarse.search(scene, &runner_up, &sigma, fine_mm, Widen::AwayFrom(wide.p[2] - runner_up[2]));
+                    // Toward where the best's own search ended, the
+                    // runner-up's would walk ground that search covered.
+                    let other = coarse.search(scene, &runner_up, &sigma, fine_mm, Widen::AwayFrom(best.p[2] - runner_up[2]));
                     if other.score < best.score { other.p } else { best.p }
                 }
                 None => best.p,
