@@ -449,7 +449,10 @@ fn parallax_group(
             let scale = match side {
                 Side::Above => {
                     let scale = (camera_height - height) / camera_height;
-                    let _ = footprints.push(z_centre * scale);
+                    // At the top hypothesis the cell may stand taller, so
+                    // nearer: its footprint is a bound, kept negative.
+                    let z = z_centre * scale;
+                    let _ = footprints.push(if heights.is_at_top(cell) { -z } else { z });
                     scale
                 }
                 Side::Below => {
@@ -511,11 +514,21 @@ fn parallax_group(
         // nearest column is the edge.
         // Selected, not sorted: the same value, without a sort's recursion
         // on the deepest stack of the frame.
-        let rank = match side {
-            Side::Above => ((footprints.len() - 1) / 4).max(1).min(footprints.len() - 1),
-            Side::Below => 0,
+        // (Footprints at the top hypothesis are kept negative: bounds.)
+        let quartile = |footprints: &mut [f32]| {
+            let rank = match side {
+                Side::Above => ((footprints.len() - 1) / 4).max(1).min(footprints.len() - 1),
+                Side::Below => 0,
+            };
+            libm::fabsf(*footprints.select_nth_unstable_by(rank, |a, b| libm::fabsf(*a).total_cmp(&libm::fabsf(*b))).1)
         };
-        let nearest = f64::from(*footprints.select_nth_unstable_by(rank, |a, b| a.total_cmp(b)).1);
+        // A face taller than the top hypothesis (a car from its own camera)
+        // stands nearer than its cells there place it: its lower part, when
+        // enough of it is measured, places it.
+        let with_bounds = quartile(&mut footprints);
+        footprints.retain(|z| *z >= 0.0);
+        let below_top = if footprints.len() >= 3 { quartile(&mut footprints) } else { f32::INFINITY };
+        let nearest = f64::from(with_bounds.min(below_top));
         let (left, right) = (f64::from(left), f64::from(right));
         // Nor beyond where the group is seen to start: a thing standing on
         // the ground is seen from its footprint on (its base), so a group
@@ -712,6 +725,7 @@ fn locate(blob: &Blob, layout: &Layout, residue: &Residue) -> Footprint {
 
 #[cfg(test)]
 mod tests {
+    use super::super::parallax::HEIGHT_FRACTIONS;
     use super::*;
     use crate::geometry::tests::sample_rig;
     use crate::grid::{GridConfig, KgGrid};
@@ -788,6 +802,31 @@ mod tests {
             }
         }
         heights
+    }
+
+    /// A face taller than the highest hypothesis (a car ahead from a car's
+    /// camera): all but its nearest cells match that hypothesis best, which
+    /// places them short of how tall they are, so beyond the face; the
+    /// cells of its lower part that measured their heights place it.
+    #[test]
+    fn a_face_above_the_top_hypothesis_stands_where_its_lower_part_says() {
+        let (layout, config, residue, mut scan) = sample_layout();
+        let (grid, cells) = (&layout.grid, &layout.cells);
+        let camera_height = layout.camera_height_mm;
+        let row_of = |z: f64| grid.ground_to_pixel(0.0, z).1 as usize / cells.px;
+        let column = grid.ground_to_pixel(0.0, 800.0).0 as usize / cells.px;
+        let lower_row = row_of(900.0);
+        let face_mm = 0.52 * layout.centre_mm(lower_row);
+        let top = camera_height * HEIGHT_FRACTIONS[HEIGHT_FRACTIONS.len() - 1];
+        let mut heights = CellHeights::for_camera(camera_height);
+        for r in row_of(1400.0)..=lower_row {
+            let height = camera_height * (1.0 - face_mm / layout.centre_mm(r));
+            for c in column - 1..=column + 1 {
+                heights.set(r * cells.wide + c, libm::round(height.min(top)) as i16, false);
+            }
+        }
+        let (face, _) = parallax_obstacle(&layout, &heights, &residue, &config, false, true, None, &mut scan).hazard.expect("the face");
+        assert!((f64::from(face.near_mm) - face_mm).abs() <= 3.0, "{face:?} for {face_mm}");
     }
 
     /// A face whose lower part, nearer than its footprint, lags the ground

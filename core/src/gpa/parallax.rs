@@ -260,18 +260,29 @@ pub(super) struct CellHeights {
     weak: CellSet,
     moving: CellSet,
     unit_mm: u8,
+    /// The highest hypothesis' magnitude: a cell there may stand taller.
+    top_units: u8,
 }
 
 impl CellHeights {
     pub(super) const EMPTY: CellHeights =
-        CellHeights { magnitude: [0; MAX_CELLS], below: CellSet::EMPTY, weak: CellSet::EMPTY, moving: CellSet::EMPTY, unit_mm: 1 };
+        CellHeights { magnitude: [0; MAX_CELLS], below: CellSet::EMPTY, weak: CellSet::EMPTY, moving: CellSet::EMPTY, unit_mm: 1, top_units: u8::MAX };
 
     /// No heights, counted in the unit of a camera `camera_height_mm` up:
     /// 1 mm up to a camera 510 mm up, coarser above (4 mm for a car's
     /// 1.66 m), so that half its height fits a byte.
     pub(super) fn for_camera(camera_height_mm: f64) -> CellHeights {
         let unit = libm::ceil(0.5 * camera_height_mm / f64::from(u8::MAX)).clamp(1.0, f64::from(u8::MAX));
-        CellHeights { unit_mm: unit as u8, ..CellHeights::EMPTY }
+        let top = libm::round(HEIGHT_FRACTIONS[HEIGHT_FRACTIONS.len() - 1] * camera_height_mm);
+        let top_units = libm::floor(top / unit).clamp(1.0, f64::from(u8::MAX));
+        CellHeights { unit_mm: unit as u8, top_units: top_units as u8, ..CellHeights::EMPTY }
+    }
+
+    /// Did the cell match the highest height hypothesis best? Its height
+    /// is then a lower bound (a car's roof from its own camera's height),
+    /// and where it stands an upper one.
+    pub(super) fn is_at_top(&self, cell: usize) -> bool {
+        self.magnitude[cell] >= self.top_units && !self.below.contains(cell)
     }
 
     /// A cell's measured height (0 for a weak one).
