@@ -65,7 +65,7 @@ use core::ops::Range;
 use edges::LineEdges;
 use fits::{support_tolerance, top_supported_height, MIN_SUPPORT};
 use heapless::Deque;
-use libm::{atan2f, fabsf, roundf};
+use libm::{atan2f, fabsf, hypotf, roundf};
 use lines::{LineGrid, Lines};
 use tracks::{MapPoint, Track, ROW_UNITS};
 use travel::{FloorPoints, Travel};
@@ -236,6 +236,8 @@ pub struct Gti {
     /// This frame's body tilt from the nominal attitude (None: nominal):
     /// tracks live on the level ground, the KG shows it tilted.
     tilt: Option<Tilt<f32>>,
+    /// How the robot turns as it travels: [`PathBend`].
+    bend: PathBend,
 }
 
 impl Gti {
@@ -275,6 +277,7 @@ impl Gti {
             next_id: 0,
             travel: Travel::START,
             tilt: None,
+            bend: PathBend::STRAIGHT,
         }
     };
 
@@ -335,6 +338,7 @@ impl Gti {
             *slot = None;
         }
         self.map.clear();
+        self.bend = PathBend::STRAIGHT;
     }
 
     /// Ends the frame: `motion` is the odometry from the previous frame to
@@ -342,6 +346,7 @@ impl Gti {
     /// `attitude` is the body's attitude now, relative to the nominal one.
     pub fn end_frame(&mut self, motion: &Motion, attitude: &Attitude) {
         self.tilt = (*attitude != Attitude::default()).then(|| Tilt::new(attitude, f64::from(self.mount_height_mm)).to_f32());
+        self.bend.follow(motion);
         self.lines.end_frame(self.config.lines);
         // One line's edges at a time (found for the travel correction, then
         // again for the association): every line's at once would add ~10 KB
@@ -434,8 +439,54 @@ impl Gti {
     /// is at least `min_obstacle_mm` by [`CERTAIN_SIGMAS`] of its standard
     /// error, backed by [`MIN_SUPPORT`] good points within the support
     /// tolerance of its height and 100 mm of it on the ground.
+    /// On a bending path a point's height may be an edge's slide
+    /// ([`PathBend`]): by as much as it could fake, it must clear more.
     pub fn nearest_obstacle_point(&self, aoi: &RegionMm) -> Option<HeightPoint> {
-        nearest_certain_obstacle(|| self.points(), aoi, &self.config)
+        let fakeable_mm = |p: &HeightPoint| self.mount_height_mm * self.bend.slide_per_mm(hypotf(p.x_mm, p.z_mm));
+        nearest_certain_obstacle(|| self.points(), aoi, &self.config, fakeable_mm)
+    }
+}
+
+/// An edge across a GT line is tracked where the two cross. The lines turn
+/// with the robot, so on a bending path they sweep over the ground, a
+/// point d from the camera by d per radian turned, and the crossing slides
+/// along the line by that sweep times the cotangent of the angle between
+/// edge and line: as if the edge stood up, by up to that share of the
+/// camera's height (a flat marking's edge, read 300 mm high at 500 mm on a
+/// 1.4 m-radius crawl). Edges within [`LEAST_EDGE_ANGLE_DEG`] of the line
+/// barely cross it, so that angle bounds the cotangent. The path's bend
+/// (turn over travel) is averaged over about a track's span of frames.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct PathBend {
+    /// Mean turn (rad) and travel (mm) a frame.
+    turn_rad: f32,
+    travel_mm: f32,
+}
+
+/// The least angle (degrees) between a tracked edge and its GT line.
+const LEAST_EDGE_ANGLE_DEG: f32 = 30.0;
+/// Weight of each frame in [`PathBend`]'s means: about
+/// [`MAX_OBSERVATIONS`] / 2 frames.
+const BEND_RATE: f32 = 2.0 / MAX_OBSERVATIONS as f32;
+
+impl PathBend {
+    const STRAIGHT: PathBend = PathBend { turn_rad: 0.0, travel_mm: 0.0 };
+
+    fn follow(&mut self, motion: &Motion) {
+        let turn = fabsf((motion.dyaw_deg as f32).to_radians());
+        let travel = motion.distance_mm() as f32;
+        self.turn_rad += BEND_RATE * (turn - self.turn_rad);
+        self.travel_mm += BEND_RATE * (travel - self.travel_mm);
+    }
+
+    /// How far (mm) an edge's crossing d mm from the camera may slide along
+    /// its line per mm travelled: GTI's slope error, at most.
+    fn slide_per_mm(&self, d_mm: f32) -> f32 {
+        if self.turn_rad <= 0.0 {
+            return 0.0;
+        }
+        let cot = 1.0 / libm::tanf(LEAST_EDGE_ANGLE_DEG.to_radians());
+        d_mm * self.turn_rad / self.travel_mm.max(f32::MIN_POSITIVE) * cot
     }
 }
 
@@ -448,11 +499,17 @@ impl Gti {
 pub const CERTAIN_SIGMAS: f32 = 3.0;
 
 /// [`Gti::nearest_obstacle_point`] over the points `points` gives.
-fn nearest_certain_obstacle<I: Iterator<Item = HeightPoint>>(points: impl Fn() -> I, aoi: &RegionMm, config: &GtiConfig) -> Option<HeightPoint> {
+/// `fakeable_mm`: how much of a point's height its line's motion may fake.
+fn nearest_certain_obstacle<I: Iterator<Item = HeightPoint>>(
+    points: impl Fn() -> I,
+    aoi: &RegionMm,
+    config: &GtiConfig,
+    fakeable_mm: impl Fn(&HeightPoint) -> f32,
+) -> Option<HeightPoint> {
     let good = |p: &HeightPoint| p.quality >= config.good_quality;
     let mut nearest: Option<HeightPoint> = None;
     for p in points().filter(good) {
-        if p.h_mm - CERTAIN_SIGMAS * p.h_sigma_mm < config.min_obstacle_mm || !aoi.contains(p.x_mm, p.z_mm) {
+        if p.h_mm - CERTAIN_SIGMAS * p.h_sigma_mm - fakeable_mm(&p) < config.min_obstacle_mm || !aoi.contains(p.x_mm, p.z_mm) {
             continue;
         }
         let tolerance = support_tolerance(p.h_mm);
@@ -487,11 +544,35 @@ mod tests {
         let config = GtiConfig::DEFAULT;
         assert_eq!(config.min_obstacle_mm, 20.0);
         let sure = three_at(3.0);
-        let found = nearest_certain_obstacle(|| sure.iter().copied(), &AOI, &config).expect("an obstacle");
+        let found = nearest_certain_obstacle(|| sure.iter().copied(), &AOI, &config, |_| 0.0).expect("an obstacle");
         assert_eq!(found.z_mm, 600.0);
         let unsure = three_at(4.0);
-        assert!(nearest_certain_obstacle(|| unsure.iter().copied(), &AOI, &config).is_none());
+        assert!(nearest_certain_obstacle(|| unsure.iter().copied(), &AOI, &config, |_| 0.0).is_none());
         let two = &three_at(0.5)[..2];
-        assert!(nearest_certain_obstacle(|| two.iter().copied(), &AOI, &config).is_none());
+        assert!(nearest_certain_obstacle(|| two.iter().copied(), &AOI, &config, |_| 0.0).is_none());
+    }
+
+    /// On a straight run nothing slides; on a tight crawl (5 mm and 0.21
+    /// degrees a frame, r1000_04's) an edge's crossing 500 mm ahead may
+    /// slide 0.64 mm a mm travelled, which a 518 mm high camera reads as a
+    /// height of hundreds of mm; and the same sure 30 mm point that alarms
+    /// on a straight run does not where its line may fake 10 mm of it.
+    #[test]
+    fn on_a_bending_path_a_height_must_clear_what_the_slide_can_fake() {
+        let mut straight = PathBend::STRAIGHT;
+        let mut crawl = PathBend::STRAIGHT;
+        for _ in 0..3 * MAX_OBSERVATIONS {
+            straight.follow(&Motion { tx_mm: 0.0, tz_mm: 5.0, dyaw_deg: 0.0 });
+            crawl.follow(&Motion { tx_mm: 0.0, tz_mm: 5.0, dyaw_deg: 0.21 });
+        }
+        assert_eq!(straight.slide_per_mm(500.0), 0.0);
+        let slide = crawl.slide_per_mm(500.0);
+        let expected = 500.0 * 0.21f32.to_radians() / 5.0 * 3f32.sqrt();
+        assert!((slide - expected).abs() < 0.01 * expected, "{slide} vs {expected}");
+        assert!(518.0 * slide > 300.0);
+
+        let config = GtiConfig::DEFAULT;
+        let sure = three_at(3.0);
+        assert!(nearest_certain_obstacle(|| sure.iter().copied(), &AOI, &config, |_| 10.0).is_none());
     }
 }
