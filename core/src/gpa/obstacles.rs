@@ -525,10 +525,14 @@ fn parallax_group(
         // A face taller than the top hypothesis (a car from its own camera)
         // stands nearer than its cells there place it: its lower part, when
         // enough of it is measured, places it.
-        let with_bounds = quartile(&mut footprints);
-        footprints.retain(|z| *z >= 0.0);
-        let below_top = if footprints.len() >= 3 { quartile(&mut footprints) } else { f32::INFINITY };
-        let nearest = f64::from(with_bounds.min(below_top));
+        let mut nearest = quartile(&mut footprints);
+        if footprints.iter().any(|z| *z < 0.0) {
+            footprints.retain(|z| *z >= 0.0);
+            if footprints.len() >= 3 {
+                nearest = nearest.min(quartile(&mut footprints));
+            }
+        }
+        let nearest = f64::from(nearest);
         let (left, right) = (f64::from(left), f64::from(right));
         // Nor beyond where the group is seen to start: a thing standing on
         // the ground is seen from its footprint on (its base), so a group

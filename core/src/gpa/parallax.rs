@@ -272,8 +272,9 @@ impl CellHeights {
     /// 1 mm up to a camera 510 mm up, coarser above (4 mm for a car's
     /// 1.66 m), so that half its height fits a byte.
     pub(super) fn for_camera(camera_height_mm: f64) -> CellHeights {
-        let unit = libm::ceil(0.5 * camera_height_mm / f64::from(u8::MAX)).clamp(1.0, f64::from(u8::MAX));
-        let top = libm::round(HEIGHT_FRACTIONS[HEIGHT_FRACTIONS.len() - 1] * camera_height_mm);
+        let top = HEIGHT_FRACTIONS[HEIGHT_FRACTIONS.len() - 1] * camera_height_mm;
+        let unit = libm::ceil(top / f64::from(u8::MAX)).clamp(1.0, f64::from(u8::MAX));
+        let top = libm::round(top);
         let top_units = libm::floor(top / unit).clamp(1.0, f64::from(u8::MAX));
         CellHeights { unit_mm: unit as u8, top_units: top_units as u8, ..CellHeights::EMPTY }
     }

@@ -442,7 +442,8 @@ impl Gti {
     /// On a bending path a point's height may be an edge's slide
     /// ([`PathBend`]): by as much as it could fake, it must clear more.
     pub fn nearest_obstacle_point(&self, aoi: &RegionMm) -> Option<HeightPoint> {
-        let fakeable_mm = |p: &HeightPoint| self.mount_height_mm * self.bend.slide_per_mm(hypotf(p.x_mm, p.z_mm));
+        let fakeable_per_mm = self.mount_height_mm * self.bend.slide_rate();
+        let fakeable_mm = |p: &HeightPoint| fakeable_per_mm * hypotf(p.x_mm, p.z_mm);
         nearest_certain_obstacle(|| self.points(), aoi, &self.config, fakeable_mm)
     }
 }
@@ -479,14 +480,15 @@ impl PathBend {
         self.travel_mm += BEND_RATE * (travel - self.travel_mm);
     }
 
-    /// How far (mm) an edge's crossing d mm from the camera may slide along
-    /// its line per mm travelled: GTI's slope error, at most.
-    fn slide_per_mm(&self, d_mm: f32) -> f32 {
+    /// How far (mm) an edge's crossing may slide along its line per mm
+    /// travelled, per mm it lies from the camera: times that distance,
+    /// GTI's slope error at most.
+    fn slide_rate(&self) -> f32 {
         if self.turn_rad <= 0.0 {
             return 0.0;
         }
         let cot = 1.0 / libm::tanf(LEAST_EDGE_ANGLE_DEG.to_radians());
-        d_mm * self.turn_rad / self.travel_mm.max(f32::MIN_POSITIVE) * cot
+        self.turn_rad / self.travel_mm.max(f32::MIN_POSITIVE) * cot
     }
 }
 
@@ -565,8 +567,8 @@ mod tests {
             straight.follow(&Motion { tx_mm: 0.0, tz_mm: 5.0, dyaw_deg: 0.0 });
             crawl.follow(&Motion { tx_mm: 0.0, tz_mm: 5.0, dyaw_deg: 0.21 });
         }
-        assert_eq!(straight.slide_per_mm(500.0), 0.0);
-        let slide = crawl.slide_per_mm(500.0);
+        assert_eq!(straight.slide_rate(), 0.0);
+        let slide = crawl.slide_rate() * 500.0;
         let expected = 500.0 * 0.21f32.to_radians() / 5.0 * 3f32.sqrt();
         assert!((slide - expected).abs() < 0.01 * expected, "{slide} vs {expected}");
         assert!(518.0 * slide > 300.0);
