@@ -3,7 +3,7 @@
 //! measured between the two whole images and the rows are compared; a
 //! frame that becomes the keyframe just swaps halves (no copy).
 
-use super::config::GpaConfig;
+use super::config::{GpaConfig, KEYFRAME_TRAVEL_PX};
 use crate::grid::KgGrid;
 use crate::motion::Motion;
 
@@ -117,25 +117,122 @@ impl<'b> Keyframe<'b> {
 /// counts as having reached it.
 const KEYFRAME_SLACK: f64 = 0.01;
 
+/// The smallest obstacle's parallax (grid pixels) a longer keyframe travel
+/// gives it (see [`KeyframeTravel`]).
+const LONGER_PARALLAX_PX: f64 = 1.5;
+/// The longest keyframe travel, in grid pixels: twice the floor's.
+const LONGEST_TRAVEL_PX: f64 = 2.0 * KEYFRAME_TRAVEL_PX;
+/// A longer travel is taken only when it is at least this many times the floor's.
+const LONGER_AT_LEAST: f64 = 1.5;
+
+/// How far back the keyframe is renewed. The floor is
+/// `GpaConfig::keyframe_travel_mm` (after `GpaConfig::for_grid`). A camera
+/// high above a coarse grid sees the smallest obstacle (h,
+/// `min_obstacle_height_mm`) move T h / (H - h) past the ground: under a
+/// pixel at the floor's travel, below what a frame tells from the ground.
+/// There the keyframe lies back as far as gives it [`LONGER_PARALLAX_PX`],
+/// up to [`LONGEST_TRAVEL_PX`]. Only when that is well past the floor: a
+/// longer travel costs the far edge (past the grid's 100 mm travel margin
+/// the keyframe no longer covers the farthest rows) and, in a turn, the
+/// sides, so while turning the floor holds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct KeyframeTravel {
+    floor_mm: f64,
+    longer_mm: f64,
+}
+
+impl KeyframeTravel {
+    pub(super) const NONE: KeyframeTravel = KeyframeTravel { floor_mm: 0.0, longer_mm: 0.0 };
+
+    /// The travels of a camera `camera_height_mm` above the ground of `grid`.
+    pub(super) fn new(config: &GpaConfig, grid: &KgGrid, camera_height_mm: f64) -> KeyframeTravel {
+        let (floor_mm, h) = (config.keyframe_travel_mm, config.min_obstacle_height_mm);
+        let for_parallax = LONGER_PARALLAX_PX * grid.mm_per_px * (camera_height_mm - h) / h;
+        let longer = for_parallax.min(LONGEST_TRAVEL_PX * grid.mm_per_px);
+        KeyframeTravel { floor_mm, longer_mm: if longer >= LONGER_AT_LEAST * floor_mm { longer } else { floor_mm } }
+    }
+
+    /// The travel that renews the keyframe for a frame at `predicted` from
+    /// it, `step` since the last frame: the floor while the two turn
+    /// through half the keyframe turn.
+    fn for_frame(&self, predicted: &Motion, step: &Motion, config: &GpaConfig) -> f64 {
+        let turning = libm::fabs(predicted.dyaw_deg) + libm::fabs(step.dyaw_deg) >= 0.5 * config.keyframe_yaw_deg;
+        if turning { self.floor_mm } else { self.longer_mm }
+    }
+}
+
 /// Whether the frame at `predicted` from the keyframe (`step` since the
 /// last frame) replaces it: once the baseline is long enough, and also
 /// when the next frame, moving like this one, would overshoot by half
 /// again: a slightly short step must not make the next baseline twice as
 /// long (less overlap, too far to update in place).
-pub(super) fn is_due(predicted: &Motion, step: &Motion, config: &GpaConfig) -> bool {
+pub(super) fn is_due(predicted: &Motion, step: &Motion, travels: &KeyframeTravel, config: &GpaConfig) -> bool {
     let (travel, turn) = (predicted.distance_mm(), libm::fabs(predicted.dyaw_deg));
     let (step_travel, step_turn) = (step.distance_mm(), libm::fabs(step.dyaw_deg));
+    let keyframe_travel = travels.for_frame(predicted, step, config);
     // The measured travel is good to a fraction of a pixel: a robot whose
     // steps add up to the baseline exactly must not have its schedule
     // flip on that noise.
     let turn_slack = KEYFRAME_SLACK * config.keyframe_yaw_deg;
-    travel >= full_baseline_mm(config)
+    travel >= keyframe_travel - KEYFRAME_SLACK * keyframe_travel
         || turn >= config.keyframe_yaw_deg - turn_slack
-        || travel + step_travel >= 1.5 * config.keyframe_travel_mm
+        || travel + step_travel >= 1.5 * keyframe_travel
         || turn + step_turn >= 1.5 * config.keyframe_yaw_deg
 }
 
-/// The shortest travel at which a keyframe is due (see [`is_due`]): a full baseline.
+/// The shortest travel at which a keyframe is due on the floor's schedule
+/// (see [`is_due`]): a full baseline.
 pub(super) fn full_baseline_mm(config: &GpaConfig) -> f64 {
     config.keyframe_travel_mm - KEYFRAME_SLACK * config.keyframe_travel_mm
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(mm_per_px: f64) -> KgGrid {
+        KgGrid { mm_per_px, x_left_mm: -500.0, z_far_mm: 2000.0, width: 100, height: 100 }
+    }
+
+    fn straight(tz_mm: f64) -> Motion {
+        Motion { tx_mm: 0.0, tz_mm, dyaw_deg: 0.0 }
+    }
+
+    #[test]
+    fn a_high_camera_on_a_coarse_grid_waits_for_the_smallest_obstacles_parallax() {
+        let config = GpaConfig::default().for_grid(&grid(8.0));
+        // 1.5 px of 8 mm for 20 mm at 600 mm: 348 mm, held to 24 px.
+        let travels = KeyframeTravel::new(&config, &grid(8.0), 600.0);
+        assert_eq!(travels.longer_mm, 24.0 * 8.0);
+        let step = straight(60.0);
+        assert!(!is_due(&straight(120.0), &step, &travels, &config), "the floor's 100 mm no longer renews it");
+        assert!(is_due(&straight(191.0), &step, &travels, &config));
+        // The smallest obstacle moves T h / (H - h) past the ground: the
+        // floor's 100 mm leaves it under half a pixel.
+        let parallax_px = |travel: f64| travel * 20.0 / (600.0 - 20.0) / 8.0;
+        assert!(parallax_px(config.keyframe_travel_mm) < 0.5 && parallax_px(travels.longer_mm) > 0.8);
+    }
+
+    #[test]
+    fn where_the_floor_already_shows_it_or_little_is_gained_the_floor_holds() {
+        // 400 mm over a 5.75 mm grid: 1.5 px at 164 mm, held to 24 px = 138
+        // mm, less than half again the 100 mm floor.
+        let config = GpaConfig::default().for_grid(&grid(5.75));
+        assert_eq!(KeyframeTravel::new(&config, &grid(5.75), 400.0).longer_mm, 100.0);
+        // A low camera: 1.5 px of 4 mm at 120 mm is 30 mm.
+        let config = GpaConfig::default().for_grid(&grid(4.0));
+        assert_eq!(KeyframeTravel::new(&config, &grid(4.0), 120.0).longer_mm, 100.0);
+        // A camera below the smallest obstacle.
+        assert_eq!(KeyframeTravel::new(&config, &grid(4.0), 15.0).longer_mm, 100.0);
+    }
+
+    #[test]
+    fn while_turning_the_floor_travel_renews_it() {
+        let config = GpaConfig::default().for_grid(&grid(8.0));
+        let travels = KeyframeTravel::new(&config, &grid(8.0), 600.0);
+        let turning = |tz_mm: f64, dyaw_deg: f64| Motion { tx_mm: 0.0, tz_mm, dyaw_deg };
+        // 2 + 1 degrees: half the 6 degree keyframe turn.
+        assert!(is_due(&turning(120.0, 2.0), &turning(60.0, 1.0), &travels, &config));
+        assert!(!is_due(&turning(120.0, 1.0), &turning(60.0, 0.5), &travels, &config));
+    }
 }

@@ -74,7 +74,7 @@ use decision::{Alarm, Noise};
 use estimate::{Estimate, Estimator, GroundAttitude, KeyframeAttitude, Prior, Scene, TypicalMisregistration};
 use hazard_mask::HazardMask;
 use homography::SinCosMemo;
-use keyframe::Keyframe;
+use keyframe::{Keyframe, KeyframeTravel};
 use layout::{Layout, MAX_CELL_PX};
 use parallax::{Hypotheses, Parallax};
 use prediction::Prediction;
@@ -148,6 +148,8 @@ pub struct Gpa<'b> {
     layout: Layout,
     coverage: Coverage,
     keyframe: Keyframe<'b>,
+    /// How far back the keyframe is renewed (set up with the grid).
+    keyframe_travel: KeyframeTravel,
     prediction: Prediction,
     /// The motion estimate's memory and the row stages' sums, in turns.
     workspace: Workspace,
@@ -234,6 +236,7 @@ impl<'b> Gpa<'b> {
         layout: Layout::EMPTY,
         coverage: Coverage::EMPTY,
         keyframe: Keyframe::EMPTY,
+        keyframe_travel: KeyframeTravel::NONE,
         prediction: Prediction::START,
         workspace: Workspace::EMPTY,
         odometry: None,
@@ -313,6 +316,7 @@ impl<'b> Gpa<'b> {
             return Err(GpaError::BufferTooSmall { needed });
         }
         self.config = config.for_grid(grid);
+        self.keyframe_travel = KeyframeTravel::new(&self.config, grid, rig.height_mm());
         self.layout = Layout::new(rig, grid, config.cell_mm);
         self.coverage.init(grid, table, config.search_radius);
         self.keyframe = Keyframe::new(first, second, grid);
@@ -661,7 +665,7 @@ impl<'b> Gpa<'b> {
             }
             self.compare_row(store, j, row, exposure);
         }
-        keyframe::is_due(&planar, &step, &self.config)
+        keyframe::is_due(&planar, &step, &self.keyframe_travel, &self.config)
     }
 
     /// Whether the odometry's step disagrees with the step seen on the
