@@ -316,7 +316,7 @@ impl<'b> Gpa<'b> {
             return Err(GpaError::BufferTooSmall { needed });
         }
         self.config = config.for_grid(grid);
-        self.keyframe_travel = KeyframeTravel::new(&self.config, grid, rig.height_mm());
+        self.keyframe_travel = KeyframeTravel::new(&config, grid, rig.height_mm());
         self.layout = Layout::new(rig, grid, config.cell_mm);
         self.coverage.init(grid, table, config.search_radius);
         self.keyframe = Keyframe::new(first, second, grid);
