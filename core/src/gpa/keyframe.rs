@@ -140,12 +140,12 @@ const LONGER_AT_LEAST: f64 = 1.5;
 /// sides, so while turning the floor holds.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct KeyframeTravel {
-    floor_mm: f64,
+    /// Where the keyframe is renewed off a turn: the floor or longer.
     longer_mm: f64,
 }
 
 impl KeyframeTravel {
-    pub(super) const NONE: KeyframeTravel = KeyframeTravel { floor_mm: 0.0, longer_mm: 0.0 };
+    pub(super) const NONE: KeyframeTravel = KeyframeTravel { longer_mm: 0.0 };
 
     /// The travels of a camera `camera_height_mm` above the ground of
     /// `grid`, under `config` as configured (not yet `for_grid`).
@@ -154,15 +154,15 @@ impl KeyframeTravel {
         let for_parallax = LONGER_PARALLAX_PX * grid.mm_per_px * (camera_height_mm - h) / h;
         let longest = LONGEST_TRAVEL_FLOORS * (KEYFRAME_TRAVEL_PX * grid.mm_per_px).min(config.keyframe_travel_mm);
         let longer = for_parallax.min(longest);
-        KeyframeTravel { floor_mm, longer_mm: if longer >= LONGER_AT_LEAST * floor_mm { longer } else { floor_mm } }
+        KeyframeTravel { longer_mm: if longer >= LONGER_AT_LEAST * floor_mm { longer } else { floor_mm } }
     }
 
     /// The travel that renews the keyframe for a frame at `predicted` from
-    /// it, `step` since the last frame: the floor while the two turn
-    /// through half the keyframe turn.
+    /// it, `step` since the last frame, under `config` (after `for_grid`):
+    /// the floor while the two turn through half the keyframe turn.
     fn for_frame(&self, predicted: &Motion, step: &Motion, config: &GpaConfig) -> f64 {
         let turning = libm::fabs(predicted.dyaw_deg) + libm::fabs(step.dyaw_deg) >= 0.5 * config.keyframe_yaw_deg;
-        if turning { self.floor_mm } else { self.longer_mm }
+        if turning { config.keyframe_travel_mm } else { self.longer_mm }
     }
 }
 
@@ -179,7 +179,7 @@ pub(super) fn is_due(predicted: &Motion, step: &Motion, travels: &KeyframeTravel
     // steps add up to the baseline exactly must not have its schedule
     // flip on that noise.
     let turn_slack = KEYFRAME_SLACK * config.keyframe_yaw_deg;
-    travel >= keyframe_travel - KEYFRAME_SLACK * keyframe_travel
+    travel >= full_baseline(keyframe_travel)
         || turn >= config.keyframe_yaw_deg - turn_slack
         || travel + step_travel >= 1.5 * keyframe_travel
         || turn + step_turn >= 1.5 * config.keyframe_yaw_deg
@@ -188,7 +188,12 @@ pub(super) fn is_due(predicted: &Motion, step: &Motion, travels: &KeyframeTravel
 /// The shortest travel at which a keyframe is due on the floor's schedule
 /// (see [`is_due`]): a full baseline.
 pub(super) fn full_baseline_mm(config: &GpaConfig) -> f64 {
-    config.keyframe_travel_mm - KEYFRAME_SLACK * config.keyframe_travel_mm
+    full_baseline(config.keyframe_travel_mm)
+}
+
+/// A keyframe travel less the slack within which a frame reaches it.
+fn full_baseline(travel_mm: f64) -> f64 {
+    travel_mm - KEYFRAME_SLACK * travel_mm
 }
 
 #[cfg(test)]
@@ -231,7 +236,7 @@ mod tests {
         // A car's camera 1.66 m up over a 53.6 mm grid: its floor, 12 px
         // (643 mm), leaves 20 mm at 0.14 px, and stays.
         let travels = KeyframeTravel::new(&config, &grid(53.625), 1657.0);
-        assert_eq!((travels.floor_mm, travels.longer_mm), (12.0 * 53.625, 12.0 * 53.625));
+        assert_eq!((config.for_grid(&grid(53.625)).keyframe_travel_mm, travels.longer_mm), (12.0 * 53.625, 12.0 * 53.625));
     }
 
     #[test]
