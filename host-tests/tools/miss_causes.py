@@ -37,7 +37,9 @@ Each miss is also counted by where the hazard starts in the AOI: `near`
 (its first fifth), `far` (its last fifth) or `middle`. A clear pair
 that is wrong is a false alarm `held` (a hazard of an earlier frame,
 carried on) or `found` on the frame itself (`flatland detect --verbose`),
-or `not judged`.
+or `not judged`. Last, the misses by hazard: each run of consecutive alarm
+pairs of the truth is one hazard, `raised` on some frame of it (its misses
+before the first alarm are `late`) or `never raised`.
 
 stdout: a line per recording with a wrong pair, then the totals.
 """
@@ -191,6 +193,40 @@ def causes(flatland, scene, rec, extra):
             counts["alarm", "not judged"] += 1
         elif alarm and not pair["alarm"]:
             counts["alarm", "held" if sources.get(frame) == "Held" else "found"] += 1
+    counts.update(episodes(truth, rows))
+    return counts
+
+
+def episodes(truth, rows):
+    """The hazards' episodes, each a run of consecutive alarm pairs of the
+    truth: raised at all, or never; a raised one's scored misses before
+    its first alarm (late) and after it. Tells a hazard found late from
+    one never found, which a count of pairs mixes."""
+    counts = Counter()
+    raised, misses = None, []
+    frames = sorted(truth)
+    for frame in frames + [None]:
+        pair = truth.get(frame) if frame is not None else None
+        if pair is None or not pair["alarm"] or frame - 1 not in truth:
+            if raised is not None:
+                if any(raised):
+                    first = raised.index(True)
+                    counts["episode", "raised"] += 1
+                    counts["episode", "late pairs"] += sum(misses[:first])
+                    counts["episode", "missed after"] += sum(misses[first:])
+                else:
+                    counts["episode", "never raised"] += 1
+                    counts["episode", "never raised pairs"] += sum(misses)
+            raised, misses = None, []
+        if pair is None or not pair["alarm"]:
+            continue
+        if raised is None:
+            raised, misses = [], []
+        row = rows.get(frame)
+        alarm = row is not None and row.get("status", "ok") == "ok" and row["alarm"] == "1"
+        scored = not any(g in truth and truth[g]["alarm"] != pair["alarm"] for g in (frame - 1, frame + 1))
+        raised.append(alarm)
+        misses.append(scored and not alarm)
     return counts
 
 
@@ -198,7 +234,10 @@ def line(name, counts):
     misses = ", ".join("%s %d" % (c, counts["miss", c]) for c in MISS_CAUSES if counts["miss", c])
     bands = " / ".join(str(counts["band", b]) for b in BANDS)
     alarms = ", ".join("%s %d" % (c, counts["alarm", c]) for c in ALARM_CAUSES if counts["alarm", c])
-    return "%s | misses: %s | near/middle/far %s | clear pairs wrong: %s" % (name, misses or "-", bands, alarms or "-")
+    e = lambda key: counts["episode", key]
+    hazards = "raised %d (late pairs %d, missed after %d), never raised %d (%d pairs)" % (
+        e("raised"), e("late pairs"), e("missed after"), e("never raised"), e("never raised pairs"))
+    return "%s | misses: %s | near/middle/far %s | clear pairs wrong: %s | hazards: %s" % (name, misses or "-", bands, alarms or "-", hazards)
 
 
 def main(args):
@@ -208,7 +247,7 @@ def main(args):
         name, scene = scene_of(scenes, rec)
         counts = causes(flatland, scene, rec, extra)
         total.update(counts)
-        if counts:
+        if any(kind in ("miss", "alarm") for kind, _ in counts):
             print(line(name, counts))
     print(line("all", total))
 
