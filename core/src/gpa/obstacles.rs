@@ -170,6 +170,11 @@ const LARGE_GROUP_CELLS: usize = 8;
 /// Cells a group of weak heights alone needs, at least half of them where
 /// the last frame saw heights stand up, to count as measured.
 const WEAK_GROUP_CELLS: usize = 5;
+/// Cells a group of measured heights needs, on a full baseline, when every
+/// one of them stood up on the last frame too: a fluke of texture does not
+/// recur at one place on the ground, a small obstacle (a ball a cell or
+/// two across) does.
+const SEEN_AGAIN_GROUP_CELLS: usize = 2;
 
 /// Which side of the ground a group of parallax cells lies on.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -438,7 +443,7 @@ fn parallax_group(
             if heights.is_weak(cell) && !weak_only {
                 return;
             }
-            stood_up_before += usize::from(weak_only && last_frame.is_some_and(|last| last.stood_up(r, c)));
+            stood_up_before += usize::from(last_frame.is_some_and(|last| last.stood_up(r, c)));
             group += 1;
             nearest_row = nearest_row.max(r);
             with_residue |= residue.percent(cell, cells.px) >= config.active_cell_percent;
@@ -477,13 +482,16 @@ fn parallax_group(
         // patch of parallax without any residue is a blur difference on a
         // sharp ground edge (the camera resolves it differently from
         // another distance). Smooth obstacles leave little residue but
-        // parallax over a wider patch.
+        // parallax over a wider patch. A small one shows on every frame
+        // at the same place, which a fluke does not.
         // A short baseline measures heights coarsely, so its footprints
         // wander: there a blob must be large to raise an alarm by itself.
         let large = group >= LARGE_GROUP_CELLS;
+        let wide_enough = group >= 3 && (with_residue || group >= 4);
+        let seen_again = side == Side::Above && !weak_only && group >= SEEN_AGAIN_GROUP_CELLS && stood_up_before == group;
         // Where the group is seen to start on the ground.
         let nearest_seen = layout.near_side_mm(nearest_row);
-        if group < 3 || (!with_residue && group < 4) || (short_baseline && !large) {
+        if !(wide_enough || seen_again) || (short_baseline && !large) {
             continue;
         }
         if weak_only && (group < WEAK_GROUP_CELLS || 2 * stood_up_before < group) {
@@ -957,6 +965,44 @@ mod tests {
         assert_eq!(parallax_obstacle(&layout, &four, &residue, &config, false, true, last_frame.moved(8, 0.0), &mut scan).hazard, None);
         let measured = two_by_two(false);
         assert!(parallax_obstacle(&layout, &measured, &residue, &config, false, true, None, &mut scan).hazard.is_some());
+    }
+
+    /// Two cells of measured heights, without residue, are too few on one
+    /// frame; where every one of them stood up on the last frame too, they
+    /// are a small obstacle, on a full baseline only. Two weak ones are not.
+    #[test]
+    fn a_small_group_seen_again_where_it_stood_counts() {
+        let (layout, config, residue, mut scan) = sample_layout();
+        let pair = |weak: bool| {
+            let mut heights = CellHeights::for_camera(layout.camera_height_mm);
+            let (row, column) = patch_corner(&layout);
+            for c in [column, column + 1] {
+                heights.set(row * layout.cells.wide + c, 60, weak);
+            }
+            heights
+        };
+        let measured = pair(false);
+        let found = |heights: &CellHeights, short: bool, last: Option<MovedMask>, scan: &mut Scan| parallax_obstacle(&layout, heights, &residue, &config, short, true, last, scan).hazard;
+        assert_eq!(found(&measured, false, None, &mut scan), None);
+        let mut last_frame = super::super::hazard_mask::HazardMask::EMPTY;
+        last_frame.record(7, layout.cells, &CellHeights::for_camera(layout.camera_height_mm), &residue, &config);
+        assert_eq!(found(&measured, false, last_frame.moved(8, 0.0), &mut scan), None);
+        last_frame.record(7, layout.cells, &measured, &residue, &config);
+        let (obstacle, height) = found(&measured, false, last_frame.moved(8, 0.0), &mut scan).expect("a small obstacle");
+        assert_eq!(height, 60);
+        let (row, _) = patch_corner(&layout);
+        assert!(f64::from(obstacle.near_mm) < layout.near_side_mm(row), "{obstacle:?}");
+        // A short baseline's heights wander: a small group never counts there.
+        assert_eq!(found(&measured, true, last_frame.moved(8, 0.0), &mut scan), None);
+        // Only half of it stood up before.
+        let mut half = CellHeights::for_camera(layout.camera_height_mm);
+        let (row, column) = patch_corner(&layout);
+        half.set(row * layout.cells.wide + column + 2, 60, false);
+        last_frame.record(7, layout.cells, &half, &residue, &config);
+        assert_eq!(found(&measured, false, last_frame.moved(8, 0.0), &mut scan), None);
+        let weak = pair(true);
+        last_frame.record(7, layout.cells, &weak, &residue, &config);
+        assert_eq!(found(&weak, false, last_frame.moved(8, 0.0), &mut scan), None);
     }
 
     /// A moving thing nearer than a parallax obstacle places it, keeping its
