@@ -170,10 +170,11 @@ const LARGE_GROUP_CELLS: usize = 8;
 /// Cells a group of weak heights alone needs, at least half of them where
 /// the last frame saw heights stand up, to count as measured.
 const WEAK_GROUP_CELLS: usize = 5;
-/// Cells a group of measured heights needs, on a full baseline, when every
-/// one of them stood up on the last frame too: a fluke of texture does not
-/// recur at one place on the ground, a small obstacle (a ball a cell or
-/// two across) does.
+/// Cells a group of measured heights with residue needs, on a full
+/// baseline, when every one of them stood up on the last frame too: a
+/// fluke of texture does not recur at one place on the ground, a small
+/// obstacle (a ball a cell or two across) does. Without residue a small
+/// patch is the blur of a sharp ground edge, which recurs as well.
 const SEEN_AGAIN_GROUP_CELLS: usize = 2;
 
 /// Which side of the ground a group of parallax cells lies on.
@@ -482,13 +483,13 @@ fn parallax_group(
         // patch of parallax without any residue is a blur difference on a
         // sharp ground edge (the camera resolves it differently from
         // another distance). Smooth obstacles leave little residue but
-        // parallax over a wider patch. A small one shows on every frame
-        // at the same place, which a fluke does not.
+        // parallax over a wider patch. A small one with residue shows on
+        // every frame at the same place, which a fluke does not.
         // A short baseline measures heights coarsely, so its footprints
         // wander: there a blob must be large to raise an alarm by itself.
         let large = group >= LARGE_GROUP_CELLS;
         let wide_enough = group >= 3 && (with_residue || group >= 4);
-        let seen_again = side == Side::Above && !weak_only && group >= SEEN_AGAIN_GROUP_CELLS && stood_up_before == group;
+        let seen_again = side == Side::Above && !weak_only && with_residue && group >= SEEN_AGAIN_GROUP_CELLS && stood_up_before == group;
         // Where the group is seen to start on the ground.
         let nearest_seen = layout.near_side_mm(nearest_row);
         if !(wide_enough || seen_again) || (short_baseline && !large) {
@@ -967,12 +968,22 @@ mod tests {
         assert!(parallax_obstacle(&layout, &measured, &residue, &config, false, true, None, &mut scan).hazard.is_some());
     }
 
-    /// Two cells of measured heights, without residue, are too few on one
+    /// Two cells of measured heights with residue are too few on one
     /// frame; where every one of them stood up on the last frame too, they
-    /// are a small obstacle, on a full baseline only. Two weak ones are not.
+    /// are a small obstacle, on a full baseline only. Without residue, or
+    /// weak, they are not.
     #[test]
     fn a_small_group_seen_again_where_it_stood_counts() {
-        let (layout, config, residue, mut scan) = sample_layout();
+        let (layout, config, plain, mut scan) = sample_layout();
+        let mut residue = Residue::EMPTY;
+        let (row, column) = patch_corner(&layout);
+        let px = layout.cells.px;
+        for c in [column, column + 1] {
+            let cell = row * layout.cells.wide + c;
+            residue.cell_valid[cell] = (px * px) as u8;
+            residue.cell_residue[cell] = (px * px / 2) as u8;
+        }
+        assert!(residue.percent(row * layout.cells.wide + column, px) >= config.active_cell_percent);
         let pair = |weak: bool| {
             let mut heights = CellHeights::for_camera(layout.camera_height_mm);
             let (row, column) = patch_corner(&layout);
@@ -1003,6 +1014,9 @@ mod tests {
         let weak = pair(true);
         last_frame.record(7, layout.cells, &weak, &residue, &config);
         assert_eq!(found(&weak, false, last_frame.moved(8, 0.0), &mut scan), None);
+        // Seen again, but without residue: a sharp ground edge's blur.
+        last_frame.record(7, layout.cells, &measured, &plain, &config);
+        assert_eq!(parallax_obstacle(&layout, &measured, &plain, &config, false, true, last_frame.moved(8, 0.0), &mut scan).hazard, None);
     }
 
     /// A moving thing nearer than a parallax obstacle places it, keeping its
