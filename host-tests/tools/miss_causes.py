@@ -119,7 +119,7 @@ def detect(flatland, rec, extra):
 
 
 def miss_cause(row, cells, hazard, camera_height_mm, aoi, cell_mm):
-    if row is None or row.get("status", "ok") != "ok":
+    if not is_judged(row):
         return "not judged"
     kind, size_mm = hazard[0], hazard[1]
     if cells:
@@ -177,10 +177,10 @@ def causes(flatland, scene, rec, extra):
     cell_mm = cell_size_mm(cells)
     counts = Counter()
     for frame, pair in truth.items():
-        if any(g in truth and truth[g]["alarm"] != pair["alarm"] for g in (frame - 1, frame + 1)):
+        if not scored(truth, frame):
             continue
         row = rows.get(frame)
-        judged = row is not None and row.get("status", "ok") == "ok"
+        judged = is_judged(row)
         alarm = judged and row["alarm"] == "1"
         if pair["alarm"] and not alarm:
             hazard = hazards.get(frame)
@@ -197,36 +197,40 @@ def causes(flatland, scene, rec, extra):
     return counts
 
 
+def scored(truth, frame):
+    """Whether a pair is scored: not next to a change of the truth."""
+    return not any(g in truth and truth[g]["alarm"] != truth[frame]["alarm"] for g in (frame - 1, frame + 1))
+
+
+def is_judged(row):
+    """Whether `flatland detect` judged the frame (a row with status ok)."""
+    return row is not None and row.get("status", "ok") == "ok"
+
+
 def episodes(truth, rows):
     """The hazards' episodes, each a run of consecutive alarm pairs of the
     truth: raised at all, or never; a raised one's scored misses before
     its first alarm (late) and after it. Tells a hazard found late from
     one never found, which a count of pairs mixes."""
+    runs, run = [], []
+    for frame in sorted(truth):
+        if truth[frame]["alarm"] and run and run[-1] == frame - 1:
+            run.append(frame)
+        elif truth[frame]["alarm"]:
+            run = [frame]
+            runs.append(run)
     counts = Counter()
-    raised, misses = None, []
-    frames = sorted(truth)
-    for frame in frames + [None]:
-        pair = truth.get(frame) if frame is not None else None
-        if pair is None or not pair["alarm"] or frame - 1 not in truth:
-            if raised is not None:
-                if any(raised):
-                    first = raised.index(True)
-                    counts["episode", "raised"] += 1
-                    counts["episode", "late pairs"] += sum(misses[:first])
-                    counts["episode", "missed after"] += sum(misses[first:])
-                else:
-                    counts["episode", "never raised"] += 1
-                    counts["episode", "never raised pairs"] += sum(misses)
-            raised, misses = None, []
-        if pair is None or not pair["alarm"]:
-            continue
-        if raised is None:
-            raised, misses = [], []
-        row = rows.get(frame)
-        alarm = row is not None and row.get("status", "ok") == "ok" and row["alarm"] == "1"
-        scored = not any(g in truth and truth[g]["alarm"] != pair["alarm"] for g in (frame - 1, frame + 1))
-        raised.append(alarm)
-        misses.append(scored and not alarm)
+    for run in runs:
+        raised = [is_judged(rows.get(f)) and rows[f]["alarm"] == "1" for f in run]
+        misses = [scored(truth, f) and not alarm for f, alarm in zip(run, raised)]
+        if True in raised:
+            first = raised.index(True)
+            counts["episode", "raised"] += 1
+            counts["episode", "late pairs"] += sum(misses[:first])
+            counts["episode", "missed after"] += sum(misses[first:])
+        else:
+            counts["episode", "never raised"] += 1
+            counts["episode", "never raised pairs"] += sum(misses)
     return counts
 
 

@@ -986,7 +986,6 @@ mod tests {
         assert!(residue.percent(row * layout.cells.wide + column, px) >= config.active_cell_percent);
         let pair = |weak: bool| {
             let mut heights = CellHeights::for_camera(layout.camera_height_mm);
-            let (row, column) = patch_corner(&layout);
             for c in [column, column + 1] {
                 heights.set(row * layout.cells.wide + c, 60, weak);
             }
@@ -1001,13 +1000,11 @@ mod tests {
         last_frame.record(7, layout.cells, &measured, &residue, &config);
         let (obstacle, height) = found(&measured, false, last_frame.moved(8, 0.0), &mut scan).expect("a small obstacle");
         assert_eq!(height, 60);
-        let (row, _) = patch_corner(&layout);
         assert!(f64::from(obstacle.near_mm) < layout.near_side_mm(row), "{obstacle:?}");
         // A short baseline's heights wander: a small group never counts there.
         assert_eq!(found(&measured, true, last_frame.moved(8, 0.0), &mut scan), None);
         // Only half of it stood up before.
         let mut half = CellHeights::for_camera(layout.camera_height_mm);
-        let (row, column) = patch_corner(&layout);
         half.set(row * layout.cells.wide + column + 2, 60, false);
         last_frame.record(7, layout.cells, &half, &residue, &config);
         assert_eq!(found(&measured, false, last_frame.moved(8, 0.0), &mut scan), None);
