@@ -37,9 +37,13 @@ Each miss is also counted by where the hazard starts in the AOI: `near`
 (its first fifth), `far` (its last fifth) or `middle`. A clear pair
 that is wrong is a false alarm `held` (a hazard of an earlier frame,
 carried on) or `found` on the frame itself (`flatland detect --verbose`),
-or `not judged`. Last, the misses by hazard: each run of consecutive alarm
-pairs of the truth is one hazard, `raised` on some frame of it (its misses
-before the first alarm are `late`) or `never raised`.
+or `not judged`; and, by the truth around it, `early` (up to three frames
+before a run of alarm pairs: the hazard not in the AOI yet, mostly just
+beyond its far edge), `lingering` (up to three frames after one) or
+`apart` (no hazard near in time). Last, the misses by hazard: each run
+of consecutive alarm pairs of the truth is one hazard, `raised` on some
+frame of it (its misses before the first alarm are `late`) or `never
+raised`.
 
 stdout: a line per recording with a wrong pair, then the totals.
 """
@@ -61,6 +65,11 @@ from rigmath import world_to_robot_xz  # noqa: E402
 MISS_CAUSES = ("not judged", "below resolution", "nothing measured there", "measured there, weakly", "measured there", "unknown hazard")
 BANDS = ("near", "middle", "far")
 ALARM_CAUSES = ("held", "found", "not judged")
+TIMINGS = ("early", "lingering", "apart")
+# A false alarm this many frames or fewer before a hazard's first alarm
+# pair is `early`, after its last one `lingering`: the decision's timing
+# at the AOI's edges, not a hazard made up (`apart`).
+TIMING_FRAMES = 3
 GROUND_LIMIT_MM = 20.0
 
 
@@ -193,8 +202,21 @@ def causes(flatland, scene, rec, extra):
             counts["alarm", "not judged"] += 1
         elif alarm and not pair["alarm"]:
             counts["alarm", "held" if sources.get(frame) == "Held" else "found"] += 1
+            counts["timing", timing(truth, frame)] += 1
     counts.update(episodes(truth, rows))
     return counts
+
+
+def timing(truth, frame):
+    """Where a false alarm at `frame` lies against the truth's alarm pairs:
+    `early` up to TIMING_FRAMES before the next, `lingering` up to that
+    many after the last, else `apart`."""
+    alarms = [f for f in truth if truth[f]["alarm"]]
+    if any(0 < f - frame <= TIMING_FRAMES for f in alarms):
+        return "early"
+    if any(0 < frame - f <= TIMING_FRAMES for f in alarms):
+        return "lingering"
+    return "apart"
 
 
 def scored(truth, frame):
@@ -238,6 +260,9 @@ def line(name, counts):
     misses = ", ".join("%s %d" % (c, counts["miss", c]) for c in MISS_CAUSES if counts["miss", c])
     bands = " / ".join(str(counts["band", b]) for b in BANDS)
     alarms = ", ".join("%s %d" % (c, counts["alarm", c]) for c in ALARM_CAUSES if counts["alarm", c])
+    timings = ", ".join("%s %d" % (t, counts["timing", t]) for t in TIMINGS if counts["timing", t])
+    if timings:
+        alarms += " (%s)" % timings
     e = lambda key: counts["episode", key]
     hazards = "raised %d (late pairs %d, missed after %d), never raised %d (%d pairs)" % (
         e("raised"), e("late pairs"), e("missed after"), e("never raised"), e("never raised pairs"))
