@@ -49,7 +49,6 @@ stdout: a line per recording with a wrong pair, then the totals.
 """
 
 import csv
-import io
 import os
 import subprocess
 import sys
@@ -57,6 +56,7 @@ import tempfile
 import tomllib
 from collections import Counter, defaultdict
 
+from pairs import is_judged, rows_of, scored, truth_of
 from rendered_set import arguments, scene_of  # also puts the renderer on the path
 import generate  # noqa: E402  (the renderer's own poses and truth geometry)
 import numpy as np  # noqa: E402
@@ -117,7 +117,7 @@ def detect(flatland, rec, extra):
         with open(cells_path) as f:
             for row in csv.DictReader(f):
                 cells[int(row["frame"])].append(row)
-    rows = {int(row["frame"]): row for row in csv.DictReader(io.StringIO(run.stdout))}
+    rows = rows_of(run.stdout)
     sources = {}
     for line in run.stderr.splitlines():
         if line.startswith("frame ") and ": " in line:
@@ -180,8 +180,7 @@ def causes(flatland, scene, rec, extra):
     hazards = nearest_hazards(sc)
     with open(os.path.join(rec, "rig.toml"), "rb") as f:
         camera_height_mm = tomllib.load(f)["mount"]["height_mm"]
-    with open(os.path.join(rec, "truth.toml"), "rb") as f:
-        truth = {p["frame"]: p for p in tomllib.load(f).get("pair", [])}
+    truth = truth_of(rec)
     rows, cells, sources = detect(flatland, rec, extra)
     cell_mm = cell_size_mm(cells)
     counts = Counter()
@@ -217,16 +216,6 @@ def timing(truth, frame):
     if any(0 < frame - f <= TIMING_FRAMES for f in alarms):
         return "lingering"
     return "apart"
-
-
-def scored(truth, frame):
-    """Whether a pair is scored: not next to a change of the truth."""
-    return not any(g in truth and truth[g]["alarm"] != truth[frame]["alarm"] for g in (frame - 1, frame + 1))
-
-
-def is_judged(row):
-    """Whether `flatland detect` judged the frame (a row with status ok)."""
-    return row is not None and row.get("status", "ok") == "ok"
 
 
 def episodes(truth, rows):

@@ -1,0 +1,84 @@
+#!/usr/bin/env python3
+"""The scoreboard's noise floor: each set scored as it is and again under
+sensor noise too faint to see (`flatland detect --perturb noise=SIGMA,
+seed=K`, SIGMA 0.2 gray levels by default), so that a change is judged
+by its mean over the runs, not by one run. A decision near a threshold
+flips on such noise (and, through the keyframe schedule, the frames
+after it): one run of a set of rendered recordings moves by several
+pairs either way, and a change kept only where one run happens to gain
+keeps that luck.
+
+usage: noise_floor.py FLATLAND [--seeds K] [--noise SIGMA] [--odometry none] NAME=DIR ...
+
+DIR is a recording (holding truth.toml) or a folder of recordings. Per
+set: the right pairs of the plain run, of each noisy run, their mean
+and range, and the same for false alarms; pairs are scored as the
+scoreboard scores them (pairs.py).
+"""
+
+import os
+import statistics
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+
+from pairs import rows_of, score, truth_of
+
+
+def recordings(folder):
+    """The recording `folder` is, or the recordings in it."""
+    if os.path.exists(os.path.join(folder, "truth.toml")):
+        return [folder]
+    return [os.path.join(folder, name) for name in sorted(os.listdir(folder)) if os.path.exists(os.path.join(folder, name, "truth.toml"))]
+
+
+def run(flatland, rec, extra, perturb):
+    """One run's counts on one recording (perturbed when `perturb` is given)."""
+    args = [flatland, "detect", rec, "--format", "csv", *extra] + (["--perturb", perturb] if perturb else [])
+    done = subprocess.run(args, capture_output=True, text=True)
+    return score(truth_of(rec), rows_of(done.stdout) if done.returncode == 0 else {})
+
+
+def parse(args):
+    """(flatland, seeds, noise, extra detect arguments, [(name, dir)])."""
+    args = list(args)
+    options = {"--seeds": "4", "--noise": "0.2", "--odometry": None}
+    for option in options:
+        if option in args:
+            at = args.index(option)
+            options[option] = args[at + 1]
+            del args[at:at + 2]
+    if len(args) < 2 or not all("=" in a for a in args[1:]):
+        sys.exit(__doc__)
+    extra = ["--odometry", options["--odometry"]] if options["--odometry"] else []
+    sets = [tuple(a.split("=", 1)) for a in args[1:]]
+    return args[0], int(options["--seeds"]), options["--noise"], extra, sets
+
+
+def main(args):
+    flatland, seeds, noise, extra, sets = parse(args)
+    perturbs = [None] + ["noise=%s,seed=%d" % (noise, seed) for seed in range(1, seeds + 1)]
+    for name, folder in sets:
+        recs = recordings(folder)
+        jobs = [(rec, perturb) for perturb in perturbs for rec in recs]
+        with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
+            counts = list(pool.map(lambda job: run(flatland, job[0], extra, job[1]), jobs))
+        totals = []
+        for k in range(len(perturbs)):
+            runs = counts[k * len(recs):(k + 1) * len(recs)]
+            totals.append({key: sum(c[key] for c in runs) for key in runs[0]} if runs else {})
+        if not totals[0]:
+            print("%s: no recordings" % name)
+            continue
+        noisy = totals[1:]
+
+        def spread(key):
+            values = [t[key] for t in noisy]
+            return "%s, mean %.1f, range %d-%d" % (" ".join(str(v) for v in values), statistics.mean(values), min(values), max(values)) if values else "-"
+
+        print("%s: %d pairs | right: plain %d | noisy %s | false alarms: plain %d | noisy %s" % (
+            name, totals[0]["pairs"], totals[0]["right"], spread("right"), totals[0]["false_alarms"], spread("false_alarms")))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
