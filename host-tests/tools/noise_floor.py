@@ -12,8 +12,8 @@ usage: noise_floor.py FLATLAND [--seeds K] [--noise SIGMA] [--odometry none] NAM
 
 DIR is a recording (holding truth.toml) or a folder of recordings. Per
 set: the right pairs of the plain run, of each noisy run, their mean
-and range, and the same for false alarms; pairs are scored as the
-scoreboard scores them (pairs.py).
+and range, and the same for false alarms and misplaced alarms; pairs
+are scored as the scoreboard scores them (pairs.py).
 """
 
 import os
@@ -76,8 +76,9 @@ def main(args):
             values = [t[key] for t in noisy]
             return "%s, mean %.1f, range %d-%d" % (" ".join(str(v) for v in values), statistics.mean(values), min(values), max(values)) if values else "-"
 
-        print("%s: %d pairs | right: plain %d | noisy %s | false alarms: plain %d | noisy %s" % (
-            name, totals[0]["pairs"], totals[0]["right"], spread("right"), totals[0]["false_alarms"], spread("false_alarms")))
+        print("%s: %d pairs | right: plain %d | noisy %s | false alarms: plain %d | noisy %s | misplaced: plain %d | noisy %s" % (
+            name, totals[0]["pairs"], totals[0]["right"], spread("right"), totals[0]["false_alarms"], spread("false_alarms"),
+            totals[0]["misplaced"], spread("misplaced")))
 
 
 if __name__ == "__main__":
