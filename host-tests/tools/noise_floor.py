@@ -3,9 +3,9 @@
 sensor noise too faint to see (`flatland detect --perturb noise=SIGMA,
 seed=K`, SIGMA 0.2 gray levels by default), so that a change is judged
 by its mean over the runs, not by one run. A decision near a threshold
-flips on such noise (and, through the keyframe schedule, the frames
-after it): one run of a set of rendered recordings moves by several
-pairs either way, and a change kept only where one run happens to gain
+flips on such noise (and, through what a frame hands on, frames after
+it): one run of a set of rendered recordings moves by several pairs
+either way, and a change kept only where one run happens to gain
 keeps that luck.
 
 usage: noise_floor.py FLATLAND [--seeds K] [--noise SIGMA] [--odometry none] NAME=DIR ...
