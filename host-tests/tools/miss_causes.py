@@ -56,7 +56,7 @@ import tempfile
 import tomllib
 from collections import Counter, defaultdict
 
-from pairs import is_judged, rows_of, scored, truth_of
+from pairs import is_judged, raised, rows_of, scored, truth_of
 from rendered_set import arguments, scene_of  # also puts the renderer on the path
 import generate  # noqa: E402  (the renderer's own poses and truth geometry)
 import numpy as np  # noqa: E402
@@ -189,7 +189,7 @@ def causes(flatland, scene, rec, extra):
             continue
         row = rows.get(frame)
         judged = is_judged(row)
-        alarm = judged and row["alarm"] == "1"
+        alarm = raised(row)
         if pair["alarm"] and not alarm:
             hazard = hazards.get(frame)
             if hazard is None:  # the truth's rule and ours disagree: count it, unsorted
@@ -232,10 +232,10 @@ def episodes(truth, rows):
             runs.append(run)
     counts = Counter()
     for run in runs:
-        raised = [is_judged(rows.get(f)) and rows[f]["alarm"] == "1" for f in run]
-        misses = [scored(truth, f) and not alarm for f, alarm in zip(run, raised)]
-        if True in raised:
-            first = raised.index(True)
+        alarms = [raised(rows.get(f)) for f in run]
+        misses = [scored(truth, f) and not alarm for f, alarm in zip(run, alarms)]
+        if True in alarms:
+            first = alarms.index(True)
             counts["episode", "raised"] += 1
             counts["episode", "late pairs"] += sum(misses[:first])
             counts["episode", "missed after"] += sum(misses[first:])

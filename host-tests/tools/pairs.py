@@ -32,6 +32,11 @@ def is_judged(row):
     return row is not None and row.get("status", "ok") == "ok"
 
 
+def raised(row):
+    """Whether `flatland detect` judged the frame and raised the alarm."""
+    return is_judged(row) and row["alarm"] == "1"
+
+
 def misplaced(row, pair):
     """Whether a raised alarm lies more than 10 % (at least 50 mm) from the truth's nearest_mm."""
     if "nearest_mm" not in pair:
@@ -54,7 +59,7 @@ def score(truth, rows):
         if not is_judged(row):
             counts["not_judged"] += 1
             continue
-        alarm = row["alarm"] == "1"
+        alarm = raised(row)
         if alarm and not pair["alarm"]:
             counts["false_alarms"] += 1
         elif pair["alarm"] and not alarm:
