@@ -62,6 +62,13 @@ pub struct GpaConfig {
     /// step is at least a fifth of the grid's depth, whatever the camera.
     pub max_step_mm: f64,
     pub max_step_yaw_deg: f64,
+    /// Without odometry, before a velocity is measured: the fastest the
+    /// robot drives, in depths of the grid's view per second (a robot
+    /// that covers its view faster outruns its own warning). The first
+    /// step is searched for only as far as that allows over the frame
+    /// interval (at 30 frames/s a fifteenth of the view's depth, not a
+    /// fifth): a wider search meets more aliases of a periodic floor.
+    pub max_speed_view_depths_per_s: f64,
     /// Without odometry, once a velocity is measured: how far the robot
     /// may depart from it between frames, as the largest acceleration
     /// (mm/s², deg/s²) over the frames' interval. A constant-velocity
@@ -109,6 +116,7 @@ impl GpaConfig {
         odometry_sigma_yaw_deg: 0.5,
         max_step_mm: 250.0,
         max_step_yaw_deg: 24.0,
+        max_speed_view_depths_per_s: 2.0,
         max_acceleration_mm_s2: 6000.0,
         max_yaw_acceleration_deg_s2: 300.0,
         imu_sigma_deg: 0.1,
@@ -144,6 +152,7 @@ impl GpaConfig {
             self.odometry_sigma_yaw_deg,
             self.max_step_mm,
             self.max_step_yaw_deg,
+            self.max_speed_view_depths_per_s,
             self.max_acceleration_mm_s2,
             self.max_yaw_acceleration_deg_s2,
             self.imu_sigma_deg,

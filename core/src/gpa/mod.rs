@@ -485,7 +485,13 @@ impl<'b> Gpa<'b> {
                 (config.max_acceleration_mm_s2 * dt * dt).clamp(grid.mm_per_px, reach_mm / 3.0),
                 (config.max_yaw_acceleration_deg_s2 * dt * dt).clamp(0.2, config.max_step_yaw_deg / 3.0),
             ),
-            (None, _, _) => (reach_mm / 3.0, config.max_step_yaw_deg / 3.0),
+            // No velocity yet: as far as the robot may have driven since
+            // the last frame, at most the widest reach.
+            (None, _, dt) => {
+                let view_depth_mm = grid.height() as f64 * grid.mm_per_px;
+                let driven_mm = dt.map_or(reach_mm, |dt| (config.max_speed_view_depths_per_s * view_depth_mm * dt).max(3.0 * grid.mm_per_px));
+                (reach_mm.min(driven_mm) / 3.0, config.max_step_yaw_deg / 3.0)
+            }
         };
         let (attitude, tilt_sigma) = match (self.imu, self.keyframe_imu) {
             (Some(now), Some(then)) => (now.since(&then), config.imu_sigma_deg),

@@ -365,8 +365,10 @@ fn parallax_group(
     // so an odometry or heading error fakes a small shallow patch more
     // easily, and a hole a wheel can fall into shows its lower level over
     // many cells (though, far and seen at a grazing angle, in scattered
-    // ones; the groups in front mark its edge).
-    if side == Side::Below && (0..h * w).filter(|&cell| member(cell)).count() < LARGE_GROUP_CELLS {
+    // ones; the groups in front mark its edge). That lower level is
+    // often of low contrast (farther, in the floor's shadow): its weak
+    // depths count toward the area too, though they found no group.
+    if side == Side::Below && (0..h * w).filter(|&cell| reaches(cell)).count() < LARGE_GROUP_CELLS {
         return (None, None);
     }
     // A cell's geometry is worked out per cell, so in f32 (the M4's FPU;
