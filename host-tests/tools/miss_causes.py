@@ -21,6 +21,14 @@ A miss is, first that applies:
   `shallowest_drop_mm` of `flatland detect --cells`: docs/ARCHITECTURE.md,
   "How certain a height is"); unknown on a frame where no cell measured
   anything (the table lists none);
+- `under a camera pixel`: over the frame's baseline T the hazard moves
+  less than one camera pixel past the ground where it shows: an
+  obstacle's top (h, at most the top hypothesis H/2) T h/(H-h) at
+  p = z H/(H-h), a drop's lower level T d/(H+d) at its edge, against the
+  camera's ground footprint per image row there, about (H^2 + p^2)/(H fy).
+  The grid's least height counts grid pixels, but far in the AOI one
+  camera pixel spans several: there the keyframe's baseline is too short
+  for the camera, whatever the detector does with the cells;
 - `nothing measured there`: no cell has a height, a lag or residue within a
   cell of where the hazard shows in the top view (an obstacle from its
   footprint to where its top is seen, H/(H-h) times as far from the camera,
@@ -62,7 +70,7 @@ import generate  # noqa: E402  (the renderer's own poses and truth geometry)
 import numpy as np  # noqa: E402
 from rigmath import world_to_robot_xz  # noqa: E402
 
-MISS_CAUSES = ("not judged", "below resolution", "nothing measured there", "measured there, weakly", "measured there", "unknown hazard")
+MISS_CAUSES = ("not judged", "below resolution", "under a camera pixel", "nothing measured there", "measured there, weakly", "measured there", "unknown hazard")
 BANDS = ("near", "middle", "far")
 ALARM_CAUSES = ("held", "found", "not judged")
 TIMINGS = ("early", "lingering", "apart")
@@ -127,7 +135,7 @@ def detect(flatland, rec, extra):
     return rows, cells, sources
 
 
-def miss_cause(row, cells, hazard, camera_height_mm, aoi, cell_mm):
+def miss_cause(row, cells, hazard, camera, aoi, cell_mm):
     if not is_judged(row):
         return "not judged"
     kind, size_mm = hazard[0], hazard[1]
@@ -135,10 +143,28 @@ def miss_cause(row, cells, hazard, camera_height_mm, aoi, cell_mm):
         limit = float(cells[0]["least_height_mm" if kind == "obstacle" else "shallowest_drop_mm"] or "inf")
         if size_mm < limit:
             return "below resolution"
-    there = [c for c in cells if shows_there(c, hazard, camera_height_mm, aoi, cell_mm)]
+    if camera_pixels(row, hazard, camera) < 1.0:
+        return "under a camera pixel"
+    there = [c for c in cells if shows_there(c, hazard, camera[0], aoi, cell_mm)]
     if not there:
         return "nothing measured there"
     return "measured there" if any(c["weak"] == "0" for c in there) else "measured there, weakly"
+
+
+def camera_pixels(row, hazard, camera):
+    """How many camera pixels the hazard moves past the ground over the
+    frame's baseline, where it shows (see the `under a camera pixel`
+    cause); `camera` is (H, fy)."""
+    height_mm, fy = camera
+    kind, size_mm, start = hazard[0], hazard[1], hazard[2]
+    baseline = (float(row["tx_mm"] or 0.0) ** 2 + float(row["tz_mm"] or 0.0) ** 2) ** 0.5
+    if kind == "obstacle":
+        top = min(size_mm, 0.5 * height_mm)
+        seen_at, moved = start * height_mm / (height_mm - top), baseline * top / (height_mm - top)
+    else:
+        seen_at, moved = start, baseline * size_mm / (height_mm + size_mm)
+    footprint = (height_mm ** 2 + seen_at ** 2) / (height_mm * fy)
+    return moved / footprint
 
 
 def shows_there(cell, hazard, camera_height_mm, aoi, cell_mm):
@@ -179,7 +205,8 @@ def causes(flatland, scene, rec, extra):
     sc = generate.load_scene(scene)
     hazards = nearest_hazards(sc)
     with open(os.path.join(rec, "rig.toml"), "rb") as f:
-        camera_height_mm = tomllib.load(f)["mount"]["height_mm"]
+        rig = tomllib.load(f)
+    camera = (rig["mount"]["height_mm"], rig["camera"]["fy"])
     truth = truth_of(rec)
     rows, cells, sources = detect(flatland, rec, extra)
     cell_mm = cell_size_mm(cells)
@@ -195,7 +222,7 @@ def causes(flatland, scene, rec, extra):
             if hazard is None:  # the truth's rule and ours disagree: count it, unsorted
                 counts["miss", "unknown hazard"] += 1
                 continue
-            counts["miss", miss_cause(row, cells.get(frame, []), hazard, camera_height_mm, sc["aoi"], cell_mm)] += 1
+            counts["miss", miss_cause(row, cells.get(frame, []), hazard, camera, sc["aoi"], cell_mm)] += 1
             counts["band", band(hazard[2], sc["aoi"])] += 1
         elif not pair["alarm"] and not judged:
             counts["alarm", "not judged"] += 1
