@@ -941,4 +941,29 @@ mod tests {
         }
         assert!((chain.pitch_deg - 0.7375).abs() < 1e-3, "{chain:?}");
     }
+
+    /// Without odometry and before a velocity is measured, the first step
+    /// is searched for only as far as the robot drives over the frame
+    /// interval at `max_speed_view_depths_per_s` (a third of that is the
+    /// prior's sigma), never beyond the widest reach: at 30 frames/s the
+    /// bound decides, at 1 frame/s the reach does, and without a frame
+    /// time the reach.
+    #[test]
+    fn the_first_step_without_odometry_is_bounded_by_the_frame_interval() {
+        let rig = row::tests::rig();
+        let grid = KgGrid::for_rig(&rig, &crate::grid::GridConfig::default()).unwrap();
+        let table = crate::remap::RemapTable::new(&rig, &grid).unwrap();
+        let mut keyframe = std::vec![0u8; Gpa::keyframe_bytes(&grid)];
+        let config = GpaConfig::default();
+        let mut gpa = Gpa::new(&rig, &grid, &table, config, &mut keyframe).unwrap();
+        let depth_mm = grid.height() as f64 * grid.mm_per_px;
+        let reach_mm = config.max_step_mm.max(0.2 * depth_mm);
+        for (elapsed_s, expected_mm) in [(Some(1.0 / 30.0), 2.0 * depth_mm / 30.0), (Some(1.0), reach_mm), (None, reach_mm)] {
+            gpa.begin_frame_at(1, elapsed_s, None, None);
+            let prior = gpa.prior();
+            assert!((3.0 * prior.sigma[0] - expected_mm).abs() < 1e-9, "{elapsed_s:?}: {:?} vs {expected_mm}", prior.sigma);
+            assert_eq!(prior.sigma[0], prior.sigma[1]);
+        }
+        assert!(2.0 * depth_mm / 30.0 < reach_mm, "the 30 frames/s case must be bounded by the speed");
+    }
 }

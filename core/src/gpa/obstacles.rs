@@ -802,6 +802,36 @@ mod tests {
         assert!(depth < 0 && (750..=850).contains(&drop.near_mm), "{drop:?} {depth}");
     }
 
+    /// A lower level of low contrast: four cells measured a drop's depth,
+    /// four beside them only weakly. Together they show the area a drop
+    /// needs; the measured four alone do not, and the weak ones found no
+    /// drop on their own.
+    #[test]
+    fn weak_depths_count_toward_a_drops_area() {
+        let (layout, config, residue, mut scan) = sample_layout();
+        let (row, column) = patch_corner(&layout);
+        let wide = layout.cells.wide;
+        let patch = |firm: bool, weak: bool| {
+            let mut heights = CellHeights::for_camera(layout.camera_height_mm);
+            for r in row - 1..=row {
+                for c in column - 1..=column {
+                    if firm {
+                        heights.set(r * wide + c, -80, false);
+                    }
+                    if weak {
+                        heights.set(r * wide + c + 2, -80, true);
+                    }
+                }
+            }
+            heights
+        };
+        let drop_of = |heights: &CellHeights, scan: &mut Scan| parallax_obstacle(&layout, heights, &residue, &config, false, true, None, scan).hazard;
+        let (drop, depth) = drop_of(&patch(true, true), &mut scan).expect("a drop");
+        assert!(depth <= -20 && (750..=850).contains(&drop.near_mm), "{drop:?} {depth}");
+        assert!(drop_of(&patch(true, false), &mut scan).is_none(), "four measured depths are no area");
+        assert!(drop_of(&patch(false, true), &mut scan).is_none(), "weak depths alone found no drop");
+    }
+
     /// A face standing on `face_mm` ahead, 3 cells wide around the middle
     /// of the AOI: every cell of it from 1060 to 1250 mm seen measures the
     /// height that points at that footprint.
