@@ -88,9 +88,9 @@ def change(name, base, new):
     def mean(totals, key):
         return statistics.mean(t[key] for t in totals[1:]) if len(totals) > 1 else float("nan")
 
-    return "%s change: right plain %+d, noisy mean %+.1f | false alarms plain %+d, noisy mean %+.1f | misplaced plain %+d, noisy mean %+.1f" % (
-        name, *[f(key) for key in ("right", "false_alarms", "misplaced")
-                for f in (lambda k: new[0][k] - base[0][k], lambda k: mean(new, k) - mean(base, k))])
+    parts = ["%s plain %+d, noisy mean %+.1f" % (label, new[0][key] - base[0][key], mean(new, key) - mean(base, key))
+             for label, key in (("right", "right"), ("false alarms", "false_alarms"), ("misplaced", "misplaced"))]
+    return "%s change: %s" % (name, " | ".join(parts))
 
 
 def summed(per_set):

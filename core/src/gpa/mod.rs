@@ -476,9 +476,10 @@ impl<'b> Gpa<'b> {
         let predicted = self.prediction.predicted;
         let config = &self.config;
         let grid = &self.layout.grid;
+        let view_depth_mm = grid.height() as f64 * grid.mm_per_px;
         // The widest reach: a fifth of the view's depth (a car's 1.2 m, a
         // small robot's 200 mm), 3 sigma.
-        let reach_mm = config.max_step_mm.max(0.2 * grid.height() as f64 * grid.mm_per_px);
+        let reach_mm = config.max_step_mm.max(0.2 * view_depth_mm);
         let (translation, yaw) = match (self.odometry, self.velocity_known, self.elapsed_s) {
             (Some(step), _, _) => (config.odometry_sigma_fraction * step.distance_mm() + config.odometry_sigma_mm, config.odometry_sigma_yaw_deg + 0.2 * libm::fabs(step.dyaw_deg)),
             (None, true, Some(dt)) => (
@@ -488,7 +489,6 @@ impl<'b> Gpa<'b> {
             // No velocity yet: as far as the robot may have driven since
             // the last frame, at most the widest reach.
             (None, _, dt) => {
-                let view_depth_mm = grid.height() as f64 * grid.mm_per_px;
                 let driven_mm = dt.map_or(reach_mm, |dt| (config.max_speed_view_depths_per_s * view_depth_mm * dt).max(3.0 * grid.mm_per_px));
                 (reach_mm.min(driven_mm) / 3.0, config.max_step_yaw_deg / 3.0)
             }
