@@ -642,9 +642,8 @@ impl CoarseSearch {
                 }
                 self.turned.build(&self.current, &candidates.placement(dyaw, 0, 0), gain);
                 for dz in -reach_z..=reach_z {
-                    // Every x step of this z at once; each is then offered in
-                    // turn (the shortlist keeps what it would have kept had
-                    // each been scored alone and given up once hopeless).
+                    // Every x step of this z at once, then offered in step
+                    // order: the order ties are kept in.
                     self.turned.differences(&self.keyframe, -dz, -reach_x..=reach_x, &mut sums);
                     for (dx, &sum) in (-reach_x..=reach_x).zip(&sums) {
                         let score = candidates.turned_score_of(sum);
