@@ -65,8 +65,6 @@ checks! {
         normal_terms_equal_plain,
         strongest_gradients_equal_plain,
         dot_shifts_equal_plain,
-        seen_difference_equals_plain,
-        plain_difference_equals_seen,
         residues_equal_plain,
         float_kernels_equal_reference,
         floor_round_equal_libm,

@@ -6,8 +6,8 @@
 //!
 //! A candidate's translation moves the keyframe position of every cell by
 //! the same whole number of cells, so the current image is turned onto the
-//! keyframe's cells once per yaw ([`Turned`]), in Q4 gray levels, and each
-//! translation is then an integer difference of two aligned images.
+//! keyframe's cells once per yaw ([`Turned`]), in whole gray levels, and
+//! each translation is then a byte SAD of two aligned images.
 
 use super::estimate::Scene;
 use super::homography::Params;
@@ -42,17 +42,11 @@ const MAX_SHIFT_STEPS: i32 = 8;
 /// before the search ([`Coarse::level`]): below, it moves the farthest
 /// ground by less than a small share of a cell.
 const LEVEL_ABOVE_DEG: f32 = 0.05;
-/// Fractional bits of the turned image's gray levels.
-const TURNED_FRAC: u32 = 4;
-/// A cell the image does not cover.
-const UNSEEN: u16 = kernels::UNSEEN_Q4;
-/// What the difference kernel counts as seen: below 2^15 (a turned cell
-/// of a very dark current image may lie above, and counts as unseen).
-const SEEN_BELOW: u16 = 1 << 15;
 /// Most rows a coarse image has (its cells are at least 2 px).
 const MAX_COARSE_ROWS: usize = MAX_GRID_SIDE / 2;
 /// A row's seen cells, `[start, end)`, when every cell between is seen;
-/// [`MIXED`] when unseen cells lie between seen ones.
+/// [`MIXED`] when unseen cells lie between seen ones (rare: the camera's
+/// view of the ground has no holes).
 type Span = [u8; 2];
 const MIXED: Span = [u8::MAX, 0];
 /// What `libm::roundf` adds to a value >= 0 before it truncates: a half,
@@ -60,14 +54,13 @@ const MIXED: Span = [u8::MAX, 0];
 const ROUND_HALF: f32 = 0.5 - 0.25 * f32::EPSILON;
 
 /// The span of a row's seen cells, or [`MIXED`].
-fn span_of(row: &[u16]) -> Span {
-    let seen = |&cell: &u16| cell < SEEN_BELOW;
-    let Some(start) = row.iter().position(seen) else {
+fn span_of(seen: &[bool]) -> Span {
+    let Some(start) = seen.iter().position(|&seen| seen) else {
         return [0, 0];
     };
-    let end = row.len() - row.iter().rev().position(seen).unwrap_or(0);
+    let end = seen.len() - seen.iter().rev().position(|&seen| seen).unwrap_or(0);
     // Rows are at most MAX_GRID_SIDE / 2 = 128 cells long.
-    if row[start..end].iter().all(seen) { [start as u8, end as u8] } else { MIXED }
+    if seen[start..end].iter().all(|&seen| seen) { [start as u8, end as u8] } else { MIXED }
 }
 
 /// The side (px) of the cells a coarse image of `cell_mm` cells averages
@@ -91,12 +84,13 @@ pub(super) fn yaw_step(grid: &KgGrid, cell_mm: f32) -> f32 {
     (0.5 * cell_mm / far_mm).to_degrees()
 }
 
-/// A box-averaged image: `side` px cells in Q4 gray levels (whole levels:
-/// the low four bits are 0), [`UNSEEN`] where the camera did not see all
-/// of the cell. One array, so that the turned image's differences read a
-/// cell and its validity with one load.
+/// A box-averaged image: `side` px cells in gray levels, and whether the
+/// camera saw all of each. Bytes, so that where a row's spans say every
+/// cell is seen the differences are a byte SAD (four cells an
+/// instruction on the M4).
 struct Coarse {
-    cells: [u16; MAX_COARSE_CELLS],
+    cells: [u8; MAX_COARSE_CELLS],
+    seen: [bool; MAX_COARSE_CELLS],
     /// The same cells as f32 gray levels, NaN where unseen: the bilinear
     /// samples read them without a conversion or a test per corner (a NaN
     /// corner makes the sample NaN). The workspace holds the alignment's
@@ -113,13 +107,12 @@ impl Coarse {
     // All zeros: `build` writes every cell that is read (the first `wide` x
     // `high`) and the side, and a search's memory that is all zeros is set
     // up without an image of it in flash (33 KB).
-    const EMPTY: Coarse = Coarse { cells: [0; MAX_COARSE_CELLS], levels: [0.0; MAX_COARSE_CELLS], spans: [[0, 0]; MAX_COARSE_ROWS], wide: 0, high: 0, side: 0 };
+    const EMPTY: Coarse = Coarse { cells: [0; MAX_COARSE_CELLS], seen: [false; MAX_COARSE_CELLS], levels: [0.0; MAX_COARSE_CELLS], spans: [[0, 0]; MAX_COARSE_ROWS], wide: 0, high: 0, side: 0 };
 
     /// Cell `k`'s gray level, if seen.
     #[inline(always)]
     fn value(&self, k: usize) -> Option<u8> {
-        let cell = self.cells[k];
-        (cell != UNSEEN).then_some((cell >> TURNED_FRAC) as u8)
+        self.seen[k].then_some(self.cells[k])
     }
 
     /// Averages `image` over cells of `side` px ([`cell_side`]).
@@ -158,20 +151,21 @@ impl Coarse {
     /// forms, and its span.
     fn set_row(&mut self, cj: usize, levels: impl Iterator<Item = Option<u8>>) {
         let row = cj * self.wide..(cj + 1) * self.wide;
-        for ((cell, level), seen) in self.cells[row.clone()].iter_mut().zip(&mut self.levels[row.clone()]).zip(levels) {
-            (*cell, *level) = match seen {
-                Some(value) => (u16::from(value) << TURNED_FRAC, f32::from(value)),
-                None => (UNSEEN, f32::NAN),
+        let cells = self.cells[row.clone()].iter_mut().zip(&mut self.seen[row.clone()]).zip(&mut self.levels[row.clone()]);
+        for (((cell, seen), level), value) in cells.zip(levels) {
+            (*cell, *seen, *level) = match value {
+                Some(value) => (value, true, f32::from(value)),
+                None => (0, false, f32::NAN),
             };
         }
-        self.spans[cj] = span_of(&self.cells[row]);
+        self.spans[cj] = span_of(&self.seen[row]);
     }
 
     /// Resamples the cells as a body at the keyframe's attitude would have
     /// seen them: each cell takes the value the attitude change `change`
     /// (pitch, roll, degrees) moved to it. `scratch` holds the new values
     /// meanwhile (the samples read the old ones around them).
-    fn level(&mut self, scene: &Scene, change: [f32; 2], scratch: &mut [u16; MAX_COARSE_CELLS]) {
+    fn level(&mut self, scene: &Scene, change: [f32; 2], scratch: &mut Turned) {
         // The inverse of the change: from the body as it stands now back to the keyframe's.
         let keyframe = scene.keyframe_attitude.deg;
         let map = scene.images().map(&[0.0, 0.0, 0.0, -change[0], -change[1], keyframe[0] + change[0], keyframe[1] + change[1]]);
@@ -181,12 +175,13 @@ impl Coarse {
             for qi in 0..self.wide {
                 let seen = map.at(qi as f32 * side + centre, qj as f32 * side + centre).and_then(|(i, j)| self.at((i - centre) / side, (j - centre) / side));
                 // Rounded as `build` rounds its box averages (down).
-                scratch[qj * self.wide + qi] = seen.map_or(UNSEEN, |value| value as u16);
+                let k = qj * self.wide + qi;
+                (scratch.cells[k], scratch.seen[k]) = (seen.map_or(0, |value| value as u8), seen.is_some());
             }
         }
         for qj in 0..self.high {
-            let row = &scratch[qj * self.wide..][..self.wide];
-            self.set_row(qj, row.iter().map(|&v| (v != UNSEEN).then_some(v as u8)));
+            let row = qj * self.wide..(qj + 1) * self.wide;
+            self.set_row(qj, scratch.cells[row.clone()].iter().zip(&scratch.seen[row]).map(|(&value, &seen)| seen.then_some(value)));
         }
     }
 
@@ -232,77 +227,81 @@ impl Coarse {
 }
 
 /// The current coarse image turned by one yaw onto the keyframe's cells
-/// and divided by the gain, in Q4 gray levels ([`UNSEEN`] where the
-/// current image does not cover the cell).
+/// and divided by the gain, rounded to whole gray levels as
+/// [`Coarse`]'s, and whether the current image covers each cell. Whole
+/// levels rank the candidates as well as finer ones: the shortlist is
+/// rescored exactly, and Q4 levels judged every recording the same.
 struct Turned {
-    cells: [u16; MAX_COARSE_CELLS],
+    cells: [u8; MAX_COARSE_CELLS],
+    seen: [bool; MAX_COARSE_CELLS],
     /// Each row's seen cells (the difference kernel's fast path).
     spans: [Span; MAX_COARSE_ROWS],
 }
 
 impl Turned {
     // Zeros, as `Coarse::EMPTY`: `build` writes every cell that is read.
-    const EMPTY: Turned = Turned { cells: [0; MAX_COARSE_CELLS], spans: [[0, 0]; MAX_COARSE_ROWS] };
+    const EMPTY: Turned = Turned { cells: [0; MAX_COARSE_CELLS], seen: [false; MAX_COARSE_CELLS], spans: [[0, 0]; MAX_COARSE_ROWS] };
 
     /// Samples `current` at every keyframe cell `q` through the inverse of
     /// `placement`, divided by `gain`.
     fn build(&mut self, current: &Coarse, placement: &Placement, gain: f32) {
         let Placement { sin, cos, offset } = *placement;
-        let scale = (1u32 << TURNED_FRAC) as f32 / gain;
+        let scale = 1.0 / gain;
         for qj in 0..current.high {
             let dv = qj as f32 - offset.1;
             for qi in 0..current.wide {
                 let du = qi as f32 - offset.0;
                 let (u, v) = (cos * du - sin * dv, sin * du + cos * dv);
-                self.cells[qj * current.wide + qi] = match current.at(u, v) {
+                let k = qj * current.wide + qi;
+                (self.cells[k], self.seen[k]) = match current.at(u, v) {
                     // libm::roundf (value >= 0): x + ROUND_HALF truncated, without the call.
-                    Some(value) => ((value * scale + ROUND_HALF) as u32).min(u32::from(UNSEEN - 1)) as u16,
-                    None => UNSEEN,
+                    Some(value) => (((value * scale + ROUND_HALF) as u32).min(255) as u8, true),
+                    None => (0, false),
                 };
             }
-            self.spans[qj] = span_of(&self.cells[qj * current.wide..][..current.wide]);
+            self.spans[qj] = span_of(&self.seen[qj * current.wide..][..current.wide]);
         }
     }
 
     /// For each column shift `di` of `shifts` (`sums[n]` for the n-th), the
-    /// sum of |turned(k - (di, dj)) - keyframe(k)| in Q4 over the keyframe
-    /// cells `k` both images cover, and their count. All shifts of a row
-    /// pair in one pass: the row's set-up is paid once, not per candidate
-    /// (it cost about 140 instructions a row on the M4 against 3 a cell).
+    /// sum of |turned(k - (di, dj)) - keyframe(k)| over the keyframe cells
+    /// `k` both images see, and their count. All shifts of a row pair in
+    /// one pass: the row's set-up is paid once, not per candidate.
     fn differences(&self, keyframe: &Coarse, dj: i32, shifts: RangeInclusive<i32>, sums: &mut [(u32, u32)]) {
         let (wide, high) = (keyframe.wide as i32, keyframe.high as i32);
         let sums = &mut sums[..shifts.clone().count()];
         sums.fill((0, 0));
         for kj in dj.max(0)..(high + dj).min(high) {
-            let (key_row, turned_row) = ((kj * wide) as usize, ((kj - dj) * wide) as usize);
-            let spans = (keyframe.spans[kj as usize], self.spans[(kj - dj) as usize]);
-            for (di, sum) in shifts.clone().zip(sums.iter_mut()) {
-                let columns = di.max(0)..(wide + di).min(wide);
-                if columns.is_empty() {
-                    continue;
-                }
-                let (row_sum, row_count) = match spans {
-                    // Both rows seen throughout their spans: the cells both see
-                    // are where the spans overlap (the turned one moved by di).
-                    ([ks, ke], [ts, te]) if [ks, ke] != MIXED && [ts, te] != MIXED => {
-                        let from = columns.start.max(i32::from(ks)).max(i32::from(ts) + di);
-                        let to = columns.end.min(i32::from(ke)).min(i32::from(te) + di);
-                        if from >= to {
-                            continue;
+            let key = (kj * wide) as usize..((kj + 1) * wide) as usize;
+            let turned = ((kj - dj) * wide) as usize..((kj - dj + 1) * wide) as usize;
+            let (key_cells, turned_cells) = (&keyframe.cells[key.clone()], &self.cells[turned.clone()]);
+            match (keyframe.spans[kj as usize], self.spans[(kj - dj) as usize]) {
+                // Both rows seen throughout their spans: the cells both see
+                // are where the spans overlap (the turned one moved by di),
+                // within the row as the spans are.
+                ([ks, ke], [ts, te]) if [ks, ke] != MIXED && [ts, te] != MIXED => {
+                    let (ks, ke, ts, te) = (i32::from(ks), i32::from(ke), i32::from(ts), i32::from(te));
+                    for (di, sum) in shifts.clone().zip(sums.iter_mut()) {
+                        let (from, to) = (ks.max(ts + di), ke.min(te + di));
+                        if from < to {
+                            let (from, to, turned_from) = (from as usize, to as usize, (from - di) as usize);
+                            sum.0 += kernels::sad(&key_cells[from..to], &turned_cells[turned_from..][..to - from]);
+                            sum.1 += (to - from) as u32;
                         }
-                        let turned_from = (turned_row as i32 + from - di) as usize;
-                        let (from, to) = (from as usize, to as usize);
-                        let turned = &self.cells[turned_from..][..to - from];
-                        (kernels::plain_difference(&keyframe.cells[key_row + from..key_row + to], turned), (to - from) as u32)
                     }
-                    _ => {
-                        let len = columns.len();
-                        let (key_at, turned_at) = (key_row + columns.start as usize, (turned_row as i32 + columns.start - di) as usize);
-                        kernels::seen_difference(&keyframe.cells[key_at..][..len], &self.cells[turned_at..][..len])
+                }
+                _ => {
+                    let (key_seen, turned_seen) = (&keyframe.seen[key], &self.seen[turned]);
+                    for (di, sum) in shifts.clone().zip(sums.iter_mut()) {
+                        for ki in di.max(0)..(wide + di).min(wide) {
+                            let (k, t) = (ki as usize, (ki - di) as usize);
+                            if key_seen[k] && turned_seen[t] {
+                                sum.0 += u32::from(key_cells[k].abs_diff(turned_cells[t]));
+                                sum.1 += 1;
+                            }
+                        }
                     }
-                };
-                sum.0 += row_sum;
-                sum.1 += row_count;
+                }
             }
         }
     }
@@ -425,7 +424,7 @@ impl Candidates {
     fn turned_score_of(&self, (sum, count): (u32, u32)) -> f32 {
         match self.mean(sum as f32, count) {
             f32::MAX => f32::MAX,
-            mean => self.gain * mean / (1u32 << TURNED_FRAC) as f32,
+            mean => self.gain * mean,
         }
     }
 }
@@ -606,7 +605,7 @@ impl CoarseSearch {
             // moves ground 1 m ahead as far as 35 mm of travel.
             let change = [p[3], p[4]];
             if libm::fabsf(change[0]).max(libm::fabsf(change[1])) > LEVEL_ABOVE_DEG {
-                self.current.level(scene, change, &mut self.turned.cells);
+                self.current.level(scene, change, &mut self.turned);
             }
             self.built_side = Some(side);
         }
@@ -790,13 +789,11 @@ mod tests {
 
     #[test]
     fn a_span_is_the_seen_cells_when_none_between_is_unseen() {
-        let (seen, dark) = (16, SEEN_BELOW);
-        assert_eq!(span_of(&[UNSEEN, seen, seen, UNSEEN]), [1, 3]);
-        assert_eq!(span_of(&[seen, seen]), [0, 2]);
-        assert_eq!(span_of(&[UNSEEN, UNSEEN]), [0, 0]);
+        assert_eq!(span_of(&[false, true, true, false]), [1, 3]);
+        assert_eq!(span_of(&[true, true]), [0, 2]);
+        assert_eq!(span_of(&[false, false]), [0, 0]);
         assert_eq!(span_of(&[]), [0, 0]);
-        assert_eq!(span_of(&[seen, UNSEEN, seen]), MIXED);
-        assert_eq!(span_of(&[seen, dark, seen]), MIXED, "a cell at 2^15 counts as unseen, as the kernel reads it");
+        assert_eq!(span_of(&[true, false, true]), MIXED);
     }
 
     /// All shifts of a row pair at once give what each shift alone gives,
@@ -815,8 +812,8 @@ mod tests {
         }
         let mut turned = Turned::EMPTY;
         turned.build(&current, &Placement { sin: 0.0, cos: 1.0, offset: (0.0, 0.0) }, 1.0);
-        turned.cells[7 * 20 + 4] = UNSEEN;
-        turned.spans[7] = span_of(&turned.cells[7 * 20..][..20]);
+        turned.seen[7 * 20 + 4] = false;
+        turned.spans[7] = span_of(&turned.seen[7 * 20..][..20]);
         // Each cell's |difference| where both see it, summed by hand.
         let alone = |di: i32, dj: i32| {
             let (mut sum, mut count) = (0u32, 0u32);
@@ -826,9 +823,9 @@ mod tests {
                     if !(0..20).contains(&ti) || !(0..12).contains(&tj) {
                         continue;
                     }
-                    let (k, t) = (keyframe.cells[(kj * 20 + ki) as usize], turned.cells[(tj * 20 + ti) as usize]);
-                    if k != UNSEEN && t != UNSEEN {
-                        sum += u32::from(k.abs_diff(t));
+                    let (k, t) = ((kj * 20 + ki) as usize, (tj * 20 + ti) as usize);
+                    if keyframe.seen[k] && turned.seen[t] {
+                        sum += u32::from(keyframe.cells[k].abs_diff(turned.cells[t]));
                         count += 1;
                     }
                 }

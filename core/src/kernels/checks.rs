@@ -580,63 +580,6 @@ pub fn copy_row_copies() -> Outcome {
     Ok(())
 }
 
-/// The coarse search's `seen_difference` equals a per-cell loop: lengths
-/// 0 to 40 (odd ones too), any start, seen values up to 4,080 (Q4 gray
-/// levels) and 2^15 - 1, a fifth of the cells unseen in either image.
-pub fn seen_difference_equals_plain() -> Outcome {
-    let mut state = 0x5EE1_D1FFu32;
-    let mut a = [0u16; 44];
-    let mut b = [0u16; 44];
-    for round in 0..4 {
-        let top = [4081u32, 32768, 4081, 2][round];
-        for value in a.iter_mut().chain(b.iter_mut()) {
-            let random = xorshift32(&mut state);
-            *value = if random.is_multiple_of(5) { super::UNSEEN_Q4 } else { ((random >> 8) % top) as u16 };
-        }
-        for start in 0..3 {
-            for len in 0..=40 {
-                let (x, y) = (&a[start..start + len], &b[start + round % 2..start + round % 2 + len]);
-                let mut plain = (0u32, 0u32);
-                for (&p, &q) in x.iter().zip(y) {
-                    if p != super::UNSEEN_Q4 && q != super::UNSEEN_Q4 {
-                        plain.0 += u32::from(p.abs_diff(q));
-                        plain.1 += 1;
-                    }
-                }
-                if super::seen_difference(x, y) != plain || portable::seen_difference(x, y) != plain {
-                    return Err("seen_difference differs from the per-cell loop");
-                }
-            }
-        }
-    }
-    Ok(())
-}
-
-/// `plain_difference` equals the per-cell sum, and `seen_difference`'s
-/// where every cell is seen: lengths 0 to 40 (every tail of the four-cell
-/// loop), any start, values up to 4,080 and 2^15 - 1.
-pub fn plain_difference_equals_seen() -> Outcome {
-    let mut state = 0x0D1F_F5EEu32;
-    let mut a = [0u16; 44];
-    let mut b = [0u16; 44];
-    for round in 0..4 {
-        let top = [4081u32, 32768, 4081, 2][round];
-        for value in a.iter_mut().chain(b.iter_mut()) {
-            *value = ((xorshift32(&mut state) >> 8) % top) as u16;
-        }
-        for start in 0..3 {
-            for len in 0..=40 {
-                let (x, y) = (&a[start..start + len], &b[start + round % 2..start + round % 2 + len]);
-                let plain: u32 = x.iter().zip(y).map(|(&p, &q)| u32::from(p.abs_diff(q))).sum();
-                if super::plain_difference(x, y) != plain || portable::plain_difference(x, y) != plain || super::seen_difference(x, y) != (plain, len as u32) {
-                    return Err("plain_difference differs from the per-cell sum");
-                }
-            }
-        }
-    }
-    Ok(())
-}
-
 /// The tolerant residues equal the per-pixel definition: lengths 0 to 40
 /// (every tail), any start, every tolerance, thresholds at the edges, bytes
 /// anywhere and close together (ties between the neighbours); nothing is

@@ -355,24 +355,6 @@ pub fn dot_shifts(pairs: &[u32], patch: &[u16], sums: &mut [u32]) {
     selected::dot_shifts(pairs, patch, sums)
 }
 
-/// A cell no image saw, in [`seen_difference`]'s Q4 images.
-pub const UNSEEN_Q4: u16 = u16::MAX;
-
-/// The coarse motion search's score of one candidate: over the cells where
-/// both `a` and `b` are seen (not [`UNSEEN_Q4`]; seen values are below
-/// 2^15), the sum of |a - b| and the number of such cells.
-#[inline]
-pub fn seen_difference(a: &[u16], b: &[u16]) -> (u32, u32) {
-    selected::seen_difference(a, b)
-}
-
-/// [`seen_difference`]'s sum where every cell of both is seen (below
-/// 2^15): the count is the length.
-#[inline]
-pub fn plain_difference(a: &[u16], b: &[u16]) -> u32 {
-    selected::plain_difference(a, b)
-}
-
 // ---------------------------------------------------------------- float
 
 /// The square root, correctly rounded as IEEE 754 asks: bit for bit what

@@ -218,7 +218,7 @@ pub unsafe fn pinhole_horizontal(line: &[u16], u: i32, step: i32, out: &mut [u8]
 }
 
 /// No faster row copy than `copy_from_slice` (memcpy) here.
-pub use super::portable::{add_normal_terms, add_to_columns, bilinear_stretch, copy_row, dot_shifts, mean_4x4, plain_difference, seed_sums, seen_difference, strongest_gradients, take_pieces};
+pub use super::portable::{add_normal_terms, add_to_columns, bilinear_stretch, copy_row, dot_shifts, mean_4x4, seed_sums, strongest_gradients, take_pieces};
 
 /// Sixteen pixels a step: `umin`/`umax` for the ranges, `urhadd` (which
 /// rounds up, as the halfway reach does) for the reach, `uqsub` for the

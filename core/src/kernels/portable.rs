@@ -168,23 +168,6 @@ pub fn dot_shifts(pairs: &[u32], patch: &[u16], sums: &mut [u32]) {
     }
 }
 
-#[inline]
-pub fn seen_difference(a: &[u16], b: &[u16]) -> (u32, u32) {
-    let (mut sum, mut count) = (0u32, 0u32);
-    for (&x, &y) in a.iter().zip(b) {
-        // Seen values are below 2^15: both are seen unless one is UNSEEN.
-        let both = x.max(y) != super::UNSEEN_Q4;
-        sum += if both { u32::from(x.abs_diff(y)) } else { 0 };
-        count += u32::from(both);
-    }
-    (sum, count)
-}
-
-/// Sum of |a - b| (values below 2^15).
-pub fn plain_difference(a: &[u16], b: &[u16]) -> u32 {
-    a.iter().zip(b).map(|(&x, &y)| u32::from(x.abs_diff(y))).sum()
-}
-
 #[inline(always)]
 pub fn residues<const FULL_K: bool, const FULL_G: bool>(lines: super::ResidueLines, threshold: u8, hot: &mut [u8], ground: &mut [u8]) {
     let super::ResidueLines { row, centre, up, down } = lines;

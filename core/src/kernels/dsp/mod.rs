@@ -13,12 +13,10 @@
 //! - `pyramid`: the 4x4 mean and the strongest gradients;
 //! - `normal`: the direct alignment's normal equations (FPU);
 //! - `blocks`: block matching's dot products per shift;
-//! - `coarse`: the coarse search's seen-cell differences;
 //! - `residues`: the tolerant residue.
 
 mod bilinear;
 mod blocks;
-mod coarse;
 mod columns;
 mod normal;
 mod pyramid;
@@ -28,7 +26,6 @@ mod sad;
 
 pub use bilinear::{bilinear_line, bilinear_stretch};
 pub use blocks::dot_shifts;
-pub use coarse::{plain_difference, seen_difference};
 pub use columns::{add_to_columns, take_pieces};
 pub use normal::add_normal_terms;
 pub use pyramid::{mean_4x4, strongest_gradients};
