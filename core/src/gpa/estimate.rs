@@ -35,7 +35,7 @@
 //!
 //! All of it in `f32` (the M4 has a single-precision FPU).
 
-use super::coarse::{cell_mm_on, yaw_step, CoarseSearch, Widen, COARSE_CELL_MM};
+use super::coarse::{cell_mm_on, fine_cell_mm, yaw_step, CoarseSearch, Widen};
 use super::hazard_mask::MovedMask;
 use super::direct::{self, Alignment, Direct, Geometry, Images, Schedule};
 use super::homography::{Params, SinCosMemo};
@@ -473,7 +473,7 @@ impl Estimator {
         }
         let coarse = coarse();
         coarse.new_scene();
-        let fine_mm = COARSE_CELL_MM.max(2.0 * scene.grid.mm_per_px as f32);
+        let fine_mm = fine_cell_mm(scene.grid);
         let reach = |sigma: f32, unit: f32| 3.0 * sigma / unit;
         let mut p = prior.p;
         let mut sigma = prior.sigma;
@@ -739,7 +739,7 @@ mod tests {
         let mut workspace = std::boxed::Box::new(Workspace::EMPTY);
         let start = with_scene(&keyframe, &current, |scene| Estimator::coarse_start(|| workspace.coarse(), scene, &imu));
         let off = kernels::hypotf(start[0] - pitched.planar.tx_mm as f32, start[1] - pitched.planar.tz_mm as f32);
-        assert!(off < 0.5 * COARSE_CELL_MM, "start {start:?}, {off:.1} mm from the motion");
+        assert!(off < 0.5 * super::super::coarse::COARSE_CELL_MM, "start {start:?}, {off:.1} mm from the motion");
     }
 
     /// A turn far past the wide search's first yaws: every yaw within the
