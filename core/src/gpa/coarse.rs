@@ -26,6 +26,7 @@ pub(super) const COARSE_CELL_MM: f32 = 25.0;
 pub(super) fn fine_cell_mm(grid: &KgGrid) -> f32 {
     COARSE_CELL_MM.max(2.0 * grid.mm_per_px as f32)
 }
+
 /// How much a coarse candidate's score grows per squared prior sigma from
 /// the start: enough to break near-ties toward the prior (3 sigma: +9 %),
 /// not enough to hide a clear minimum elsewhere within reach.
@@ -47,11 +48,8 @@ const REACH_SLACK: f32 = 1e-3;
 const MAX_SHIFT_STEPS: i32 = 8;
 /// A search on cells larger than the fine ones ranks its candidates on
 /// every this many keyframe rows: it only finds the basin (its shortlist
-/// rescored exactly on every cell, its answer refined by the fine search).
-/// Measured on every bundled and ../shared recording and four random
-/// sets, both odometry modes: no pair judged differently but two of
-/// real_duckie_a's (not judged -> false alarm). Ranking the fine searches
-/// on every other row too cost one pair of random/.
+/// is rescored exactly on every cell, and the fine search around its
+/// answer, which ranks on every row, decides).
 const LARGER_CELLS_ROW_STEP: u32 = 2;
 /// An attitude change (degrees) above which the current image is levelled
 /// before the search ([`Coarse::level`]): below, it moves the farthest
@@ -244,8 +242,7 @@ impl Coarse {
 /// The current coarse image turned by one yaw onto the keyframe's cells
 /// and divided by the gain, rounded to whole gray levels as
 /// [`Coarse`]'s, and whether the current image covers each cell. Whole
-/// levels rank the candidates as well as finer ones: the shortlist is
-/// rescored exactly, and Q4 levels judged every recording the same.
+/// levels are enough to rank: the shortlist is rescored exactly.
 struct Turned {
     cells: [u8; MAX_COARSE_CELLS],
     seen: [bool; MAX_COARSE_CELLS],
