@@ -16,6 +16,11 @@ of the truth are not scored, as on the scoreboard. Needs the renderer,
 
 A miss is, first that applies:
 - `not judged`: the frame's status is not ok;
+- `under a camera pixel since the start`: the hazard moves less than one
+  camera pixel past the ground (as below) between this frame and every
+  earlier one, at the renderer's true poses: no keyframe, however old,
+  would give it a pixel (a robot that has stood still since the start
+  shows nothing at all);
 - `below resolution`: the hazard is lower (a drop: shallower) than the frame
   tells from the ground at its baseline (`least_height_mm`,
   `shallowest_drop_mm` of `flatland detect --cells`: docs/ARCHITECTURE.md,
@@ -53,7 +58,15 @@ of consecutive alarm pairs of the truth is one hazard, `raised` on some
 frame of it (its misses before the first alarm are `late`) or `never
 raised`.
 
-stdout: a line per recording with a wrong pair, then the totals.
+The last line is the ceiling those causes leave: the right pairs there
+would be if every wrong pair were right but the misses the frames'
+baselines cannot tell from the ground (the three causes above
+`nothing measured there`): what a better decision alone could reach;
+and but those no keyframe could (`under a camera pixel since the
+start`): what any choice of keyframes could.
+
+stdout: a line per recording with a wrong pair, then the totals and the
+ceiling.
 """
 
 import csv
@@ -70,10 +83,12 @@ import generate  # noqa: E402  (the renderer's own poses and truth geometry)
 import numpy as np  # noqa: E402
 from rigmath import world_to_robot_xz  # noqa: E402
 
-MISS_CAUSES = ("not judged", "below resolution", "under a camera pixel", "nothing measured there", "measured there, weakly", "measured there", "unknown hazard")
+MISS_CAUSES = ("not judged", "under a camera pixel since the start", "below resolution", "under a camera pixel", "nothing measured there", "measured there, weakly", "measured there", "unknown hazard")
 BANDS = ("near", "middle", "far")
 ALARM_CAUSES = ("held", "found", "not judged")
 TIMINGS = ("early", "lingering", "apart")
+# The misses the frames' baselines cannot tell from the ground.
+BASELINE_CAUSES = ("under a camera pixel since the start", "below resolution", "under a camera pixel")
 # A false alarm this many frames or fewer before a hazard's first alarm
 # pair is `early`, after its last one `lingering`: the decision's timing
 # at the AOI's edges, not a hazard made up (`apart`).
@@ -135,9 +150,11 @@ def detect(flatland, rec, extra):
     return rows, cells, sources
 
 
-def miss_cause(row, cells, hazard, camera, aoi, cell_mm):
+def miss_cause(row, cells, hazard, camera, aoi, cell_mm, longest_baseline_mm):
     if not is_judged(row):
         return "not judged"
+    if pixels_moved(longest_baseline_mm, hazard, camera) < 1.0:
+        return "under a camera pixel since the start"
     kind, size_mm = hazard[0], hazard[1]
     if cells:
         limit = float(cells[0]["least_height_mm" if kind == "obstacle" else "shallowest_drop_mm"] or "inf")
@@ -155,9 +172,14 @@ def camera_pixels(row, hazard, camera):
     """How many camera pixels the hazard moves past the ground over the
     frame's baseline, where it shows (see the `under a camera pixel`
     cause); `camera` is (H, fy)."""
+    return pixels_moved((float(row["tx_mm"] or 0.0) ** 2 + float(row["tz_mm"] or 0.0) ** 2) ** 0.5, hazard, camera)
+
+
+def pixels_moved(baseline, hazard, camera):
+    """Camera pixels the hazard moves past the ground over `baseline` mm
+    of travel, where it shows (`camera_pixels`)."""
     height_mm, fy = camera
     kind, size_mm, start = hazard[0], hazard[1], hazard[2]
-    baseline = (float(row["tx_mm"] or 0.0) ** 2 + float(row["tz_mm"] or 0.0) ** 2) ** 0.5
     if kind == "obstacle":
         top = min(size_mm, 0.5 * height_mm)
         seen_at, moved = start * height_mm / (height_mm - top), baseline * top / (height_mm - top)
@@ -210,6 +232,7 @@ def causes(flatland, scene, rec, extra):
     truth = truth_of(rec)
     rows, cells, sources = detect(flatland, rec, extra)
     cell_mm = cell_size_mm(cells)
+    poses = generate.true_poses(sc)
     counts = Counter()
     for frame, pair in truth.items():
         if not scored(truth, frame):
@@ -217,12 +240,14 @@ def causes(flatland, scene, rec, extra):
         row = rows.get(frame)
         judged = is_judged(row)
         alarm = raised(row)
+        counts["pairs", "scored"] += 1
+        counts["pairs", "right"] += judged and alarm == pair["alarm"]
         if pair["alarm"] and not alarm:
             hazard = hazards.get(frame)
             if hazard is None:  # the truth's rule and ours disagree: count it, unsorted
                 counts["miss", "unknown hazard"] += 1
                 continue
-            counts["miss", miss_cause(row, cells.get(frame, []), hazard, camera, sc["aoi"], cell_mm)] += 1
+            counts["miss", miss_cause(row, cells.get(frame, []), hazard, camera, sc["aoi"], cell_mm, longest_baseline_mm(poses, frame))] += 1
             counts["band", band(hazard[2], sc["aoi"])] += 1
         elif not pair["alarm"] and not judged:
             counts["alarm", "not judged"] += 1
@@ -231,6 +256,13 @@ def causes(flatland, scene, rec, extra):
             counts["timing", timing(truth, frame)] += 1
     counts.update(episodes(truth, rows))
     return counts
+
+
+def longest_baseline_mm(poses, frame):
+    """The longest travel (mm) between frame `frame`'s true pose and an
+    earlier frame's: the baseline of the oldest keyframe it could have."""
+    x, z = poses[frame][0], poses[frame][1]
+    return max(((x - p[0]) ** 2 + (z - p[1]) ** 2) ** 0.5 for p in poses[:frame])
 
 
 def timing(truth, frame):
@@ -295,6 +327,17 @@ def main(args):
         if any(kind in ("miss", "alarm") for kind, _ in counts):
             print(line(name, counts))
     print(line("all", total))
+    print(ceiling(total))
+
+
+def ceiling(counts):
+    """The line on the right pairs a better decision alone could reach."""
+    scored = counts["pairs", "scored"]
+    share = lambda pairs: "%d (%.1f %%)" % (pairs, 100.0 * pairs / max(scored, 1))
+    limited = sum(counts["miss", cause] for cause in BASELINE_CAUSES)
+    still = counts["miss", BASELINE_CAUSES[0]]
+    return "ceiling | right %s of %d scored pairs; all but the %d misses the baselines cannot tell: %s; all but the %d no keyframe could: %s" % (
+        share(counts["pairs", "right"]), scored, limited, share(scored - limited), still, share(scored - still))
 
 
 if __name__ == "__main__":
