@@ -277,8 +277,9 @@ impl Attempts<'_> {
 /// where the whole view from the step (tz 75) leaves 0.78 px. The finest
 /// level's misregistration tells the basins apart where the cells cannot.
 /// A start whose alignment is already within [`MIN_MISREGISTRATION_PX`]
-/// ends the ladder (a rendering's floor, 0.05 px).
-fn best_of_ladder(direct: &mut Direct, attempts: &Attempts, start: &Params, prior: &direct::Prior) -> Option<(Alignment, bool)> {
+/// ends the ladder (a rendering's floor, 0.05 px). A rung on the start
+/// `untrusted` is not aligned again (see [`first_trusted`]).
+fn best_of_ladder(direct: &mut Direct, attempts: &Attempts, start: &Params, prior: &direct::Prior, untrusted: Option<Params>) -> Option<(Alignment, bool)> {
     let step_mm = 2.0 * ALIGNMENT_REACH_TOP_PX * super::pyramid::SCALES[LEVELS - 1] as f32 * attempts.grid.mm_per_px as f32;
     let off = |a: &Alignment| a.scale / a.texture;
     let mut best: Option<(Alignment, bool)> = None;
@@ -287,6 +288,9 @@ fn best_of_ladder(direct: &mut Direct, attempts: &Attempts, start: &Params, prio
         let rung = if k % 2 == 1 { (k + 1) / 2 } else { -(k / 2) };
         let mut p = *start;
         p[1] += rung as f32 * step_mm;
+        if untrusted == Some(p) {
+            continue;
+        }
         if let Some(found) = attempts.whole(direct, &p, prior) {
             if best.as_ref().is_none_or(|(b, _)| off(&found.0) < off(b)) {
                 best = Some(found);
@@ -310,13 +314,22 @@ fn best_of_ladder(direct: &mut Direct, attempts: &Attempts, start: &Params, prio
 /// between standing still and the prior, with no prior on the planar
 /// motion (standing still is the hypothesis that the odometry is wrong:
 /// wheels that slip). None when none can be trusted.
-fn first_trusted(direct: &mut Direct, attempts: &Attempts, start: &Params, prior_start: &Start, prior: &direct::Prior, ladder: bool) -> Option<(Alignment, bool)> {
+///
+/// `untrusted`: a start the whole view was aligned from already this frame
+/// and not trusted (the prediction's, [`Unmeasured::Untrusted`]). The
+/// whole view is not aligned from it again before the hazards are left
+/// out: on the same pixels the alignment would end the same (it depends
+/// on nothing else), and a fallback frame would pay for it twice.
+fn first_trusted(direct: &mut Direct, attempts: &Attempts, start: &Params, prior_start: &Start, prior: &direct::Prior, ladder: bool, untrusted: Option<Params>) -> Option<(Alignment, bool)> {
     let five = |g: Geometry| -> Params { [g[0], g[1], g[2], g[3], g[4]] };
     let other_start = (prior_start.p != *start).then_some(prior_start.p);
     let attitude_reach = 3.0 * prior_start.sigma[3].max(prior_start.sigma[4]);
-    let mut aligned = if ladder { best_of_ladder(direct, attempts, start, prior) } else { attempts.whole(direct, start, prior) };
+    let mut aligned = match ladder {
+        true => best_of_ladder(direct, attempts, start, prior, untrusted),
+        false => (untrusted != Some(*start)).then(|| attempts.whole(direct, start, prior)).flatten(),
+    };
     if aligned.is_none() {
-        if let Some(p) = other_start {
+        if let Some(p) = other_start.filter(|&p| untrusted != Some(p)) {
             aligned = attempts.whole(direct, &p, prior);
         }
     }
@@ -344,6 +357,24 @@ fn first_trusted(direct: &mut Direct, attempts: &Attempts, start: &Params, prior
     aligned
 }
 
+/// Where an estimate's alignment starts ([`Estimator::estimate_from`]).
+enum From {
+    /// The prediction alone ([`Estimator::estimate_from_prediction`]).
+    Prediction,
+    /// Step 1's start ([`Estimator::estimate`]).
+    Searched { start: Params, prediction_untrusted: bool },
+}
+
+/// Why an estimate measured nothing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Unmeasured {
+    /// No alignment was trusted.
+    Untrusted,
+    /// The prediction's alignment was trusted, but it walked beyond the
+    /// alignment's reach of the prediction, into another basin.
+    WalkedAway,
+}
+
 /// Steps 2 and 3 and their memory (step 1 has its own, [`CoarseSearch`]:
 /// the two are never live at once).
 pub(super) struct Estimator {
@@ -359,9 +390,11 @@ impl Estimator {
 
     /// The motion keyframe -> now from `start`, step 1's (see
     /// [`Self::coarse_start`]), or None when no start leads to a
-    /// measurement that can be trusted.
-    pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior, start: Params) -> Option<Estimate> {
-        self.estimate_from(scene, prior, Some(start))
+    /// measurement that can be trusted. `prediction_untrusted`: this
+    /// frame's [`Self::estimate_from_prediction`] ended
+    /// [`Unmeasured::Untrusted`], so its start is not aligned from again.
+    pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior, start: Params, prediction_untrusted: bool) -> Option<Estimate> {
+        self.estimate_from(scene, prior, From::Searched { start, prediction_untrusted }).ok()
     }
 
     /// The motion keyframe -> now from the prior's prediction alone,
@@ -373,12 +406,12 @@ impl Estimator {
     /// the motion jumps (a turn begins, the robot stops); on the others
     /// the prediction is within a few millimetres, and this costs one
     /// alignment instead of the search.
-    pub(super) fn estimate_from_prediction(&mut self, scene: &Scene, prior: &Prior) -> Option<Estimate> {
-        self.estimate_from(scene, prior, None)
+    pub(super) fn estimate_from_prediction(&mut self, scene: &Scene, prior: &Prior) -> Result<Estimate, Unmeasured> {
+        self.estimate_from(scene, prior, From::Prediction)
     }
 
-    /// [`Self::estimate`] from `start`, or from the prediction alone (None).
-    fn estimate_from(&mut self, scene: &Scene, prior: &Prior, start: Option<Params>) -> Option<Estimate> {
+    /// [`Self::estimate`] from step 1's start, or from the prediction alone.
+    fn estimate_from(&mut self, scene: &Scene, prior: &Prior, from: From) -> Result<Estimate, Unmeasured> {
         self.typical = scene.typical;
         let since = self.profiler.now();
         let images = scene.images();
@@ -398,13 +431,18 @@ impl Estimator {
             whole: schedule,
             near: Schedule { near_from_level: 0, ..schedule },
         };
-        let aligned = match start {
-            Some(start) => {
+        let aligned = match from {
+            From::Searched { start, prediction_untrusted } => {
                 // Step 1 searched when the prior reaches beyond the alignment.
                 let ladder = !within_alignment_reach(scene.grid, &prior_start.sigma);
-                first_trusted(&mut self.direct, &attempts, &start, &prior_start, &prior7, ladder)
+                let untrusted = prediction_untrusted.then_some(prior_start.p);
+                first_trusted(&mut self.direct, &attempts, &start, &prior_start, &prior7, ladder, untrusted).ok_or(Unmeasured::Untrusted)
             }
-            None => attempts.whole(&mut self.direct, &prior_start.p, &prior7).filter(|(a, _)| within_reach_of(scene.grid, &prior_start.p, &a.p)),
+            From::Prediction => match attempts.whole(&mut self.direct, &prior_start.p, &prior7) {
+                Some((a, whole)) if within_reach_of(scene.grid, &prior_start.p, &a.p) => Ok((a, whole)),
+                Some(_) => Err(Unmeasured::WalkedAway),
+                None => Err(Unmeasured::Untrusted),
+            },
         };
         self.profiler.charge(since, |p| &mut p.estimate_align);
         let aligned = match aligned? {
@@ -426,7 +464,7 @@ impl Estimator {
         let p = aligned.p;
         #[cfg(feature = "trace")]
         std::eprintln!("trace: estimate kf {:.3} {:.3} change {:.3} {:.3} sigma {:.3} {:.3}", p[5], p[6], p[3], p[4], aligned.sigma[5], aligned.sigma[6]);
-        Some(Estimate {
+        Ok(Estimate {
             motion: motion(&p[..5]),
             keyframe_attitude: KeyframeAttitude { deg: [p[5], p[6]], sigma_deg: [aligned.sigma[5], aligned.sigma[6]] },
             change_sigma: [aligned.sigma[3], aligned.sigma[4]],
@@ -657,7 +695,7 @@ mod tests {
     fn estimate(scene: &Scene, prior: &Prior) -> Option<Estimate> {
         let mut workspace = std::boxed::Box::new(Workspace::EMPTY);
         let start = Estimator::coarse_start(|| workspace.coarse(), scene, prior);
-        workspace.estimator().estimate(scene, prior, start)
+        workspace.estimator().estimate(scene, prior, start, false)
     }
 
     fn assert_close(found: &GroundMotion, truth: &GroundMotion) {
@@ -691,7 +729,7 @@ mod tests {
 
     /// The prediction alone (`Gpa::estimate`'s first try under a wide
     /// prior), on the floor moved by `motion`.
-    fn from_prediction(motion: &GroundMotion, prior: &Prior) -> Option<GroundMotion> {
+    fn from_prediction(motion: &GroundMotion, prior: &Prior) -> Result<GroundMotion, Unmeasured> {
         let (keyframe, current) = (render(&GroundMotion::default(), |_, _| false), render(motion, |_, _| false));
         let mut workspace = std::boxed::Box::new(Workspace::EMPTY);
         with_scene(&keyframe, &current, |scene| workspace.estimator().estimate_from_prediction(scene, prior)).map(|e| e.motion)
@@ -717,13 +755,61 @@ mod tests {
         let wide = [83.0, 83.0, 8.0, 1.0, 1.0];
         let short = Prior { motion: GroundMotion { planar: Motion { tz_mm: TRUTH.planar.tz_mm - 75.0, ..TRUTH.planar }, attitude: Attitude::default() }, sigma: wide };
         let found = from_prediction(&TRUTH, &short);
-        assert!(found.is_none(), "kept {found:?}, walked 75 mm from the prediction");
+        assert_eq!(found.err(), Some(Unmeasured::WalkedAway), "kept {found:?}, walked 75 mm from the prediction");
         assert_close(&estimate_of(&TRUTH, &short, |_, _| false), &TRUTH);
         let stopped = GroundMotion { planar: Motion { tx_mm: 0.0, tz_mm: 0.0, dyaw_deg: 0.0 }, ..TRUTH };
         let moving = Prior { motion: GroundMotion { planar: TRUTH.planar, attitude: Attitude::default() }, sigma: wide };
         let found = from_prediction(&stopped, &moving);
-        assert!(found.is_none(), "kept {found:?} from a prediction 90 mm off");
+        assert_eq!(found.err(), Some(Unmeasured::Untrusted), "kept {found:?} from a prediction 90 mm off");
         assert_close(&estimate_of(&stopped, &moving, |_, _| false), &stopped);
+    }
+
+    /// After the prediction's alignment was not trusted, step 1's
+    /// fallbacks do not align from the prediction's start again (a
+    /// fallback frame would pay for it twice): on a view that matches no
+    /// motion every fallback runs, one alignment fewer.
+    #[test]
+    fn an_untrusted_prediction_is_not_aligned_again() {
+        let prior = Prior { motion: GroundMotion { planar: TRUTH.planar, attitude: Attitude::default() }, sigma: [83.0, 83.0, 8.0, 1.0, 1.0] };
+        // A floor, then a view of nothing: no alignment is trusted.
+        let keyframe = render(&GroundMotion::default(), |_, _| false);
+        let current = std::vec![128u8; keyframe.len()];
+        let mut workspace = std::boxed::Box::new(Workspace::EMPTY);
+        with_scene(&keyframe, &current, |scene| {
+            assert_eq!(workspace.estimator().estimate_from_prediction(scene, &prior).err(), Some(Unmeasured::Untrusted));
+            let start = Estimator::coarse_start(|| workspace.coarse(), scene, &prior);
+            let mut alignments = |prediction_untrusted: bool| {
+                let estimator = workspace.estimator();
+                estimator.direct.alignments = 0;
+                assert!(estimator.estimate(scene, &prior, start, prediction_untrusted).is_none(), "a blank view aligned");
+                estimator.direct.alignments
+            };
+            assert_eq!(alignments(false), alignments(true) + 1);
+        });
+    }
+
+    /// What lets a start aligned once not be aligned again: an alignment
+    /// ends the same from the same start, whatever ran before it.
+    #[test]
+    fn an_alignment_depends_on_its_start_alone() {
+        let prior = Prior { motion: GroundMotion { planar: TRUTH.planar, attitude: Attitude::default() }, sigma: [83.0, 83.0, 8.0, 1.0, 1.0] };
+        let (keyframe, current) = (render(&GroundMotion::default(), |_, _| false), render(&TRUTH, |_, _| false));
+        with_scene(&keyframe, &current, |scene| {
+            let images = scene.images();
+            let mut direct = std::boxed::Box::new(Direct::EMPTY);
+            direct.prepare(&images);
+            let start = Start::of(&prior);
+            let seven = |p: &Params| -> Geometry { [p[0], p[1], p[2], p[3], p[4], 0.0, 0.0] };
+            let prior7 = direct::Prior { mean: seven(&start.p), sigma: [start.sigma[0], start.sigma[1], start.sigma[2], start.sigma[3], start.sigma[4], 1.0, 1.0] };
+            let schedule = Schedule { near_row: near_row(scene), near_from_level: NEAR_FROM_LEVEL, top_level: LEVELS - 1 };
+            let mut elsewhere = start.p;
+            elsewhere[1] += 60.0;
+            let first = direct.align(&images, &prior7, seven(&start.p), schedule).expect("aligned");
+            direct.align(&images, &prior7, seven(&elsewhere), schedule);
+            let again = direct.align(&images, &prior7, seven(&start.p), schedule).expect("aligned");
+            assert_eq!((first.p, first.sigma, first.scale, first.gain, first.texture), (again.p, again.sigma, again.scale, again.gain, again.texture));
+            assert_eq!((first.sampled, first.inliers), (again.sampled, again.inliers));
+        });
     }
 
     /// Without odometry but with an IMU: the body pitched by 0.8 degree

@@ -71,7 +71,7 @@ use crate::remap::RemapTable;
 use crate::report::{FrameReport, NotJudged, Status, ANGLE_SCALE, MOTION_SCALE, SHIFT_SCALE};
 use crate::scan::{Scan, ScanLayout, View};
 use decision::{Alarm, Noise};
-use estimate::{Estimate, Estimator, GroundAttitude, KeyframeAttitude, Prior, Scene, TypicalMisregistration};
+use estimate::{Estimate, Estimator, GroundAttitude, KeyframeAttitude, Prior, Scene, TypicalMisregistration, Unmeasured};
 use hazard_mask::HazardMask;
 use homography::SinCosMemo;
 use keyframe::{Keyframe, KeyframeTravel};
@@ -530,6 +530,7 @@ impl<'b> Gpa<'b> {
         let clock = self.profiler.clock;
         let mut parts = GpaProfile::default();
         let mut estimate = None;
+        let mut prediction_untrusted = false;
         // A predicted motion (the odometry's, or the last measured velocity)
         // under a prior wider than the alignment reaches: the prediction is
         // tried first, and step 1 searches only when its alignment fails.
@@ -537,7 +538,10 @@ impl<'b> Gpa<'b> {
         if predicted && !prior.within_alignment_reach(&self.layout.grid) {
             let estimator = self.workspace.estimator();
             estimator.profiler = Profiler { clock, profile: parts };
-            estimate = estimator.estimate_from_prediction(&scene, prior);
+            match estimator.estimate_from_prediction(&scene, prior) {
+                Ok(found) => estimate = Some(found),
+                Err(unmeasured) => prediction_untrusted = unmeasured == Unmeasured::Untrusted,
+            }
             parts = estimator.profiler.profile;
         }
         if estimate.is_none() {
@@ -546,7 +550,7 @@ impl<'b> Gpa<'b> {
             self.profiler.charge(coarse_since, |p| &mut p.estimate_coarse);
             let estimator = self.workspace.estimator();
             estimator.profiler = Profiler { clock, profile: parts };
-            estimate = estimator.estimate(&scene, prior, start);
+            estimate = estimator.estimate(&scene, prior, start, prediction_untrusted);
             parts = estimator.profiler.profile;
         }
         self.typical_misregistration = self.workspace.estimator().typical;

@@ -286,6 +286,9 @@ pub(super) struct Direct {
     /// Each level's chosen pixels.
     chosen: Chosen,
     points: Points,
+    /// Tests: alignments run so far.
+    #[cfg(test)]
+    pub(super) alignments: usize,
 }
 
 /// One level's pixels in use, and their residuals.
@@ -315,6 +318,8 @@ impl Direct {
         current: Pyramid::EMPTY,
         chosen: Chosen::EMPTY,
         points: Points { points: heapless::Vec::new(), side: 1, residuals: [0.0; MAX_POINTS], samples: [0.0; MAX_POINTS], evaluated: None },
+        #[cfg(test)]
+        alignments: 0,
     };
 
     /// Builds both pyramids; every [`Self::align`] until the next call uses them.
@@ -345,6 +350,10 @@ impl Direct {
     /// Aligns from `start` under `prior`; None when too few pixels sample
     /// both images or the equations are singular.
     pub(super) fn align(&mut self, images: &Images, prior: &Prior, start: Geometry, schedule: Schedule) -> Option<Alignment> {
+        #[cfg(test)]
+        {
+            self.alignments += 1;
+        }
         let mut state = State { p: start, gain: 1.0, offset: 128.0, lower: None };
         let mut first = true;
         // The finest level's first row, if none of its points was dropped.
