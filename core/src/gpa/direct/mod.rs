@@ -286,9 +286,9 @@ pub(super) struct Direct {
     /// Each level's chosen pixels.
     chosen: Chosen,
     points: Points,
-    /// Tests: alignments run so far.
+    /// Tests: every alignment run so far, its start, prior and schedule.
     #[cfg(test)]
-    pub(super) alignments: usize,
+    pub(super) aligned: std::vec::Vec<std::string::String>,
 }
 
 /// One level's pixels in use, and their residuals.
@@ -319,7 +319,7 @@ impl Direct {
         chosen: Chosen::EMPTY,
         points: Points { points: heapless::Vec::new(), side: 1, residuals: [0.0; MAX_POINTS], samples: [0.0; MAX_POINTS], evaluated: None },
         #[cfg(test)]
-        alignments: 0,
+        aligned: std::vec::Vec::new(),
     };
 
     /// Builds both pyramids; every [`Self::align`] until the next call uses them.
@@ -351,9 +351,7 @@ impl Direct {
     /// both images or the equations are singular.
     pub(super) fn align(&mut self, images: &Images, prior: &Prior, start: Geometry, schedule: Schedule) -> Option<Alignment> {
         #[cfg(test)]
-        {
-            self.alignments += 1;
-        }
+        self.aligned.push(std::format!("{start:?} {prior:?} {schedule:?}"));
         let mut state = State { p: start, gain: 1.0, offset: 128.0, lower: None };
         let mut first = true;
         // The finest level's first row, if none of its points was dropped.
