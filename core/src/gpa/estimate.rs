@@ -243,6 +243,9 @@ struct Attempts<'a> {
     keyframe: [f32; 2],
     whole: Schedule,
     near: Schedule,
+    /// A start the whole view was aligned from already this frame and
+    /// not trusted (see [`first_trusted`]).
+    untrusted: Option<Params>,
 }
 
 // `whole` and `near` are inlined: a frame of theirs would stand between
@@ -278,8 +281,8 @@ impl Attempts<'_> {
 /// level's misregistration tells the basins apart where the cells cannot.
 /// A start whose alignment is already within [`MIN_MISREGISTRATION_PX`]
 /// ends the ladder (a rendering's floor, 0.05 px). A rung on the start
-/// `untrusted` is not aligned again (see [`first_trusted`]).
-fn best_of_ladder(direct: &mut Direct, attempts: &Attempts, start: &Params, prior: &direct::Prior, untrusted: Option<Params>) -> Option<(Alignment, bool)> {
+/// `attempts.untrusted` is not aligned again (see [`first_trusted`]).
+fn best_of_ladder(direct: &mut Direct, attempts: &Attempts, start: &Params, prior: &direct::Prior) -> Option<(Alignment, bool)> {
     let step_mm = 2.0 * ALIGNMENT_REACH_TOP_PX * super::pyramid::SCALES[LEVELS - 1] as f32 * attempts.grid.mm_per_px as f32;
     let off = |a: &Alignment| a.scale / a.texture;
     let mut best: Option<(Alignment, bool)> = None;
@@ -288,7 +291,7 @@ fn best_of_ladder(direct: &mut Direct, attempts: &Attempts, start: &Params, prio
         let rung = if k % 2 == 1 { (k + 1) / 2 } else { -(k / 2) };
         let mut p = *start;
         p[1] += rung as f32 * step_mm;
-        if untrusted == Some(p) {
+        if attempts.untrusted == Some(p) {
             continue;
         }
         if let Some(found) = attempts.whole(direct, &p, prior) {
@@ -315,17 +318,18 @@ fn best_of_ladder(direct: &mut Direct, attempts: &Attempts, start: &Params, prio
 /// motion (standing still is the hypothesis that the odometry is wrong:
 /// wheels that slip). None when none can be trusted.
 ///
-/// `untrusted`: a start the whole view was aligned from already this frame
+/// `attempts.untrusted`: a start the whole view was aligned from already this frame
 /// and not trusted (the prediction's, [`Unmeasured::Untrusted`]). Before
 /// the hazards are left out, the whole view is aligned from no start
 /// twice: on the same pixels an alignment ends the same (it depends on
 /// nothing else), and a fallback frame would pay for it twice.
-fn first_trusted(direct: &mut Direct, attempts: &Attempts, start: &Params, prior_start: &Start, prior: &direct::Prior, ladder: bool, untrusted: Option<Params>) -> Option<(Alignment, bool)> {
+fn first_trusted(direct: &mut Direct, attempts: &Attempts, start: &Params, prior_start: &Start, prior: &direct::Prior, ladder: bool) -> Option<(Alignment, bool)> {
+    let untrusted = attempts.untrusted;
     let five = |g: Geometry| -> Params { [g[0], g[1], g[2], g[3], g[4]] };
     let other_start = (prior_start.p != *start).then_some(prior_start.p);
     let attitude_reach = 3.0 * prior_start.sigma[3].max(prior_start.sigma[4]);
     let mut aligned = match ladder {
-        true => best_of_ladder(direct, attempts, start, prior, untrusted),
+        true => best_of_ladder(direct, attempts, start, prior),
         false => (untrusted != Some(*start)).then(|| attempts.whole(direct, start, prior)).flatten(),
     };
     if aligned.is_none() {
@@ -434,13 +438,16 @@ impl Estimator {
             keyframe: keyframe.deg,
             whole: schedule,
             near: Schedule { near_from_level: 0, ..schedule },
+            untrusted: match from {
+                From::Searched { prediction_untrusted: true, .. } => Some(prior_start.p),
+                _ => None,
+            },
         };
         let aligned = match from {
-            From::Searched { start, prediction_untrusted } => {
+            From::Searched { start, .. } => {
                 // Step 1 searched when the prior reaches beyond the alignment.
                 let ladder = !within_alignment_reach(scene.grid, &prior_start.sigma);
-                let untrusted = prediction_untrusted.then_some(prior_start.p);
-                first_trusted(&mut self.direct, &attempts, &start, &prior_start, &prior7, ladder, untrusted).ok_or(Unmeasured::Untrusted)
+                first_trusted(&mut self.direct, &attempts, &start, &prior_start, &prior7, ladder).ok_or(Unmeasured::Untrusted)
             }
             From::Prediction => match attempts.whole(&mut self.direct, &prior_start.p, &prior7) {
                 Some((a, whole)) if within_reach_of(scene.grid, &prior_start.p, &a.p) => Ok((a, whole)),
