@@ -318,11 +318,12 @@ fn best_of_ladder(direct: &mut Direct, attempts: &Attempts, start: &Params, prio
 /// motion (standing still is the hypothesis that the odometry is wrong:
 /// wheels that slip). None when none can be trusted.
 ///
-/// `attempts.untrusted`: a start the whole view was aligned from already this frame
-/// and not trusted (the prediction's, [`Unmeasured::Untrusted`]). Before
-/// the hazards are left out, the whole view is aligned from no start
-/// twice: on the same pixels an alignment ends the same (it depends on
-/// nothing else), and a fallback frame would pay for it twice.
+/// `attempts.untrusted`: a start the whole view was aligned from already
+/// this frame and not trusted (the prediction's,
+/// [`Unmeasured::Untrusted`]). Before the hazards are left out, the whole
+/// view is aligned from no start twice: on the same pixels an alignment
+/// ends the same (it depends on nothing else), and a fallback frame would
+/// pay for it twice.
 fn first_trusted(direct: &mut Direct, attempts: &Attempts, start: &Params, prior_start: &Start, prior: &direct::Prior, ladder: bool) -> Option<(Alignment, bool)> {
     let untrusted = attempts.untrusted;
     let five = |g: Geometry| -> Params { [g[0], g[1], g[2], g[3], g[4]] };
@@ -366,7 +367,7 @@ fn first_trusted(direct: &mut Direct, attempts: &Attempts, start: &Params, prior
 }
 
 /// Where an estimate's alignment starts ([`Estimator::estimate_from`]).
-enum From {
+enum StartFrom {
     /// The prediction alone ([`Estimator::estimate_from_prediction`]).
     Prediction,
     /// Step 1's start ([`Estimator::estimate`]).
@@ -402,7 +403,7 @@ impl Estimator {
     /// frame's [`Self::estimate_from_prediction`] ended
     /// [`Unmeasured::Untrusted`], so its start is not aligned from again.
     pub(super) fn estimate(&mut self, scene: &Scene, prior: &Prior, start: Params, prediction_untrusted: bool) -> Option<Estimate> {
-        self.estimate_from(scene, prior, From::Searched { start, prediction_untrusted }).ok()
+        self.estimate_from(scene, prior, StartFrom::Searched { start, prediction_untrusted }).ok()
     }
 
     /// The motion keyframe -> now from the prior's prediction alone,
@@ -415,11 +416,11 @@ impl Estimator {
     /// the prediction is within a few millimetres, and this costs one
     /// alignment instead of the search.
     pub(super) fn estimate_from_prediction(&mut self, scene: &Scene, prior: &Prior) -> Result<Estimate, Unmeasured> {
-        self.estimate_from(scene, prior, From::Prediction)
+        self.estimate_from(scene, prior, StartFrom::Prediction)
     }
 
     /// [`Self::estimate`] from step 1's start, or from the prediction alone.
-    fn estimate_from(&mut self, scene: &Scene, prior: &Prior, from: From) -> Result<Estimate, Unmeasured> {
+    fn estimate_from(&mut self, scene: &Scene, prior: &Prior, from: StartFrom) -> Result<Estimate, Unmeasured> {
         self.typical = scene.typical;
         let since = self.profiler.now();
         let images = scene.images();
@@ -439,17 +440,17 @@ impl Estimator {
             whole: schedule,
             near: Schedule { near_from_level: 0, ..schedule },
             untrusted: match from {
-                From::Searched { prediction_untrusted: true, .. } => Some(prior_start.p),
+                StartFrom::Searched { prediction_untrusted: true, .. } => Some(prior_start.p),
                 _ => None,
             },
         };
         let aligned = match from {
-            From::Searched { start, .. } => {
+            StartFrom::Searched { start, .. } => {
                 // Step 1 searched when the prior reaches beyond the alignment.
                 let ladder = !within_alignment_reach(scene.grid, &prior_start.sigma);
                 first_trusted(&mut self.direct, &attempts, &start, &prior_start, &prior7, ladder).ok_or(Unmeasured::Untrusted)
             }
-            From::Prediction => match attempts.whole(&mut self.direct, &prior_start.p, &prior7) {
+            StartFrom::Prediction => match attempts.whole(&mut self.direct, &prior_start.p, &prior7) {
                 Some((a, whole)) if within_reach_of(scene.grid, &prior_start.p, &a.p) => Ok((a, whole)),
                 Some(_) => Err(Unmeasured::WalkedAway),
                 None => Err(Unmeasured::Untrusted),
